@@ -1,0 +1,60 @@
+#pragma once
+// Counter-based random numbers: every uniform is a pure function of
+// (seed, stream, sample index, dimension). No generator state is shared between
+// samples, so results do not depend on thread count, chunking or evaluation order,
+// and a resumed job draws exactly the numbers an uninterrupted one would.
+#include <cstdint>
+
+namespace tally {
+
+// SplitMix64's output function (Stafford's "Mix13"): a bijective 64-bit mixer whose
+// outputs for consecutive inputs pass BigCrush (it is SplitMix64 itself).
+constexpr uint64_t mix64(uint64_t z) noexcept {
+  z ^= z >> 30;
+  z *= 0xbf58476d1ce4e5b9ULL;
+  z ^= z >> 27;
+  z *= 0x94d049bb133111ebULL;
+  z ^= z >> 31;
+  return z;
+}
+
+inline constexpr uint64_t kGolden64 = 0x9e3779b97f4a7c15ULL;
+
+// 53 random bits -> [0, 1). The largest value is 1 - 2^-53, never 1.
+constexpr double to_unit_double(uint64_t bits) noexcept {
+  return static_cast<double>(bits >> 11) * 0x1.0p-53;
+}
+// 24 random bits -> [0, 1) in float. The largest value is 1 - 2^-24.
+constexpr float to_unit_float(uint64_t bits) noexcept {
+  return static_cast<float>(bits >> 40) * 0x1.0p-24f;
+}
+
+// Key of one random stream of a job (e.g. one channel group, one estimator of a
+// common-random-numbers comparison, one QMC randomization).
+constexpr uint64_t stream_key(uint64_t seed, uint64_t stream) noexcept {
+  return mix64(mix64(seed ^ 0x6a09e667f3bcc909ULL) + (stream + 1) * kGolden64);
+}
+
+// The random numbers of one sample: uniform(dim) for dim = 0, 1, 2, ...
+class SampleRng {
+ public:
+  constexpr SampleRng(uint64_t stream_key_value, uint64_t sample_index) noexcept
+      : base_(mix64(stream_key_value ^ mix64(sample_index * kGolden64 + 0x3c6ef372fe94f82bULL))) {}
+
+  constexpr uint64_t bits(uint32_t dim) const noexcept {
+    return mix64(base_ + (static_cast<uint64_t>(dim) + 1) * kGolden64);
+  }
+  constexpr double uniform(uint32_t dim) const noexcept { return to_unit_double(bits(dim)); }
+  constexpr float uniform_float(uint32_t dim) const noexcept { return to_unit_float(bits(dim)); }
+
+  // Sequential convenience: the next dimension.
+  double next() noexcept { return uniform(next_dim_++); }
+  float next_float() noexcept { return uniform_float(next_dim_++); }
+  uint32_t dims_used() const noexcept { return next_dim_; }
+
+ private:
+  uint64_t base_;
+  uint32_t next_dim_ = 0;
+};
+
+}  // namespace tally

@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Installs the Debian 12 packages tally needs, only those that are missing.
+# Usage: scripts/install-deps.sh [build|test|bench|all]   (default: all)
+set -euo pipefail
+want=${1:-all}
+
+build_pkgs=(cmake g++ make ninja-build pkg-config
+  libboost-dev libboost-system-dev nlohmann-json3-dev libmuparser-dev libfmt-dev libcli11-dev
+  libsqlite3-dev libsqlitecpp-dev libembree-dev libopenimageio-dev libtinyobjloader-dev
+  libgtest-dev libgmock-dev libbenchmark-dev libgsl-dev)
+test_pkgs=(python3 curl)
+bench_pkgs=(wrk python3-matplotlib python3-scipy python3-numpy)
+
+pkgs=("${build_pkgs[@]}")
+case "$want" in
+  build) ;;
+  test) pkgs+=("${test_pkgs[@]}") ;;
+  bench|all) pkgs+=("${test_pkgs[@]}" "${bench_pkgs[@]}") ;;
+  *) echo "install-deps: unknown set '$want'" >&2; exit 2 ;;
+esac
+
+missing=()
+for p in "${pkgs[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -eq 0 ]; then
+  exit 0
+fi
+echo "install-deps: installing ${missing[*]}" >&2
+SUDO=""
+[ "$(id -u)" -ne 0 ] && SUDO=sudo
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
