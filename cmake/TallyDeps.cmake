@@ -7,7 +7,10 @@ find_package(CLI11 REQUIRED)
 find_package(Boost 1.74 REQUIRED)
 find_package(SQLiteCpp REQUIRED)
 find_package(embree 3 REQUIRED)
-find_package(OpenImageIO REQUIRED)
+# Debian's OpenImageIO CMake config insists on the command-line tools of
+# openimageio-tools; pkg-config needs only the library.
+find_package(PkgConfig REQUIRED)
+pkg_check_modules(OIIO REQUIRED IMPORTED_TARGET OpenImageIO)
 find_package(tinyobjloader REQUIRED)
 if(TALLY_BUILD_TESTS)
   find_package(GTest REQUIRED)

@@ -1,0 +1,178 @@
+#include "common/engine/checkpoint.hpp"
+
+#include <bit>
+#include <cstring>
+#include <fmt/format.h>
+
+namespace tally {
+
+namespace {
+
+constexpr char kMagic[8] = {'T', 'A', 'L', 'L', 'Y', 'C', 'K', '1'};
+constexpr uint32_t kVersion = 1;
+
+uint64_t fnv1a(std::string_view s) {
+  uint64_t h = 0xcbf29ce484222325ULL;
+  for (unsigned char c : s) {
+    h ^= c;
+    h *= 0x100000001b3ULL;
+  }
+  return h;
+}
+
+class Writer {
+ public:
+  void u64(uint64_t v) {
+    for (int i = 0; i < 8; ++i) out_.push_back(static_cast<char>((v >> (8 * i)) & 0xff));
+  }
+  void f64(double v) { u64(std::bit_cast<uint64_t>(v)); }
+  void bytes(std::string_view s) {
+    u64(s.size());
+    out_.append(s);
+  }
+  std::string& str() { return out_; }
+
+ private:
+  std::string out_;
+};
+
+class Reader {
+ public:
+  explicit Reader(std::string_view in) : in_(in) {}
+  uint64_t u64() {
+    need(8);
+    uint64_t v = 0;
+    for (int i = 0; i < 8; ++i) v |= static_cast<uint64_t>(static_cast<unsigned char>(in_[pos_ + static_cast<size_t>(i)])) << (8 * i);
+    pos_ += 8;
+    return v;
+  }
+  double f64() { return std::bit_cast<double>(u64()); }
+  // A count of items of `item_size` bytes each, checked against what is left.
+  uint64_t count(size_t item_size) {
+    const uint64_t n = u64();
+    if (item_size > 0 && n > (in_.size() - pos_) / item_size) {
+      throw CheckpointError(fmt::format("checkpoint is truncated or corrupt (count {} at byte {})", n, pos_));
+    }
+    return n;
+  }
+  std::string bytes() {
+    const uint64_t n = count(1);
+    std::string s(in_.substr(pos_, n));
+    pos_ += n;
+    return s;
+  }
+  size_t pos() const { return pos_; }
+
+ private:
+  void need(size_t n) const {
+    if (in_.size() - pos_ < n) {
+      throw CheckpointError(fmt::format("checkpoint is truncated at byte {}", pos_));
+    }
+  }
+  std::string_view in_;
+  size_t pos_ = 0;
+};
+
+}  // namespace
+
+std::string encode_checkpoint(const JobState& s) {
+  Writer w;
+  w.str().append(kMagic, sizeof kMagic);
+  w.u64(kVersion);
+  w.u64(s.passes);
+  w.u64(s.samples);
+  w.u64(s.partition_samples.size());
+  for (uint64_t v : s.partition_samples) w.u64(v);
+  w.u64(s.channels.size());
+  for (const Tally& t : s.channels) {
+    w.u64(t.n);
+    w.f64(t.mean);
+    w.f64(t.m2);
+  }
+  w.u64(s.counters.values.size());
+  for (uint64_t v : s.counters.values) w.u64(v);
+  w.u64(s.tail.capacity());
+  w.u64(s.tail.heap().size());
+  for (double v : s.tail.heap()) w.f64(v);
+  w.f64(s.weights.sum_w);
+  w.f64(s.weights.sum_w2);
+  w.u64(s.fault ? 1 : 0);
+  if (s.fault) {
+    w.u64(s.fault->sample_index);
+    w.u64(s.fault->channel);
+    w.f64(s.fault->value);
+    w.u64(s.fault->point.size());
+    for (double v : s.fault->point) w.f64(v);
+    w.bytes(s.fault->message);
+  }
+  w.f64(s.compute_seconds);
+  w.u64(s.trace.size());
+  for (const TracePoint& p : s.trace) {
+    w.f64(p.time_s);
+    w.u64(p.samples);
+    w.f64(p.mean);
+    w.f64(p.std_error);
+  }
+  const uint64_t h = fnv1a(w.str());
+  w.u64(h);
+  return std::move(w.str());
+}
+
+JobState decode_checkpoint(std::string_view bytes) {
+  if (bytes.size() < sizeof kMagic + 16 || std::memcmp(bytes.data(), kMagic, sizeof kMagic) != 0) {
+    throw CheckpointError("not a tally checkpoint (bad magic or too short)");
+  }
+  const std::string_view body = bytes.substr(0, bytes.size() - 8);
+  Reader tail_reader(bytes.substr(bytes.size() - 8));
+  if (tail_reader.u64() != fnv1a(body)) {
+    throw CheckpointError("checkpoint checksum mismatch (truncated or corrupt)");
+  }
+  Reader r(body.substr(sizeof kMagic));
+  const uint64_t version = r.u64();
+  if (version != kVersion) {
+    throw CheckpointError(fmt::format("unsupported checkpoint version {}", version));
+  }
+  JobState s;
+  s.passes = r.u64();
+  s.samples = r.u64();
+  s.partition_samples.resize(r.count(8));
+  for (auto& v : s.partition_samples) v = r.u64();
+  s.channels.resize(r.count(24));
+  for (Tally& t : s.channels) {
+    t.n = r.u64();
+    t.mean = r.f64();
+    t.m2 = r.f64();
+  }
+  const uint64_t nc = r.count(8);
+  if (nc != s.counters.values.size()) throw CheckpointError("checkpoint counter layout differs");
+  for (auto& v : s.counters.values) v = r.u64();
+  const uint64_t cap = r.u64();
+  if (cap == 0 || cap > (1u << 20)) throw CheckpointError("checkpoint tail capacity is corrupt");
+  std::vector<double> tail(r.count(8));
+  for (double& v : tail) v = r.f64();
+  s.tail = TailTracker(cap);
+  s.tail.assign(std::move(tail));
+  s.weights.sum_w = r.f64();
+  s.weights.sum_w2 = r.f64();
+  if (r.u64() != 0) {
+    SampleFault f;
+    f.sample_index = r.u64();
+    f.channel = static_cast<uint32_t>(r.u64());
+    f.value = r.f64();
+    f.point.resize(r.count(8));
+    for (double& v : f.point) v = r.f64();
+    f.message = r.bytes();
+    s.fault = std::move(f);
+  }
+  s.compute_seconds = r.f64();
+  s.trace.resize(r.count(32));
+  for (TracePoint& p : s.trace) {
+    p.time_s = r.f64();
+    p.samples = r.u64();
+    p.mean = r.f64();
+    p.std_error = r.f64();
+  }
+  return s;
+}
+
+}  // namespace tally

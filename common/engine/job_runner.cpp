@@ -1,0 +1,275 @@
+#include "common/engine/job_runner.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <fmt/format.h>
+#include <limits>
+#include <stdexcept>
+
+#include "common/stats/confidence.hpp"
+
+namespace tally {
+
+namespace {
+constexpr double kInf = std::numeric_limits<double>::infinity();
+}
+
+JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCaps caps)
+    : kernel_(std::move(kernel)), rule_(rule), caps_(caps) {
+  state_.channels.assign(kernel_->channel_count(), Tally{});
+  state_.partition_samples.assign(kernel_->partition_count(), 0);
+}
+
+JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCaps caps,
+                     JobState restored)
+    : kernel_(std::move(kernel)), rule_(rule), caps_(caps), state_(std::move(restored)) {
+  if (state_.channels.size() != kernel_->channel_count() ||
+      state_.partition_samples.size() != kernel_->partition_count()) {
+    throw std::invalid_argument(fmt::format(
+        "checkpoint does not match the job: {} channels / {} partitions, expected {} / {}",
+        state_.channels.size(), state_.partition_samples.size(), kernel_->channel_count(),
+        kernel_->partition_count()));
+  }
+  if (state_.fault) {
+    reason_ = StopReason::failed;
+    error_ = state_.fault->message;
+  } else {
+    evaluate_stop();
+  }
+}
+
+uint64_t JobRunner::next_pass_samples() const {
+  const PassSchedule s = kernel_->schedule();
+  const uint64_t shift = std::min<uint64_t>(state_.passes, 40);
+  uint64_t n = std::min(s.max_pass_samples, s.first_pass_samples << shift);
+  if (n == 0) n = 1;
+  // Do not overshoot hard limits.
+  uint64_t limit = caps_.max_samples;
+  if (rule_.max_samples > 0) limit = std::min(limit, rule_.max_samples);
+  if (limit > state_.samples) n = std::min(n, limit - state_.samples);
+  // Aim an error-target pass at the predicted need (deterministic: depends on the
+  // state only), with 10% headroom, never below one block.
+  if (rule_.has_error_target() && state_.samples >= rule_.min_samples && !heavy_tail()) {
+    if (auto p = prediction(); p && std::isfinite(p->samples_remaining)) {
+      const double want = std::max(1.1 * p->samples_remaining, static_cast<double>(s.block_samples));
+      if (want < static_cast<double>(n)) n = static_cast<uint64_t>(want);
+    }
+  }
+  // With a time budget, a pass should not run far past it.
+  if (rule_.time_budget_s > 0 && state_.compute_seconds > 0 && state_.samples > 0) {
+    const double rate = samples_per_second();
+    const double left = std::max(0.0, rule_.time_budget_s - state_.compute_seconds);
+    const double fit = std::max(static_cast<double>(s.block_samples), rate * left * 1.05);
+    if (fit < static_cast<double>(n)) n = static_cast<uint64_t>(fit);
+  }
+  return std::max<uint64_t>(n, 1);
+}
+
+std::vector<Block> JobRunner::plan_pass() {
+  if (finished()) return {};
+  if (!pending_.empty()) throw std::logic_error("plan_pass called twice without commit_pass");
+  const uint64_t n = next_pass_samples();
+  const uint64_t block = std::max<uint64_t>(1, kernel_->schedule().block_samples);
+  uint64_t index = 0;
+  for (uint32_t p : kernel_->active_partitions(state_)) {
+    const uint64_t first = state_.partition_samples.at(p);
+    for (uint64_t off = 0; off < n; off += block) {
+      pending_.push_back(Block{index++, first + off, std::min(block, n - off), p});
+    }
+  }
+  pending_samples_ = n;
+  if (pending_.empty()) {
+    // Nothing left to refine (adaptive sampling converged everywhere).
+    reason_ = StopReason::error_target;
+  }
+  return pending_;
+}
+
+void JobRunner::commit_pass(std::vector<BlockResult>&& results, double wall_seconds) {
+  if (results.size() != pending_.size()) {
+    throw std::logic_error(fmt::format("commit_pass: {} results for {} blocks", results.size(),
+                                       pending_.size()));
+  }
+  for (size_t i = 0; i < results.size(); ++i) {
+    BlockResult& r = results[i];
+    for (size_t c = 0; c < r.tallies.size(); ++c) {
+      state_.channels.at(r.first_channel + c).merge(r.tallies[c]);
+    }
+    state_.counters.merge(r.counters);
+    state_.tail.merge(r.tail);
+    state_.weights.merge(r.weights);
+    if (r.fault && !state_.fault) state_.fault = std::move(r.fault);
+    state_.partition_samples[pending_[i].partition] += pending_[i].sample_count;
+  }
+  state_.samples += pending_samples_;
+  state_.passes += 1;
+  state_.compute_seconds += wall_seconds;
+  pending_.clear();
+  pending_samples_ = 0;
+  push_trace();
+  evaluate_stop();
+}
+
+void JobRunner::push_trace() {
+  const ErrorSummary e = error();
+  const Tally& t0 = state_.channels.empty() ? Tally{} : state_.channels[0];
+  TracePoint p{state_.compute_seconds, state_.samples, state_.channels.size() == 1 ? t0.mean : e.mean,
+               state_.channels.size() == 1 ? t0.std_error() : e.sigma / std::sqrt(std::max<double>(1.0, static_cast<double>(state_.samples)))};
+  auto& tr = state_.trace;
+  tr.push_back(p);
+  if (tr.size() > JobState::kMaxTrace) {
+    // Thin the older half: keep every other point (the newest always stays).
+    std::vector<TracePoint> thinned;
+    thinned.reserve(tr.size() / 2 + 1);
+    for (size_t i = 0; i + 1 < tr.size(); i += 2) thinned.push_back(tr[i]);
+    thinned.push_back(tr.back());
+    tr = std::move(thinned);
+  }
+}
+
+void JobRunner::evaluate_stop() {
+  if (reason_ == StopReason::cancelled || reason_ == StopReason::failed) return;
+  reason_ = StopReason::none;
+  if (state_.fault) {
+    reason_ = StopReason::failed;
+    error_ = state_.fault->message;
+    return;
+  }
+  if (state_.samples == 0) return;
+  if (target_met() && !heavy_tail()) {
+    reason_ = StopReason::error_target;
+  } else if (rule_.max_samples > 0 && state_.samples >= rule_.max_samples) {
+    reason_ = StopReason::max_samples;
+  } else if (rule_.time_budget_s > 0 && state_.compute_seconds >= rule_.time_budget_s) {
+    reason_ = StopReason::time_budget;
+  } else if (state_.samples >= caps_.max_samples || state_.compute_seconds >= caps_.max_seconds) {
+    reason_ = StopReason::sample_cap;
+  }
+}
+
+void JobRunner::cancel() {
+  if (!finished()) reason_ = StopReason::cancelled;
+  pending_.clear();
+}
+
+void JobRunner::fail(std::string message) {
+  reason_ = StopReason::failed;
+  error_ = std::move(message);
+  pending_.clear();
+}
+
+void JobRunner::extend(const StopRule& rule) {
+  if (reason_ == StopReason::failed) throw std::logic_error("a failed job cannot be extended");
+  rule_ = rule;
+  reason_ = StopReason::none;
+  pending_.clear();
+  evaluate_stop();
+}
+
+Estimate JobRunner::estimate(size_t channel) const {
+  const Tally& t = state_.channels.at(channel);
+  Estimate e;
+  e.n = t.n;
+  e.mean = t.mean;
+  e.variance = t.variance();
+  e.std_error = t.std_error();
+  e.rel_error = t.relative_error();
+  e.confidence = rule_.confidence;
+  const Interval ci = confidence_interval(t, rule_.confidence);
+  e.ci_lo = ci.lo;
+  e.ci_hi = ci.hi;
+  return e;
+}
+
+double JobRunner::samples_per_second() const {
+  return state_.compute_seconds > 0 ? static_cast<double>(state_.samples) / state_.compute_seconds
+                                    : 0.0;
+}
+
+bool JobRunner::target_met() const {
+  if (!rule_.has_error_target() || state_.samples < rule_.min_samples) return false;
+  const ErrorSummary e = error();
+  if (rule_.abs_error > 0 && e.abs_error <= rule_.abs_error) return true;
+  if (rule_.rel_error > 0 && e.rel_error <= rule_.rel_error) return true;
+  return false;
+}
+
+std::optional<double> JobRunner::tail_alpha() const {
+  return state_.tail.hill_alpha(state_.channels.empty() ? 0 : state_.channels[0].n);
+}
+
+bool JobRunner::heavy_tail() const {
+  const auto a = tail_alpha();
+  return a && *a < TailTracker::kWarnBelow;
+}
+
+std::optional<Prediction> JobRunner::prediction() const {
+  if (!rule_.has_error_target() || state_.samples < 2) return std::nullopt;
+  const ErrorSummary e = error();
+  if (!std::isfinite(e.sigma)) return std::nullopt;
+  double need = kInf;
+  if (rule_.abs_error > 0) need = std::min(need, samples_for_half_width(e.sigma, rule_.abs_error, rule_.confidence));
+  if (rule_.rel_error > 0 && e.mean != 0.0) {
+    need = std::min(need, samples_for_half_width(e.sigma, rule_.rel_error * std::fabs(e.mean),
+                                                 rule_.confidence));
+  }
+  Prediction p;
+  p.samples_needed = need;
+  p.samples_remaining = std::max(0.0, need - static_cast<double>(state_.samples));
+  const double rate = samples_per_second();
+  p.seconds_remaining = rate > 0 ? p.samples_remaining / rate : kInf;
+  return p;
+}
+
+std::vector<CostPoint> JobRunner::cost_curve(const std::vector<double>& rel_levels) const {
+  std::vector<CostPoint> out;
+  const ErrorSummary e = error();
+  const double rate = samples_per_second();
+  for (double r : rel_levels) {
+    CostPoint c{r, kInf, kInf};
+    if (std::isfinite(e.sigma) && e.mean != 0.0) {
+      c.samples = samples_for_half_width(e.sigma, r * std::fabs(e.mean), rule_.confidence);
+      c.seconds = rate > 0 ? c.samples / rate : kInf;
+    }
+    out.push_back(c);
+  }
+  return out;
+}
+
+std::vector<std::string> JobRunner::warnings() const {
+  std::vector<std::string> w;
+  if (const auto a = tail_alpha(); a && *a < TailTracker::kWarnBelow) {
+    w.push_back(fmt::format(
+        "heavy tail: estimated tail index {:.2f} (< {}); the variance may be infinite, so the "
+        "standard error and interval cannot be trusted. Use importance sampling that cancels the "
+        "singularity.",
+        *a, TailTracker::kWarnBelow));
+  }
+  const uint64_t att = state_.counters[Counter::rejection_attempts];
+  if (att > 0) {
+    const double rate =
+        static_cast<double>(state_.counters[Counter::rejection_accepts]) / static_cast<double>(att);
+    if (rate < 0.01) {
+      w.push_back(fmt::format("rejection sampling accepts only {:.3g} of proposals", rate));
+    }
+  }
+  if (state_.counters[Counter::rejection_failures] > 0) {
+    w.push_back(fmt::format("{} samples hit the rejection attempt cap and were dropped",
+                            state_.counters[Counter::rejection_failures]));
+  }
+  if (state_.counters[Counter::nonfinite] > 0) {
+    w.push_back(fmt::format("{} non-finite sample values were excluded",
+                            state_.counters[Counter::nonfinite]));
+  }
+  if (!state_.weights.empty()) {
+    const double ess = state_.weights.ess();
+    const double n = static_cast<double>(state_.samples);
+    if (n > 0 && ess < 0.01 * n) {
+      w.push_back(fmt::format("importance weights are degenerate: effective sample size {:.3g} of {}",
+                              ess, state_.samples));
+    }
+  }
+  return w;
+}
+
+}  // namespace tally

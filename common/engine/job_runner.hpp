@@ -1,0 +1,97 @@
+#pragma once
+// Drives one job through progressive passes: plans each pass as a list of blocks,
+// merges their results in block order (so any thread count or chunking gives the
+// same bits), keeps the convergence trace and decides when to stop. It runs no
+// threads itself: the local executor (common/engine/local_executor.hpp) and the
+// server's scheduler both call plan_pass / commit_pass.
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "common/engine/job_state.hpp"
+#include "common/engine/kernel.hpp"
+#include "common/engine/stop_rule.hpp"
+
+namespace tally {
+
+// Hard per-job caps set by whoever runs the job (server configuration, CLI).
+struct JobCaps {
+  uint64_t max_samples = 100'000'000'000ULL;
+  double max_seconds = 3600.0;
+};
+
+struct Estimate {
+  uint64_t n = 0;
+  double mean = 0.0;
+  double variance = 0.0;  // of one sample
+  double std_error = 0.0;
+  double rel_error = 0.0;  // std_error / |mean|
+  double ci_lo = 0.0;
+  double ci_hi = 0.0;
+  double confidence = 0.95;
+};
+
+// Samples and compute time still needed to reach the error target.
+struct Prediction {
+  double samples_needed = 0.0;  // in total
+  double samples_remaining = 0.0;
+  double seconds_remaining = 0.0;
+};
+
+struct CostPoint {
+  double rel_error = 0.0;
+  double samples = 0.0;
+  double seconds = 0.0;
+};
+
+class JobRunner {
+ public:
+  JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCaps caps);
+  // Resume from a checkpointed state.
+  JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCaps caps, JobState restored);
+
+  // Blocks of the next pass; empty once finished. Call commit_pass before planning again.
+  std::vector<Block> plan_pass();
+  // `results[i]` belongs to the i-th planned block. `wall_seconds`: the pass's duration.
+  void commit_pass(std::vector<BlockResult>&& results, double wall_seconds);
+
+  bool finished() const { return reason_ != StopReason::none; }
+  StopReason stop_reason() const { return reason_; }
+  void cancel();
+  void fail(std::string message);
+  // Reopen with a new rule (more samples, a tighter target): `POST .../extend`.
+  void extend(const StopRule& rule);
+
+  const JobState& state() const { return state_; }
+  const StopRule& rule() const { return rule_; }
+  const JobCaps& caps() const { return caps_; }
+  const Kernel& kernel() const { return *kernel_; }
+  const std::optional<std::string>& error_message() const { return error_; }
+
+  Estimate estimate(size_t channel = 0) const;
+  ErrorSummary error() const { return kernel_->error_summary(state_, rule_.confidence); }
+  double samples_per_second() const;
+  bool target_met() const;
+  std::optional<double> tail_alpha() const;
+  bool heavy_tail() const;
+  std::optional<Prediction> prediction() const;
+  std::vector<CostPoint> cost_curve(const std::vector<double>& rel_levels) const;
+  std::vector<std::string> warnings() const;
+
+ private:
+  uint64_t next_pass_samples() const;
+  void evaluate_stop();
+  void push_trace();
+
+  std::shared_ptr<const Kernel> kernel_;
+  StopRule rule_;
+  JobCaps caps_;
+  JobState state_;
+  StopReason reason_ = StopReason::none;
+  std::optional<std::string> error_;
+  std::vector<Block> pending_;
+  uint64_t pending_samples_ = 0;
+};
+
+}  // namespace tally

@@ -1,0 +1,38 @@
+#pragma once
+// Everything a running job has accumulated. It is exactly what a checkpoint stores:
+// a job resumed from it continues bit-identically.
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include "common/engine/counters.hpp"
+#include "common/engine/kernel.hpp"
+#include "common/stats/tail_index.hpp"
+#include "common/stats/tally.hpp"
+
+namespace tally {
+
+struct TracePoint {
+  double time_s = 0.0;  // compute time since the job started
+  uint64_t samples = 0;
+  double mean = 0.0;
+  double std_error = 0.0;
+  friend bool operator==(const TracePoint&, const TracePoint&) = default;
+};
+
+struct JobState {
+  uint64_t passes = 0;
+  uint64_t samples = 0;  // samples per channel the schedule has completed
+  std::vector<uint64_t> partition_samples;
+  std::vector<Tally> channels;
+  Counters counters;
+  TailTracker tail{512};
+  WeightStats weights;
+  std::optional<SampleFault> fault;
+  double compute_seconds = 0.0;
+  std::vector<TracePoint> trace;  // thinned to at most kMaxTrace points
+
+  static constexpr size_t kMaxTrace = 512;
+};
+
+}  // namespace tally

@@ -1,0 +1,92 @@
+#pragma once
+// The one abstraction every job kind implements: evaluate a block of samples for a
+// range of channels. Integration and lighting differ only here; passes, stopping,
+// streaming, checkpoints and images do not care which kind runs.
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "common/engine/counters.hpp"
+#include "common/stats/tail_index.hpp"
+#include "common/stats/tally.hpp"
+
+namespace tally {
+
+struct JobState;
+
+// A unit of work: samples [first_sample, first_sample + sample_count) of one
+// partition. Blocks are merged in `index` order, whatever thread ran them.
+struct Block {
+  uint64_t index = 0;
+  uint64_t first_sample = 0;
+  uint64_t sample_count = 0;
+  uint32_t partition = 0;  // kernel-defined, e.g. an image tile; 0 for dense kernels
+};
+
+// Importance weights seen by a block, for the effective sample size
+// ESS = (sum w)^2 / sum w^2 (Kish).
+struct WeightStats {
+  double sum_w = 0.0;
+  double sum_w2 = 0.0;
+  void add(double w) noexcept {
+    sum_w += w;
+    sum_w2 += w * w;
+  }
+  void merge(const WeightStats& o) noexcept {
+    sum_w += o.sum_w;
+    sum_w2 += o.sum_w2;
+  }
+  bool empty() const noexcept { return sum_w2 == 0.0; }
+  double ess() const noexcept { return sum_w2 > 0 ? sum_w * sum_w / sum_w2 : 0.0; }
+  friend bool operator==(const WeightStats&, const WeightStats&) = default;
+};
+
+// The first sample whose value could not be used (NaN/Inf), with where it happened.
+struct SampleFault {
+  uint64_t sample_index = 0;
+  uint32_t channel = 0;
+  double value = 0.0;
+  std::vector<double> point;  // the integration point or pixel coordinates
+  std::string message;
+};
+
+struct BlockResult {
+  uint64_t block_index = 0;
+  uint32_t first_channel = 0;
+  std::vector<Tally> tallies;  // channels [first_channel, first_channel + size)
+  Counters counters;
+  TailTracker tail{32};  // largest |values| of the headline channel
+  WeightStats weights;
+  std::optional<SampleFault> fault;
+};
+
+struct ErrorSummary {
+  double abs_error = 0.0;  // half-width of the interval at the job's confidence
+  double rel_error = 0.0;  // half-width / |mean|
+  double sigma = 0.0;      // per-sample standard deviation that drives the above
+  double mean = 0.0;
+};
+
+struct PassSchedule {
+  uint64_t first_pass_samples = 4096;  // pass k draws first * 2^k, up to the cap
+  uint64_t max_pass_samples = 1u << 22;
+  uint64_t block_samples = 4096;  // samples per block (the unit of parallel work)
+};
+
+class Kernel {
+ public:
+  virtual ~Kernel() = default;
+  virtual size_t channel_count() const = 0;
+  virtual uint32_t partition_count() const { return 1; }
+  virtual PassSchedule schedule() const { return {}; }
+  // Partitions that get samples in the next pass (adaptive sampling skips converged
+  // ones). Must be a deterministic function of the state.
+  virtual std::vector<uint32_t> active_partitions(const JobState& state) const;
+  // Thread-safe and pure: the result depends on the block alone.
+  virtual void run_block(const Block& block, BlockResult& out) const = 0;
+  // The error the stopping rule looks at. Default: the worst channel.
+  virtual ErrorSummary error_summary(const JobState& state, double confidence) const;
+};
+
+}  // namespace tally

@@ -1,0 +1,64 @@
+#include "common/engine/local_executor.hpp"
+
+#include <sched.h>
+
+#include <chrono>
+#include <thread>
+
+namespace tally {
+
+bool run_blocks(const Kernel& kernel, const std::vector<Block>& blocks, unsigned threads,
+                std::vector<BlockResult>& results, const std::atomic<bool>* cancel) {
+  results.clear();
+  results.resize(blocks.size());
+  std::atomic<size_t> next{0};
+  auto work = [&] {
+    for (;;) {
+      if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) return;
+      const size_t i = next.fetch_add(1, std::memory_order_relaxed);
+      if (i >= blocks.size()) return;
+      results[i].block_index = blocks[i].index;
+      kernel.run_block(blocks[i], results[i]);
+    }
+  };
+  threads = std::max(1u, std::min<unsigned>(threads, static_cast<unsigned>(blocks.size())));
+  if (threads == 1) {
+    work();
+  } else {
+    std::vector<std::jthread> pool;
+    pool.reserve(threads - 1);
+    for (unsigned t = 1; t < threads; ++t) pool.emplace_back(work);
+    work();
+  }
+  return !(cancel != nullptr && cancel->load());
+}
+
+void run_local(JobRunner& runner, const LocalRunOptions& options) {
+  std::vector<BlockResult> results;
+  while (!runner.finished()) {
+    const std::vector<Block> blocks = runner.plan_pass();
+    if (blocks.empty()) break;
+    const auto t0 = std::chrono::steady_clock::now();
+    if (!run_blocks(runner.kernel(), blocks, options.threads, results, options.cancel)) {
+      runner.cancel();
+      break;
+    }
+    const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    runner.commit_pass(std::move(results), dt);
+    results = {};
+    if (options.on_pass) options.on_pass(runner);
+  }
+}
+
+unsigned available_cpus() {
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  if (sched_getaffinity(0, sizeof(set), &set) == 0) {
+    const int n = CPU_COUNT(&set);
+    if (n > 0) return static_cast<unsigned>(n);
+  }
+  const unsigned hw = std::thread::hardware_concurrency();
+  return hw > 0 ? hw : 1;
+}
+
+}  // namespace tally

@@ -1,0 +1,28 @@
+#pragma once
+// Runs a job in-process on a few threads (the CLI's `tally run`, tests, the study).
+// The server has its own fair scheduler over the same JobRunner interface.
+#include <atomic>
+#include <functional>
+#include <vector>
+
+#include "common/engine/job_runner.hpp"
+
+namespace tally {
+
+// Runs `blocks` on `threads` threads; result i belongs to block i. Returns false if
+// `cancel` was raised before all blocks ran (the results are then incomplete).
+bool run_blocks(const Kernel& kernel, const std::vector<Block>& blocks, unsigned threads,
+                std::vector<BlockResult>& results, const std::atomic<bool>* cancel = nullptr);
+
+struct LocalRunOptions {
+  unsigned threads = 1;
+  std::function<void(const JobRunner&)> on_pass;  // after every committed pass
+  const std::atomic<bool>* cancel = nullptr;
+};
+
+void run_local(JobRunner& runner, const LocalRunOptions& options);
+
+// Threads this process may use (affinity mask; at least 1).
+unsigned available_cpus();
+
+}  // namespace tally
