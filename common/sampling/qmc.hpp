@@ -1,0 +1,32 @@
+#pragma once
+// Randomized quasi-Monte Carlo with random access: Owen-scrambled Sobol points.
+//
+// Choice: Sobol (base 2) over scrambled Halton because base-2 digits make a nested
+// uniform (Owen) scramble cheap and exact, and Owen-scrambled Sobol keeps the (t, m, s)-net
+// structure, which gives variance O(N^-3 (log N)^(s-1)) for smooth integrands.
+// Direction numbers: Joe & Kuo (2008, new-joe-kuo-6.21201), read from Boost 1.74's
+// boost/random/detail/sobol_table.hpp rather than typed in; the tests compare the
+// unscrambled points with boost::random::sobol.
+//
+// Scramble: true nested uniform scrambling. Bit b of the 32-bit Sobol coordinate is
+// flipped by a random bit that is a pure function of (scramble seed, dimension, b, the
+// higher bits above b) computed with the counter RNG's mixer; the 21 bits below the 32
+// Sobol bits are filled from the same tree. Hence, over scramble seeds, each point's
+// coordinate is exactly uniform on the 2^-53 grid of [0, 1): every randomization is an
+// unbiased estimator, and independent seeds give independent replicates for error bars.
+// Indices >= 2^32 start a fresh independent scramble per block of 2^32 points.
+#include <cstdint>
+
+namespace tally {
+
+inline constexpr std::uint32_t kRqmcMaxDimensions = 1024;
+
+// Unscrambled Sobol coordinate as 32 fixed-point bits (point index < 2^32, natural
+// order, not Gray-code order). dim < kRqmcMaxDimensions, else std::out_of_range.
+std::uint32_t sobol_bits(std::uint32_t index, std::uint32_t dim);
+
+// Coordinate `dim` of point `index` of the Owen-scrambled Sobol sequence selected by
+// scramble_seed, in [0, 1). dim < kRqmcMaxDimensions, else std::out_of_range.
+double rqmc_point(std::uint64_t scramble_seed, std::uint64_t index, std::uint32_t dim);
+
+}  // namespace tally
