@@ -14,18 +14,21 @@ Vec2 invert_uniform_disk_polar(Vec2 p) {
   return {clamp_unit(p.x * p.x + p.y * p.y), angle_to_unit(p.y, p.x)};
 }
 
-Vec2 sample_uniform_disk_concentric(Vec2 u) {
+DiskPolar sample_uniform_disk_concentric_polar(Vec2 u) {
   const double a = 2.0 * u.x - 1.0, b = 2.0 * u.y - 1.0;
   if (a == 0 && b == 0) return {0.0, 0.0};
-  double r, theta;
+  // Shirley-Chiu: the square ring max(|a|, |b|) = r maps to the circle of radius r.
   if (std::abs(a) > std::abs(b)) {
-    r = a;
-    theta = kPiOver4 * (b / a);
-  } else {
-    r = b;
-    theta = kPiOver2 - kPiOver4 * (a / b);
+    const double theta = kPiOver4 * (b / a);
+    return a > 0 ? DiskPolar{a, theta} : DiskPolar{-a, theta + kPi};
   }
-  return {r * std::cos(theta), r * std::sin(theta)};
+  const double theta = kPiOver2 - kPiOver4 * (a / b);
+  return b > 0 ? DiskPolar{b, theta} : DiskPolar{-b, theta + kPi};
+}
+
+Vec2 sample_uniform_disk_concentric(Vec2 u) {
+  const DiskPolar p = sample_uniform_disk_concentric_polar(u);
+  return {p.r * std::cos(p.theta), p.r * std::sin(p.theta)};
 }
 
 Vec2 invert_uniform_disk_concentric(Vec2 p) {

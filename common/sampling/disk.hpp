@@ -23,6 +23,12 @@ Vec2 invert_uniform_disk_polar(Vec2 p);
 // Shirley-Chiu concentric map: squares to rings, lower distortion than the polar map
 // (keeps stratification); the basis of the cosine hemisphere sampler.
 Vec2 sample_uniform_disk_concentric(Vec2 u);
+// The same point as (r, theta) with r >= 0: r is exact (|2u - 1| of one coordinate), so
+// callers can form 1 - r^2 = (1 - r)(1 + r) without cancellation (cosine hemisphere).
+struct DiskPolar {
+  double r, theta;
+};
+DiskPolar sample_uniform_disk_concentric_polar(Vec2 u);
 Vec2 invert_uniform_disk_concentric(Vec2 p);
 
 // Rejection from the square [-1, 1]^2 (acceptance pi/4). Two uniforms per attempt.

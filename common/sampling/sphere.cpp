@@ -33,8 +33,10 @@ Vec2 invert_uniform_hemisphere(const Vec3& w) {
 }
 
 Vec3 sample_cosine_hemisphere(Vec2 u) {
-  const Vec2 d = sample_uniform_disk_concentric(u);
-  return {d.x, d.y, safe_sqrt(1.0 - d.x * d.x - d.y * d.y)};
+  const DiskPolar d = sample_uniform_disk_concentric_polar(u);
+  // z = sqrt(1 - r^2) formed as (1 - r)(1 + r): exact near the horizon, where 1 - x^2 - y^2
+  // would leave only rounding noise of size sqrt(eps).
+  return {d.r * std::cos(d.theta), d.r * std::sin(d.theta), safe_sqrt((1.0 - d.r) * (1.0 + d.r))};
 }
 
 Vec2 invert_cosine_hemisphere(const Vec3& w) {
@@ -45,7 +47,8 @@ Vec3 sample_uniform_cone(Vec2 u, double cos_theta_max) {
   const double one_minus_cos = u.x * (1.0 - cos_theta_max);
   // sin^2 = (1 - cos)(1 + cos) avoids the cancellation in 1 - cos^2 near the axis.
   const double sin_theta = safe_sqrt(one_minus_cos * (2.0 - one_minus_cos));
-  return from_z_phi(1.0 - one_minus_cos, sin_theta, u.y);
+  // max(): rounding must not put z an ulp outside the cone, where the pdf is 0.
+  return from_z_phi(std::max(1.0 - one_minus_cos, cos_theta_max), sin_theta, u.y);
 }
 
 Vec2 invert_uniform_cone(const Vec3& w, double cos_theta_max) {
