@@ -57,11 +57,7 @@ void CompiledExpression::evaluate_batch(const double* const* xs, size_t n, doubl
 }
 
 double CompiledExpression::evaluate(const double* x) const {
-  const double* xs[kMaxDimensions];
-  for (size_t v = 0; v < dimensions_; ++v) xs[v] = x + v;
-  double out = 0;
-  expr::run_batch(*program_, xs, 1, &out);
-  return out;
+  return expr::run_point(*program_, x);
 }
 
 size_t CompiledExpression::instruction_count() const { return program_->code.size(); }

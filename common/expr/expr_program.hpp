@@ -41,4 +41,7 @@ Program generate(const Ast& ast, size_t dimensions, size_t max_instructions);
 // out[i] = f(xs[0][i], ..., xs[d-1][i]) for i < n, n <= kBatch. out must not alias an input.
 void run_batch(const Program& program, const double* const* xs, size_t n, double* out);
 
+// One point, x[0..d-1], interpreted on scalars (same operations, same results).
+double run_point(const Program& program, const double* x);
+
 }  // namespace tally::expr
