@@ -88,8 +88,10 @@ void chi_square_from_counts(std::span<const double> expected,
   result.p_value = boost::math::cdf(boost::math::complement(dist, stat));
 }
 
-ChiSquareResult chi_square_2d(const Histogram2D& h, const Sampler2& sample, const Pdf2& pdf,
-                              const ChiSquareOptions& options) {
+namespace {
+
+ChiSquareResult chi_square_grid(const Histogram2D& h, const Sampler2& sample, const Pdf2& pdf,
+                                const ChiSquareOptions& options, int mx, int my) {
   ChiSquareResult r;
   r.samples = options.samples;
   const std::size_t ncells = static_cast<std::size_t>(h.nx) * static_cast<std::size_t>(h.ny);
@@ -114,19 +116,18 @@ ChiSquareResult chi_square_2d(const Histogram2D& h, const Sampler2& sample, cons
   }
   // Expected counts: midpoint rule on a subdivisions^2 grid inside each cell (fine enough
   // that cells cut by a pdf discontinuity are integrated to well under a count).
-  const int m = options.subdivisions;
   const double drawn = static_cast<double>(options.samples - r.failed);
   std::vector<double> expected(ncells, 0.0);
   for (int iy = 0; iy < h.ny; ++iy) {
     for (int ix = 0; ix < h.nx; ++ix) {
       double sum = 0;
-      for (int sy = 0; sy < m; ++sy) {
-        for (int sx = 0; sx < m; ++sx) {
-          const Vec2 q{h.x0 + (ix + (sx + 0.5) / m) * wx, h.y0 + (iy + (sy + 0.5) / m) * wy};
+      for (int sy = 0; sy < my; ++sy) {
+        for (int sx = 0; sx < mx; ++sx) {
+          const Vec2 q{h.x0 + (ix + (sx + 0.5) / mx) * wx, h.y0 + (iy + (sy + 0.5) / my) * wy};
           sum += pdf(q);
         }
       }
-      const double integral = sum * wx * wy / (static_cast<double>(m) * m);
+      const double integral = sum * wx * wy / (static_cast<double>(mx) * my);
       r.pdf_integral += integral;
       expected[static_cast<std::size_t>(iy) * static_cast<std::size_t>(h.nx) +
                static_cast<std::size_t>(ix)] = integral * drawn;
@@ -136,19 +137,25 @@ ChiSquareResult chi_square_2d(const Histogram2D& h, const Sampler2& sample, cons
   return r;
 }
 
+}  // namespace
+
+ChiSquareResult chi_square_2d(const Histogram2D& h, const Sampler2& sample, const Pdf2& pdf,
+                              const ChiSquareOptions& options) {
+  return chi_square_grid(h, sample, pdf, options, options.subdivisions, options.subdivisions);
+}
+
 ChiSquareResult chi_square_1d(double x0, double x1, int cells, const Sampler1& sample,
                               const Pdf1& pdf, const ChiSquareOptions& options) {
   // A 1-D histogram is a 2-D one with a single row of unit height.
-  ChiSquareOptions o = options;
-  o.subdivisions = std::max(options.subdivisions, 1);
-  return chi_square_2d(
+  const int m = std::max(options.subdivisions, 1);
+  return chi_square_grid(
       {x0, x1, 0.0, 1.0, cells, 1},
       [&](std::uint64_t i) -> std::optional<Vec2> {
         const std::optional<double> x = sample(i);
         if (!x) return std::nullopt;
         return Vec2{*x, 0.5};
       },
-      [&](Vec2 p) { return pdf(p.x); }, o);
+      [&](Vec2 p) { return pdf(p.x); }, options, m * m, 1);
 }
 
 ChiSquareResult chi_square_discrete(std::span<const double> probabilities,

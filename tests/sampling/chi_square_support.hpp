@@ -29,7 +29,9 @@ double chi_square_test_alpha();
 
 struct ChiSquareOptions {
   std::uint64_t samples = 1'000'000;
-  int subdivisions = 16;  // midpoint rule, subdivisions^2 points per 2-D cell
+  // Midpoint rule: subdivisions^2 points per cell, in 2-D as a square grid, in 1-D all
+  // along x (1-D pdfs are cheap and often have steps that need the resolution).
+  int subdivisions = 16;
   double min_expected = 5.0;
 };
 
