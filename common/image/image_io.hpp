@@ -1,0 +1,33 @@
+#pragma once
+// Image files out of an ImageSnapshot: OpenEXR with the estimate, its standard error and
+// the sample count per pixel (what a user needs to judge every pixel), and a tone-mapped
+// 8-bit PNG preview. Used by the server's image routes and the CLI.
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "common/engine/image_source.hpp"
+
+namespace tally {
+
+// Half-float would lose the standard errors of dim pixels: every channel is 32-bit float.
+// Channels: R, G, B, StdErr.R, StdErr.G, StdErr.B (standard error of the mean),
+// SampleCount (float, so readers do not rescale it). Every member of `metadata` becomes
+// an EXR header attribute "tally:<key>" (numbers as float/double, strings as strings,
+// anything else as its JSON text). The snapshot's position in the full image is kept as
+// the data window. Throws std::runtime_error when OpenImageIO fails.
+std::string encode_exr(const ImageSnapshot& image, const nlohmann::json& metadata);
+
+// 8-bit sRGB preview: each channel clamped to [0, 1], then the sRGB OETF, rounded.
+std::string encode_png(const ImageSnapshot& image);
+
+// The sRGB OETF of a linear value in [0, 1] (exposed for tests).
+double srgb_oetf(double linear);
+
+// Writes the EXR to `exr_path` and the PNG to `png_path`; an empty path skips that file.
+// Throws std::runtime_error naming the path on failure.
+void write_image_files(const ImageSnapshot& image, const nlohmann::json& metadata,
+                       const std::filesystem::path& exr_path,
+                       const std::filesystem::path& png_path);
+
+}  // namespace tally

@@ -1,0 +1,100 @@
+#include "common/image/image_io.hpp"
+
+#include <OpenImageIO/filesystem.h>
+#include <OpenImageIO/imageio.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+namespace tally {
+namespace {
+
+ImageSnapshot make_snapshot(int w, int h) {
+  ImageSnapshot s;
+  s.width = w;
+  s.height = h;
+  s.full_width = w;
+  s.full_height = h;
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      for (int c = 0; c < 3; ++c) {
+        s.rgb.push_back(0.25f * static_cast<float>(c + 1) + 0.01f * static_cast<float>(x + w * y));
+        s.stderr_rgb.push_back(1e-4f * static_cast<float>(x + 1 + c));
+      }
+      s.samples.push_back(static_cast<float>(16 + x + y));
+    }
+  }
+  return s;
+}
+
+TEST(ImageIo, ExrRoundTripByChannelName) {
+  const ImageSnapshot s = make_snapshot(7, 5);
+  const std::string bytes = encode_exr(s, {{"spp", 16}, {"estimator", "mis"}, {"seed", 42}});
+  ASSERT_GT(bytes.size(), 100u);
+  std::vector<unsigned char> buf(bytes.begin(), bytes.end());
+  OIIO::Filesystem::IOMemReader reader(buf.data(), buf.size());
+  auto in = OIIO::ImageInput::open("image.exr", nullptr, &reader);
+  ASSERT_TRUE(in) << OIIO::geterror();
+  const OIIO::ImageSpec& spec = in->spec();
+  ASSERT_EQ(spec.width, 7);
+  ASSERT_EQ(spec.height, 5);
+  ASSERT_EQ(spec.nchannels, 7);
+  std::vector<float> data(static_cast<size_t>(7 * 5 * spec.nchannels));
+  ASSERT_TRUE(in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, data.data()));
+  auto channel = [&](const std::string& name) {
+    const int c = spec.channelindex(name);
+    EXPECT_GE(c, 0) << name;
+    return c;
+  };
+  const int r = channel("R"), g = channel("G"), b = channel("B");
+  const int er = channel("StdErr.R"), eb = channel("StdErr.B"), n = channel("SampleCount");
+  for (size_t i = 0; i < 35; ++i) {
+    const float* px = &data[i * static_cast<size_t>(spec.nchannels)];
+    EXPECT_EQ(px[r], s.rgb[3 * i]);
+    EXPECT_EQ(px[g], s.rgb[3 * i + 1]);
+    EXPECT_EQ(px[b], s.rgb[3 * i + 2]);
+    EXPECT_EQ(px[er], s.stderr_rgb[3 * i]);
+    EXPECT_EQ(px[eb], s.stderr_rgb[3 * i + 2]);
+    EXPECT_EQ(px[n], s.samples[i]);
+  }
+  EXPECT_EQ(spec.get_string_attribute("tally:estimator"), "mis");
+  EXPECT_DOUBLE_EQ(spec.get_float_attribute("tally:spp"), 16.0f);
+}
+
+TEST(ImageIo, PngIsToneMapped) {
+  ImageSnapshot s = make_snapshot(4, 3);
+  s.rgb[0] = 2.0f;   // clamps to 255
+  s.rgb[1] = -1.0f;  // clamps to 0
+  const std::string bytes = encode_png(s);
+  std::vector<unsigned char> buf(bytes.begin(), bytes.end());
+  OIIO::Filesystem::IOMemReader reader(buf.data(), buf.size());
+  auto in = OIIO::ImageInput::open("image.png", nullptr, &reader);
+  ASSERT_TRUE(in) << OIIO::geterror();
+  std::vector<unsigned char> px(4 * 3 * 3);
+  ASSERT_TRUE(in->read_image(0, 0, 0, 3, OIIO::TypeDesc::UINT8, px.data()));
+  EXPECT_EQ(px[0], 255);
+  EXPECT_EQ(px[1], 0);
+  EXPECT_EQ(px[2], static_cast<unsigned char>(std::lround(255 * srgb_oetf(s.rgb[2]))));
+  EXPECT_NEAR(srgb_oetf(0.5), 0.7353569830524495, 1e-12);
+}
+
+TEST(ImageIo, WriteFiles) {
+  const auto dir = std::filesystem::temp_directory_path() / "tally_image_io_test";
+  std::filesystem::create_directories(dir);
+  const ImageSnapshot s = make_snapshot(3, 2);
+  write_image_files(s, {{"spp", 1}}, dir / "a.exr", dir / "a.png");
+  EXPECT_GT(std::filesystem::file_size(dir / "a.exr"), 0u);
+  EXPECT_GT(std::filesystem::file_size(dir / "a.png"), 0u);
+  std::filesystem::remove_all(dir);
+}
+
+TEST(ImageIo, RejectsInconsistentSnapshot) {
+  ImageSnapshot s = make_snapshot(3, 2);
+  s.samples.pop_back();
+  EXPECT_THROW(encode_exr(s, {}), std::runtime_error);
+}
+
+}  // namespace
+}  // namespace tally
