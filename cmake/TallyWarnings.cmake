@@ -2,5 +2,5 @@
 add_library(tally_warnings INTERFACE)
 target_compile_options(tally_warnings INTERFACE
   -Wall -Wextra -Wpedantic -Wshadow -Wnon-virtual-dtor -Wold-style-cast
-  -Wcast-align -Woverloaded-virtual -Wnull-dereference -Wdouble-promotion
+  -Wcast-align -Woverloaded-virtual -Wdouble-promotion
   -Wimplicit-fallthrough -fno-fast-math)

@@ -24,6 +24,11 @@ inline constexpr uint64_t kGolden64 = 0x9e3779b97f4a7c15ULL;
 constexpr double to_unit_double(uint64_t bits) noexcept {
   return static_cast<double>(bits >> 11) * 0x1.0p-53;
 }
+// 53 random bits -> (0, 1), the centre of one of 2^53 equal cells: never 0 or 1,
+// so 1/x, log(x) and inverse CDFs with poles at the ends stay finite.
+constexpr double to_open_unit_double(uint64_t bits) noexcept {
+  return (static_cast<double>(bits >> 11) + 0.5) * 0x1.0p-53;
+}
 // 24 random bits -> [0, 1) in float. The largest value is 1 - 2^-24.
 constexpr float to_unit_float(uint64_t bits) noexcept {
   return static_cast<float>(bits >> 40) * 0x1.0p-24f;
@@ -45,6 +50,9 @@ class SampleRng {
     return mix64(base_ + (static_cast<uint64_t>(dim) + 1) * kGolden64);
   }
   constexpr double uniform(uint32_t dim) const noexcept { return to_unit_double(bits(dim)); }
+  constexpr double open_uniform(uint32_t dim) const noexcept {
+    return to_open_unit_double(bits(dim));
+  }
   constexpr float uniform_float(uint32_t dim) const noexcept { return to_unit_float(bits(dim)); }
 
   // Sequential convenience: the next dimension.

@@ -1,0 +1,56 @@
+#include <cmath>
+
+#include "common/expr/compiled_expression.hpp"
+#include "common/integrate/integrand.hpp"
+
+namespace tally {
+
+namespace {
+
+class UnitDiskIndicator final : public Integrand {
+ public:
+  size_t dimensions() const override { return 2; }
+  void evaluate_batch(const double* const* xs, size_t n, double* out) const override {
+    const double* x = xs[0];
+    const double* y = xs[1];
+    for (size_t i = 0; i < n; ++i) out[i] = (x[i] * x[i] + y[i] * y[i] < 1.0) ? 1.0 : 0.0;
+  }
+  nlohmann::json describe() const override { return {{"builtin", "unit_disk"}}; }
+};
+
+class InvSqrt final : public Integrand {
+ public:
+  size_t dimensions() const override { return 1; }
+  void evaluate_batch(const double* const* xs, size_t n, double* out) const override {
+    const double* x = xs[0];
+    for (size_t i = 0; i < n; ++i) out[i] = 1.0 / std::sqrt(x[i]);
+  }
+  nlohmann::json describe() const override { return {{"builtin", "inv_sqrt"}}; }
+};
+
+class ExpressionIntegrand final : public Integrand {
+ public:
+  explicit ExpressionIntegrand(CompiledExpression e) : expr_(std::move(e)) {}
+  size_t dimensions() const override { return expr_.dimensions(); }
+  void evaluate_batch(const double* const* xs, size_t n, double* out) const override {
+    expr_.evaluate_batch(xs, n, out);
+  }
+  nlohmann::json describe() const override { return {{"expression", expr_.text()}}; }
+
+ private:
+  CompiledExpression expr_;
+};
+
+}  // namespace
+
+std::unique_ptr<Integrand> make_unit_disk_indicator() { return std::make_unique<UnitDiskIndicator>(); }
+std::unique_ptr<Integrand> make_inv_sqrt() { return std::make_unique<InvSqrt>(); }
+
+std::unique_ptr<Integrand> make_expression_integrand(const std::string& text, size_t dimensions,
+                                                     size_t max_length) {
+  ExprLimits limits;
+  limits.max_length = max_length;
+  return std::make_unique<ExpressionIntegrand>(CompiledExpression::compile(text, dimensions, limits));
+}
+
+}  // namespace tally

@@ -1,0 +1,530 @@
+#include "common/integrate/estimators.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <fmt/format.h>
+#include <numbers>
+#include <span>
+
+#include "common/engine/job_state.hpp"
+#include "common/rng/counter_rng.hpp"
+#include "common/sampling/piecewise_constant.hpp"
+#include "common/sampling/qmc.hpp"
+#include "common/sampling/sphere.hpp"
+
+namespace tally {
+
+namespace {
+
+constexpr size_t kB = kIntegrandBatch;
+
+// Per-thread structure-of-arrays buffers for one batch.
+struct Scratch {
+  std::vector<double> u, x, f, pdf;
+  std::vector<const double*> u_ptr, x_cptr;
+  std::vector<double*> x_ptr;
+
+  void ensure(size_t uniforms, size_t dims) {
+    if (u.size() < uniforms * kB) u.resize(uniforms * kB);
+    if (x.size() < dims * kB) x.resize(dims * kB);
+    f.resize(kB);
+    pdf.resize(kB);
+    u_ptr.resize(uniforms);
+    x_ptr.resize(dims);
+    x_cptr.resize(dims);
+    for (size_t k = 0; k < uniforms; ++k) u_ptr[k] = u.data() + k * kB;
+    for (size_t k = 0; k < dims; ++k) {
+      x_ptr[k] = x.data() + k * kB;
+      x_cptr[k] = x_ptr[k];
+    }
+  }
+  double* urow(size_t k) { return u.data() + k * kB; }
+};
+
+Scratch& scratch() {
+  thread_local Scratch s;
+  return s;
+}
+
+// True if every value is finite (x * 0 is NaN exactly for NaN and +-Inf).
+bool all_finite(const double* v, size_t n) {
+  double acc = 0.0;
+  for (size_t i = 0; i < n; ++i) acc += v[i] * 0.0;
+  return acc == 0.0;
+}
+
+void record_fault(BlockResult& out, uint64_t sample_index, double value, const Scratch& s, size_t i,
+                  size_t dims) {
+  if (out.fault) return;
+  SampleFault f;
+  f.sample_index = sample_index;
+  f.value = value;
+  for (size_t k = 0; k < dims; ++k) f.point.push_back(s.x[k * kB + i]);
+  std::string where;
+  for (size_t k = 0; k < dims; ++k) where += fmt::format("{}x{} = {:.17g}", k ? ", " : "", k, f.point[k]);
+  f.message = fmt::format("the integrand is {} at {} (sample {})",
+                          std::isnan(value) ? "NaN" : "infinite", where, sample_index);
+  out.fault = std::move(f);
+}
+
+// Common block driver: estimators fill `values` for samples [first, first + count)
+// and return how many they wrote (rejection may drop samples; a fault stops early).
+class IntegrationKernelBase : public Kernel {
+ public:
+  explicit IntegrationKernelBase(IntegrationProblem p)
+      : p_(std::move(p)), key_(stream_key(p_.seed, 0)) {}
+  size_t channel_count() const override { return 1; }
+  PassSchedule schedule() const override {
+    const uint64_t per = std::max<uint64_t>(1, evaluations_per_sample());
+    PassSchedule s;
+    s.block_samples = std::max<uint64_t>(1, 4096 / per);
+    s.first_pass_samples = std::max<uint64_t>(4 * s.block_samples, 16384 / per);
+    s.max_pass_samples = std::max<uint64_t>(s.first_pass_samples, (uint64_t{1} << 22) / per);
+    return s;
+  }
+  void run_block(const Block& b, BlockResult& out) const override {
+    thread_local std::vector<double> values;
+    values.resize(b.sample_count);
+    const size_t n = fill(b.first_sample, b.sample_count, values.data(), out);
+    for (size_t i = 0; i < n; ++i) out.tail.offer(std::fabs(values[i]));
+    out.tallies.assign(1, Tally::from_batch(values.data(), n));
+  }
+  virtual uint64_t evaluations_per_sample() const { return 1; }
+
+ protected:
+  virtual size_t fill(uint64_t first, uint64_t count, double* values, BlockResult& out) const = 0;
+
+  // Uniforms of samples [first, first + n) into the scratch rows, open interval (0,1).
+  void draw_uniforms(Scratch& s, uint64_t first, size_t n, uint32_t uniforms) const {
+    for (size_t i = 0; i < n; ++i) {
+      const SampleRng rng(key_, first + i);
+      for (uint32_t k = 0; k < uniforms; ++k) s.urow(k)[i] = rng.open_uniform(k);
+    }
+  }
+
+  // Checks a batch of values; on a non-finite one records the fault and returns its
+  // position, else n.
+  size_t check(double* v, size_t n, uint64_t first, const Scratch& s, BlockResult& out) const {
+    if (all_finite(v, n)) return n;
+    for (size_t i = 0; i < n; ++i) {
+      if (!std::isfinite(v[i])) {
+        out.counters.add(Counter::nonfinite);
+        record_fault(out, first + i, v[i], s, i, p_.domain->dimensions());
+        return i;
+      }
+    }
+    return n;
+  }
+
+  IntegrationProblem p_;
+  uint64_t key_;
+};
+
+class UniformKernel final : public IntegrationKernelBase {
+ public:
+  using IntegrationKernelBase::IntegrationKernelBase;
+
+ protected:
+  size_t fill(uint64_t first, uint64_t count, double* values, BlockResult& out) const override {
+    Scratch& s = scratch();
+    const Domain& D = *p_.domain;
+    s.ensure(D.uniforms(), D.dimensions());
+    const double measure = D.measure();
+    for (uint64_t off = 0; off < count; off += kB) {
+      const size_t n = static_cast<size_t>(std::min<uint64_t>(kB, count - off));
+      draw_uniforms(s, first + off, n, D.uniforms());
+      D.map_uniform(s.u_ptr.data(), n, s.x_ptr.data());
+      double* v = values + off;
+      p_.integrand->evaluate_batch(s.x_cptr.data(), n, v);
+      for (size_t i = 0; i < n; ++i) v[i] *= measure;
+      out.counters.add(Counter::evaluations, n);
+      const size_t ok = check(v, n, first + off, s, out);
+      if (ok < n) return static_cast<size_t>(off) + ok;
+    }
+    return static_cast<size_t>(count);
+  }
+};
+
+// Importance sampling on a box: subclasses map uniforms to x and fill pdf.
+class ImportanceKernelBase : public IntegrationKernelBase {
+ public:
+  using IntegrationKernelBase::IntegrationKernelBase;
+
+ protected:
+  virtual void map(Scratch& s, size_t n) const = 0;
+  size_t fill(uint64_t first, uint64_t count, double* values, BlockResult& out) const override {
+    Scratch& s = scratch();
+    const Domain& D = *p_.domain;
+    s.ensure(D.uniforms(), D.dimensions());
+    const double measure = D.measure();
+    for (uint64_t off = 0; off < count; off += kB) {
+      const size_t n = static_cast<size_t>(std::min<uint64_t>(kB, count - off));
+      draw_uniforms(s, first + off, n, D.uniforms());
+      map(s, n);
+      double* v = values + off;
+      p_.integrand->evaluate_batch(s.x_cptr.data(), n, v);
+      for (size_t i = 0; i < n; ++i) {
+        const double pdf = s.pdf[i];
+        // pdf -> 0 only where the density vanishes; weight 0 there, never Inf.
+        v[i] = pdf > 0.0 ? v[i] / pdf : 0.0;
+        out.weights.add(pdf > 0.0 ? 1.0 / (pdf * measure) : 0.0);
+      }
+      out.counters.add(Counter::evaluations, n);
+      const size_t ok = check(v, n, first + off, s, out);
+      if (ok < n) return static_cast<size_t>(off) + ok;
+    }
+    return static_cast<size_t>(count);
+  }
+};
+
+class PowerImportanceKernel final : public ImportanceKernelBase {
+ public:
+  PowerImportanceKernel(IntegrationProblem p, PowerDensity d)
+      : ImportanceKernelBase(std::move(p)), d_(std::move(d)) {}
+
+ protected:
+  void map(Scratch& s, size_t n) const override {
+    const Domain& D = *p_.domain;
+    std::fill(s.pdf.begin(), s.pdf.begin() + static_cast<std::ptrdiff_t>(n), 1.0);
+    for (size_t k = 0; k < D.dimensions(); ++k) {
+      const double lo = D.lower()[k], w = D.upper()[k] - D.lower()[k];
+      const double e = d_.exponents[k];
+      const double inv = 1.0 / (e + 1.0);
+      for (size_t i = 0; i < n; ++i) {
+        // Inverse CDF of (e+1) t^e on (0,1): t = u^(1/(e+1)).
+        const double t = std::pow(s.urow(k)[i], inv);
+        s.x_ptr[k][i] = lo + t * w;
+        s.pdf[i] *= (e + 1.0) * std::pow(t, e) / w;
+      }
+    }
+  }
+
+ private:
+  PowerDensity d_;
+};
+
+class TabulatedImportanceKernel final : public ImportanceKernelBase {
+ public:
+  TabulatedImportanceKernel(IntegrationProblem p, TabulatedDensity d)
+      : ImportanceKernelBase(std::move(p)) {
+    const Domain& D = *p_.domain;
+    if (d.nv == 0) {
+      d1_.emplace(d.values, D.lower()[0], D.upper()[0]);
+    } else {
+      Box2 box;
+      box.lo = Vec2{D.lower()[0], D.lower()[1]};
+      box.hi = Vec2{D.upper()[0], D.upper()[1]};
+      d2_.emplace(d.values, d.nu, d.nv, box);
+    }
+  }
+
+ protected:
+  void map(Scratch& s, size_t n) const override {
+    for (size_t i = 0; i < n; ++i) {
+      if (d1_) {
+        const auto smp = d1_->sample(s.urow(0)[i]);
+        s.x_ptr[0][i] = smp.x;
+        s.pdf[i] = smp.pdf;
+      } else {
+        const auto smp = d2_->sample(Vec2{s.urow(0)[i], s.urow(1)[i]});
+        s.x_ptr[0][i] = smp.point.x;
+        s.x_ptr[1][i] = smp.point.y;
+        s.pdf[i] = smp.pdf;
+      }
+    }
+  }
+
+ private:
+  std::optional<PiecewiseConstant1D> d1_;
+  std::optional<PiecewiseConstant2D> d2_;
+};
+
+class CosineImportanceKernel final : public ImportanceKernelBase {
+ public:
+  CosineImportanceKernel(IntegrationProblem p) : ImportanceKernelBase(std::move(p)) {
+    const Domain& D = *p_.domain;
+    for (int k = 0; k < 3; ++k) center_[k] = 0.5 * (D.lower()[static_cast<size_t>(k)] + D.upper()[static_cast<size_t>(k)]);
+    radius_ = 0.5 * (D.upper()[0] - D.lower()[0]);
+  }
+
+ protected:
+  void map(Scratch& s, size_t n) const override {
+    const double area_scale = radius_ * radius_;
+    for (size_t i = 0; i < n; ++i) {
+      const Vec3 w = sample_cosine_hemisphere(Vec2{s.urow(0)[i], s.urow(1)[i]});
+      s.x_ptr[0][i] = center_[0] + radius_ * w.x;
+      s.x_ptr[1][i] = center_[1] + radius_ * w.y;
+      s.x_ptr[2][i] = center_[2] + radius_ * w.z;
+      s.pdf[i] = cosine_hemisphere_pdf(w.z) / area_scale;
+    }
+  }
+
+ private:
+  double center_[3] = {0, 0, 0};
+  double radius_ = 1.0;
+};
+
+// Sweep-based estimators: one sample = the mean over a point set.
+class SweepKernelBase : public IntegrationKernelBase {
+ public:
+  SweepKernelBase(IntegrationProblem p, uint64_t points)
+      : IntegrationKernelBase(std::move(p)), points_(points) {}
+  uint64_t evaluations_per_sample() const override { return points_; }
+
+ protected:
+  // Fill the scratch uniform rows with points [j0, j0 + n) of sweep `sample`.
+  virtual void sweep_uniforms(Scratch& s, uint64_t sample, uint64_t j0, size_t n) const = 0;
+
+  size_t fill(uint64_t first, uint64_t count, double* values, BlockResult& out) const override {
+    Scratch& s = scratch();
+    const Domain& D = *p_.domain;
+    s.ensure(D.uniforms(), D.dimensions());
+    const double measure = D.measure();
+    for (uint64_t k = 0; k < count; ++k) {
+      const uint64_t sample = first + k;
+      // Pairwise-style: per-batch sums, then summed in a fixed order.
+      double total = 0.0;
+      for (uint64_t j0 = 0; j0 < points_; j0 += kB) {
+        const size_t n = static_cast<size_t>(std::min<uint64_t>(kB, points_ - j0));
+        sweep_uniforms(s, sample, j0, n);
+        D.map_uniform(s.u_ptr.data(), n, s.x_ptr.data());
+        p_.integrand->evaluate_batch(s.x_cptr.data(), n, s.f.data());
+        if (!all_finite(s.f.data(), n)) {
+          for (size_t i = 0; i < n; ++i) {
+            if (!std::isfinite(s.f[i])) {
+              out.counters.add(Counter::nonfinite);
+              record_fault(out, sample, s.f[i], s, i, D.dimensions());
+              return static_cast<size_t>(k);
+            }
+          }
+        }
+        double batch = 0.0;
+        for (size_t i = 0; i < n; ++i) batch += s.f[i];
+        total += batch;
+      }
+      out.counters.add(Counter::evaluations, points_);
+      values[k] = measure * total / static_cast<double>(points_);
+    }
+    return static_cast<size_t>(count);
+  }
+
+  uint64_t points_;
+};
+
+class StratifiedKernel final : public SweepKernelBase {
+ public:
+  StratifiedKernel(IntegrationProblem p, uint32_t k, uint32_t s)
+      : SweepKernelBase(std::move(p), 1), k_(k), s_(s) {
+    points_ = 1;
+    for (uint32_t i = 0; i < s_; ++i) points_ *= k_;
+  }
+
+ protected:
+  void sweep_uniforms(Scratch& s, uint64_t sample, uint64_t j0, size_t n) const override {
+    const uint32_t U = p_.domain->uniforms();
+    const double inv_k = 1.0 / static_cast<double>(k_);
+    for (size_t i = 0; i < n; ++i) {
+      const uint64_t stratum = j0 + i;
+      // One counter-based stream per (sweep, stratum): jitter and the free dimensions.
+      const SampleRng rng(key_, sample * points_ + stratum);
+      uint64_t rest = stratum;
+      for (uint32_t d = 0; d < U; ++d) {
+        const double jitter = rng.open_uniform(d);
+        if (d < s_) {
+          const uint64_t cell = rest % k_;
+          rest /= k_;
+          s.urow(d)[i] = (static_cast<double>(cell) + jitter) * inv_k;
+        } else {
+          s.urow(d)[i] = jitter;
+        }
+      }
+    }
+  }
+
+ private:
+  uint32_t k_, s_;
+};
+
+class QmcKernel final : public SweepKernelBase {
+ public:
+  using SweepKernelBase::SweepKernelBase;
+
+ protected:
+  void sweep_uniforms(Scratch& s, uint64_t sample, uint64_t j0, size_t n) const override {
+    const uint32_t U = p_.domain->uniforms();
+    const uint64_t scramble = mix64(key_ ^ mix64(sample + 0x51ed27));
+    for (uint32_t d = 0; d < U; ++d) {
+      double* row = s.urow(d);
+      for (size_t i = 0; i < n; ++i) {
+        // Keep inside the open interval like the MC estimators (1/x, log x stay finite).
+        row[i] = std::clamp(rqmc_point(scramble, j0 + i, d), 0x1.0p-54, 1.0 - 0x1.0p-53);
+      }
+    }
+  }
+};
+
+class RejectionKernel final : public IntegrationKernelBase {
+ public:
+  RejectionKernel(IntegrationProblem p, uint32_t max_attempts)
+      : IntegrationKernelBase(std::move(p)), max_attempts_(max_attempts) {}
+
+ protected:
+  size_t fill(uint64_t first, uint64_t count, double* values, BlockResult& out) const override {
+    Scratch& s = scratch();
+    const Domain& D = *p_.domain;
+    const size_t d = D.dimensions();
+    s.ensure(0, d);
+    const double measure = D.measure();
+    std::vector<double> pt(d);
+    size_t written = 0;
+    uint64_t next = 0;
+    while (next < count) {
+      // Gather up to one batch of accepted points.
+      size_t n = 0;
+      uint64_t first_in_batch = first + next;
+      while (n < kB && next < count) {
+        const SampleRng rng(key_, first + next);
+        ++next;
+        bool accepted = false;
+        for (uint32_t a = 0; a < max_attempts_; ++a) {
+          out.counters.add(Counter::rejection_attempts);
+          for (size_t k = 0; k < d; ++k) {
+            const double u = rng.open_uniform(a * static_cast<uint32_t>(d) + static_cast<uint32_t>(k));
+            pt[k] = D.lower()[k] + u * (D.upper()[k] - D.lower()[k]);
+          }
+          if (D.contains(pt.data())) {
+            accepted = true;
+            break;
+          }
+        }
+        if (!accepted) {
+          out.counters.add(Counter::rejection_failures);
+          continue;
+        }
+        out.counters.add(Counter::rejection_accepts);
+        for (size_t k = 0; k < d; ++k) s.x_ptr[k][n] = pt[k];
+        ++n;
+      }
+      double* v = values + written;
+      p_.integrand->evaluate_batch(s.x_cptr.data(), n, v);
+      for (size_t i = 0; i < n; ++i) v[i] *= measure;
+      out.counters.add(Counter::evaluations, n);
+      const size_t ok = check(v, n, first_in_batch, s, out);
+      written += ok;
+      if (ok < n) return written;
+    }
+    return written;
+  }
+
+ private:
+  uint32_t max_attempts_;
+};
+
+class TrapezoidKernel final : public Kernel {
+ public:
+  TrapezoidKernel(IntegrationProblem p, uint32_t n) : p_(std::move(p)), n_(n) {}
+  size_t channel_count() const override { return 2; }
+  PassSchedule schedule() const override { return {1, 1, 1}; }
+
+  void run_block(const Block& b, BlockResult& out) const override {
+    out.first_channel = 0;
+    out.tallies.assign(2, Tally{});
+    if (b.first_sample > 0) {
+      // The rule is deterministic: further samples would repeat the same value.
+      return;
+    }
+    const uint32_t m = (n_ + 1) / 2;
+    double fine = 0.0, coarse = 0.0;
+    const bool ok = rule(n_, fine, out) && rule(m, coarse, out);
+    if (!ok) return;
+    out.tallies[0].add(fine);
+    out.tallies[1].add(coarse);
+  }
+
+  // Error: |T(n) - T(m)| / 3, Richardson's estimate for an O(h^2) rule when m ~ n/2.
+  ErrorSummary error_summary(const JobState& st, double) const override {
+    ErrorSummary e;
+    if (st.channels.size() < 2 || st.channels[0].n == 0) {
+      e.abs_error = e.rel_error = std::numeric_limits<double>::infinity();
+      return e;
+    }
+    e.mean = st.channels[0].mean;
+    e.abs_error = std::fabs(st.channels[0].mean - st.channels[1].mean) / 3.0;
+    e.rel_error = e.mean != 0.0 ? e.abs_error / std::fabs(e.mean) : std::numeric_limits<double>::infinity();
+    e.sigma = std::numeric_limits<double>::quiet_NaN();
+    return e;
+  }
+
+ private:
+  bool rule(uint32_t n, double& result, BlockResult& out) const {
+    const Domain& D = *p_.domain;
+    const size_t d = D.dimensions();
+    Scratch& s = scratch();
+    s.ensure(0, d);
+    uint64_t total = 1;
+    for (size_t k = 0; k < d; ++k) total *= n;
+    std::vector<double> h(d);
+    for (size_t k = 0; k < d; ++k) h[k] = (D.upper()[k] - D.lower()[k]) / (n - 1);
+    double sum = 0.0;
+    std::vector<double> w(kB);
+    for (uint64_t j0 = 0; j0 < total; j0 += kB) {
+      const size_t cnt = static_cast<size_t>(std::min<uint64_t>(kB, total - j0));
+      for (size_t i = 0; i < cnt; ++i) {
+        uint64_t idx = j0 + i;
+        double weight = 1.0;
+        for (size_t k = 0; k < d; ++k) {
+          const uint64_t c = idx % n;
+          idx /= n;
+          s.x_ptr[k][i] = c + 1 == n ? D.upper()[k] : D.lower()[k] + static_cast<double>(c) * h[k];
+          weight *= (c == 0 || c + 1 == n) ? 0.5 * h[k] : h[k];
+        }
+        w[i] = weight;
+      }
+      p_.integrand->evaluate_batch(s.x_cptr.data(), cnt, s.f.data());
+      out.counters.add(Counter::evaluations, cnt);
+      for (size_t i = 0; i < cnt; ++i) {
+        if (!std::isfinite(s.f[i])) {
+          out.counters.add(Counter::nonfinite);
+          record_fault(out, j0 + i, s.f[i], s, i, d);
+          return false;
+        }
+        sum += w[i] * s.f[i];
+      }
+    }
+    result = sum;
+    return true;
+  }
+
+  IntegrationProblem p_;
+  uint32_t n_;
+};
+
+}  // namespace
+
+std::shared_ptr<const Kernel> make_uniform_kernel(IntegrationProblem p) {
+  return std::make_shared<UniformKernel>(std::move(p));
+}
+std::shared_ptr<const Kernel> make_power_importance_kernel(IntegrationProblem p, PowerDensity d) {
+  return std::make_shared<PowerImportanceKernel>(std::move(p), std::move(d));
+}
+std::shared_ptr<const Kernel> make_tabulated_importance_kernel(IntegrationProblem p,
+                                                               TabulatedDensity d) {
+  return std::make_shared<TabulatedImportanceKernel>(std::move(p), std::move(d));
+}
+std::shared_ptr<const Kernel> make_cosine_importance_kernel(IntegrationProblem p) {
+  return std::make_shared<CosineImportanceKernel>(std::move(p));
+}
+std::shared_ptr<const Kernel> make_stratified_kernel(IntegrationProblem p, uint32_t k, uint32_t s) {
+  return std::make_shared<StratifiedKernel>(std::move(p), k, s);
+}
+std::shared_ptr<const Kernel> make_qmc_kernel(IntegrationProblem p, uint32_t points) {
+  return std::make_shared<QmcKernel>(std::move(p), points);
+}
+std::shared_ptr<const Kernel> make_rejection_kernel(IntegrationProblem p, uint32_t max_attempts) {
+  return std::make_shared<RejectionKernel>(std::move(p), max_attempts);
+}
+std::shared_ptr<const Kernel> make_trapezoid_kernel(IntegrationProblem p, uint32_t n) {
+  return std::make_shared<TrapezoidKernel>(std::move(p), n);
+}
+
+}  // namespace tally

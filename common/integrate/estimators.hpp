@@ -1,0 +1,49 @@
+#pragma once
+// The estimators of an integration job, each a Kernel with one channel whose
+// samples are unbiased estimates of the integral:
+//   uniform      f(x) * |D|                     x uniform in D
+//   importance   f(x) / p(x)                    x ~ p (power law, tabulated, cosine)
+//   stratified   |D| * mean of f over one jittered sweep of k^s strata
+//   qmc          |D| * mean of f over one scrambled Sobol point set (one randomization)
+//   rejection    f(x) * |D|                     x from the bounding box, accepted if in D
+// Sweep-based estimators (stratified, qmc) count one sweep as one sample, so the
+// spread across sweeps gives an honest error bar (independent randomizations).
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "common/engine/kernel.hpp"
+#include "common/integrate/domain.hpp"
+#include "common/integrate/integrand.hpp"
+
+namespace tally {
+
+struct IntegrationProblem {
+  std::shared_ptr<const Integrand> integrand;
+  std::shared_ptr<const Domain> domain;
+  uint64_t seed = 1;
+};
+
+// One-dimensional density factor of an importance-sampling density on a box.
+struct PowerDensity {
+  std::vector<double> exponents;  // per dimension, p_k(x) ∝ (x - lower_k)^e, e > -1
+};
+struct TabulatedDensity {
+  std::vector<double> values;  // piecewise constant, row-major (1-D: nu values)
+  size_t nu = 0, nv = 0;       // nv = 0 for 1-D
+};
+struct CosineDensity {};  // hemisphere domain: p = cos(theta) / (pi r^2) per area
+
+std::shared_ptr<const Kernel> make_uniform_kernel(IntegrationProblem p);
+std::shared_ptr<const Kernel> make_power_importance_kernel(IntegrationProblem p, PowerDensity d);
+std::shared_ptr<const Kernel> make_tabulated_importance_kernel(IntegrationProblem p, TabulatedDensity d);
+std::shared_ptr<const Kernel> make_cosine_importance_kernel(IntegrationProblem p);
+std::shared_ptr<const Kernel> make_stratified_kernel(IntegrationProblem p, uint32_t strata_per_dim,
+                                                     uint32_t stratified_dims);
+std::shared_ptr<const Kernel> make_qmc_kernel(IntegrationProblem p, uint32_t points);
+std::shared_ptr<const Kernel> make_rejection_kernel(IntegrationProblem p, uint32_t max_attempts);
+// Tensor-product trapezoid rule with n points per dimension (deterministic; one
+// "sample"). Channel 0: T(n); channel 1: T(m), m = (n + 1) / 2, for an error estimate.
+std::shared_ptr<const Kernel> make_trapezoid_kernel(IntegrationProblem p, uint32_t points_per_dim);
+
+}  // namespace tally

@@ -1,0 +1,33 @@
+#pragma once
+// f in the integral of f over a domain. Integrands are evaluated in batches of
+// structure-of-arrays points (xs[dimension][i]) so that both built-ins and compiled
+// user expressions run as tight, vectorizable loops.
+#include <cstddef>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace tally {
+
+inline constexpr size_t kIntegrandBatch = 256;
+
+class Integrand {
+ public:
+  virtual ~Integrand() = default;
+  virtual size_t dimensions() const = 0;
+  // xs[k] holds n <= kIntegrandBatch values of coordinate k; writes n values to out.
+  virtual void evaluate_batch(const double* const* xs, size_t n, double* out) const = 0;
+  virtual nlohmann::json describe() const = 0;
+};
+
+// The lecture's first example: 1 inside the unit disk, 0 outside (2-D).
+std::unique_ptr<Integrand> make_unit_disk_indicator();
+// 1/sqrt(x0) (1-D): infinite variance under uniform sampling on (0, 1].
+std::unique_ptr<Integrand> make_inv_sqrt();
+// A user expression in muParser syntax over x0..x{d-1}; throws ExprError.
+std::unique_ptr<Integrand> make_expression_integrand(const std::string& text, size_t dimensions,
+                                                     size_t max_length);
+
+}  // namespace tally
