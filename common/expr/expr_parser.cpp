@@ -113,8 +113,9 @@ class Parser {
     return ast_.add(std::move(n));
   }
 
-  NodeId parse_nested() {
-    DepthGuard guard(*this, peek());
+  // `at`: the token that opened the nesting ('(', ',', '?', ':'), named if it is too deep.
+  NodeId parse_nested(const Token& at) {
+    DepthGuard guard(*this, at);
     return parse_ternary();
   }
 
@@ -123,13 +124,13 @@ class Parser {
     NodeId cond = parse_or();
     if (!is_op("?")) return cond;
     const Token& q = take();
-    NodeId then_branch = parse_nested();
-    if (!accept(":")) {
+    NodeId then_branch = parse_nested(q);
+    if (!is_op(":")) {
       fail("'?' at position " + std::to_string(q.position) + " has no matching ':', found " +
                describe(peek()),
            peek());
     }
-    NodeId else_branch = parse_nested();
+    NodeId else_branch = parse_nested(take());
     return make(NodeKind::select, Op::select, {cond, then_branch, else_branch}, pos);
   }
 
@@ -219,7 +220,7 @@ class Parser {
       case TokenKind::op:
         if (t.text == "(") {
           ++next_;
-          NodeId inner = parse_nested();
+          NodeId inner = parse_nested(t);
           if (!accept(")")) {
             fail("missing ')' to close '(' at position " + std::to_string(t.position) +
                      ", found " + describe(peek()),
@@ -305,9 +306,13 @@ class Parser {
     const Token& open = take();  // '('
     std::vector<NodeId> args;
     if (is_op(")")) fail("function " + describe(name) + " needs at least one argument", peek());
+    const Token* opener = &open;
     while (true) {
-      args.push_back(parse_nested());
-      if (accept(",")) continue;
+      args.push_back(parse_nested(*opener));
+      if (is_op(",")) {
+        opener = &take();
+        continue;
+      }
       if (accept(")")) break;
       fail("missing ')' to close the arguments of " + describe(name) + " opened at position " +
                std::to_string(open.position) + ", found " + describe(peek()),
