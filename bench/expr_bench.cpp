@@ -137,7 +137,8 @@ int main(int argc, char** argv) {
   total = (total + kChunk - 1) / kChunk * kChunk;
   const auto cols = make_points();
   const char* const expressions[] = {"x0*x0 + x1*x1 < 1 ? 4 : 0", "exp(-(x0*x0 + x1*x1))"};
-  std::printf("expr_bench: %zu evaluations per measurement, %zu-point working set\n", total, kChunk);
+  std::printf("expr_bench: %zu evaluations per measurement, %zu-point working set\n", total,
+              kChunk);
   for (const char* text : expressions) {
     const auto e = tally::CompiledExpression::compile(text, kDims);
     std::printf("%s   (%zu instructions)\n", text, e.instruction_count());

@@ -26,8 +26,8 @@ CompiledExpression CompiledExpression::compile(std::string_view text, size_t dim
                                                const ExprLimits& limits) {
   if (dimensions > kMaxDimensions) {
     throw ExprError(ExprErrorKind::limit, "expressions support at most " +
-                                              std::to_string(kMaxDimensions) +
-                                              " dimensions, got " + std::to_string(dimensions));
+                                              std::to_string(kMaxDimensions) + " dimensions, got " +
+                                              std::to_string(dimensions));
   }
   if (text.size() > limits.max_length) {
     throw ExprError(ExprErrorKind::limit,
@@ -60,6 +60,8 @@ double CompiledExpression::evaluate(const double* x) const {
   return expr::run_point(*program_, x);
 }
 
-size_t CompiledExpression::instruction_count() const { return program_->code.size(); }
+size_t CompiledExpression::instruction_count() const {
+  return program_->code.size();
+}
 
 }  // namespace tally

@@ -140,7 +140,8 @@ class CodeGen {
       }
       case NodeKind::chain: {
         Operand acc = gen(n.kids[0]);
-        for (size_t i = 1; i < n.kids.size(); ++i) acc = emit_binary(n.ops[i - 1], acc, gen(n.kids[i]));
+        for (size_t i = 1; i < n.kids.size(); ++i)
+          acc = emit_binary(n.ops[i - 1], acc, gen(n.kids[i]));
         return acc;
       }
       case NodeKind::select: {

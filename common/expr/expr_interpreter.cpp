@@ -15,8 +15,8 @@ constexpr size_t kLane = 8;
 static_assert(kBatch % kLane == 0);
 
 template <class F>
-[[gnu::always_inline]] inline void map_a(double* __restrict o, const double* __restrict a,
-                                         size_t n, F f) {
+[[gnu::always_inline]] inline void map_a(double* __restrict o, const double* __restrict a, size_t n,
+                                         F f) {
   for (size_t i = 0; i < n; i += kLane)
     for (size_t j = 0; j < kLane; ++j) o[i + j] = f(a[i + j]);
 }
@@ -87,12 +87,12 @@ __attribute__((target_clones("avx2", "default"))) void execute(const Instr& ins,
                                                                const double* const* slots,
                                                                size_t n) {
   switch (ins.op) {
-#define TALLY_EXPR_BINARY(name) \
-  case Op::name:                \
+#define TALLY_EXPR_BINARY(name)         \
+  case Op::name:                        \
     binary<Op::name>(ins, o, slots, n); \
     break;
-#define TALLY_EXPR_UNARY(name) \
-  case Op::name:               \
+#define TALLY_EXPR_UNARY(name)         \
+  case Op::name:                       \
     unary<Op::name>(ins, o, slots, n); \
     break;
     TALLY_EXPR_BINARY(add)

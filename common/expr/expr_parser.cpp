@@ -90,9 +90,9 @@ class Parser {
 
   [[noreturn]] static void fail(const std::string& what, const Token& at) {
     throw ExprError(ExprErrorKind::syntax,
-                    what + (at.kind == TokenKind::end
-                                ? " at the end of the expression (position "
-                                : " at position ") +
+                    what +
+                        (at.kind == TokenKind::end ? " at the end of the expression (position "
+                                                   : " at position ") +
                         std::to_string(at.position) + (at.kind == TokenKind::end ? ")" : ""),
                     at.position);
   }
@@ -188,8 +188,8 @@ class Parser {
   NodeId parse_signed() {
     if (is_op("-") || is_op("+")) {
       const Token& sign = take();
-      if (is_op("-") || is_op("+")) fail("a sign cannot follow a sign: unexpected " +
-                                             describe(peek()), peek());
+      if (is_op("-") || is_op("+"))
+        fail("a sign cannot follow a sign: unexpected " + describe(peek()), peek());
       NodeId operand = parse_power();
       if (sign.text == "+") return operand;
       return make(NodeKind::unary, Op::neg, {operand}, sign.position);
@@ -222,8 +222,8 @@ class Parser {
           ++next_;
           NodeId inner = parse_nested(t);
           if (!accept(")")) {
-            fail("missing ')' to close '(' at position " + std::to_string(t.position) +
-                     ", found " + describe(peek()),
+            fail("missing ')' to close '(' at position " + std::to_string(t.position) + ", found " +
+                     describe(peek()),
                  peek());
           }
           return inner;
@@ -318,7 +318,9 @@ class Parser {
                std::to_string(open.position) + ", found " + describe(peek()),
            peek());
     }
-    const size_t want = f->shape == FunctionInfo::unary ? 1 : f->shape == FunctionInfo::binary ? 2 : 0;
+    const size_t want = f->shape == FunctionInfo::unary    ? 1
+                        : f->shape == FunctionInfo::binary ? 2
+                                                           : 0;
     if (want != 0 && args.size() != want) {
       fail("function " + describe(name) + " takes " + std::to_string(want) + " argument" +
                (want == 1 ? "" : "s") + ", got " + std::to_string(args.size()),
@@ -398,7 +400,8 @@ NodeId fold(Ast& ast, NodeId id) {
       NodeId a = fold(ast, ast[id].kids[0]);
       NodeId b = fold(ast, ast[id].kids[1]);
       ast[id].kids = {a, b};
-      if (constant(a) && constant(b)) return become_constant(apply_binary(ast[id].op, value(a), value(b)));
+      if (constant(a) && constant(b))
+        return become_constant(apply_binary(ast[id].op, value(a), value(b)));
       return id;
     }
     case NodeKind::chain: {
@@ -408,7 +411,8 @@ NodeId fold(Ast& ast, NodeId id) {
       // Only a leading run of constants folds: (x + 1) + 2 is not x + 3 in floating point.
       size_t first = 0;
       while (first + 1 < kids.size() && constant(kids[first]) && constant(kids[first + 1])) {
-        ast[kids[first + 1]].value = apply_binary(ops[first], value(kids[first]), value(kids[first + 1]));
+        ast[kids[first + 1]].value =
+            apply_binary(ops[first], value(kids[first]), value(kids[first + 1]));
         ++first;
       }
       kids.erase(kids.begin(), kids.begin() + static_cast<std::ptrdiff_t>(first));
@@ -437,6 +441,8 @@ Ast parse(std::string_view text, size_t dimensions, size_t max_depth) {
   return parser.run();
 }
 
-void fold_constants(Ast& ast) { ast.root = fold(ast, ast.root); }
+void fold_constants(Ast& ast) {
+  ast.root = fold(ast, ast.root);
+}
 
 }  // namespace tally::expr

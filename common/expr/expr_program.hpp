@@ -31,7 +31,7 @@ struct Instr {
 struct Program {
   size_t dimensions = 0;
   size_t num_registers = 0;
-  std::vector<Instr> code;           // the last instruction writes kOutSlot
+  std::vector<Instr> code;            // the last instruction writes kOutSlot
   std::vector<uint16_t> used_inputs;  // input slots read by the code, ascending
 };
 

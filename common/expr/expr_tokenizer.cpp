@@ -8,9 +8,15 @@
 namespace tally::expr {
 namespace {
 
-bool is_digit(char c) { return c >= '0' && c <= '9'; }
-bool is_ident_start(char c) { return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || c == '_'; }
-bool is_ident_char(char c) { return is_ident_start(c) || is_digit(c); }
+bool is_digit(char c) {
+  return c >= '0' && c <= '9';
+}
+bool is_ident_start(char c) {
+  return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || c == '_';
+}
+bool is_ident_char(char c) {
+  return is_ident_start(c) || is_digit(c);
+}
 bool is_space(char c) {
   return c == ' ' || c == '\t' || c == '\n' || c == '\r' || c == '\v' || c == '\f';
 }
@@ -55,8 +61,9 @@ size_t scan_number(std::string_view text, size_t i) {
       while (k < text.size() && is_digit(text[k])) ++k;
       j = k;
     } else {
-      fail("malformed number '" + std::string(text.substr(i, k - i)) + "' (exponent without digits)",
-           i);
+      fail(
+          "malformed number '" + std::string(text.substr(i, k - i)) + "' (exponent without digits)",
+          i);
     }
   }
   return j;

@@ -71,8 +71,8 @@ void check_against_muparser(const CompiledExpression& compiled) {
         std::string at;
         for (size_t v = 0; v < d; ++v) at += (v ? ", " : "") + format_double(vars[v]);
         throw ExprError(ExprErrorKind::internal,
-                        "internal error: compiled expression '" + compiled.text() +
-                            "' gives " + format_double(ours[p]) + " but muParser gives " +
+                        "internal error: compiled expression '" + compiled.text() + "' gives " +
+                            format_double(ours[p]) + " but muParser gives " +
                             format_double(reference) + " at (" + at + ")");
       }
     }

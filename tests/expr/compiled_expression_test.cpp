@@ -19,10 +19,10 @@ TEST(CompiledExpression, UnitDiskIndicatorExactValues) {
     double x, y, want;
   };
   const Case cases[] = {
-      {0, 0, 4},     {0.5, 0.5, 4}, {1, 0, 0},       {0, 1, 0},        {-1, 0, 0},
-      {0.6, 0.8, 0},  // 0.36 + 0.64 rounds to exactly 1: on the circle, outside
-      {0.7, 0.7, 4},  {0.8, 0.7, 0}, {-0.99, 0.1, 4}, {1e-300, -1e-300, 4}, {2, 2, 0},
-      {std::nan(""), 0, 0},  // NaN < 1 is false
+      {0, 0, 4},     {0.5, 0.5, 4},        {1, 0, 0},       {0, 1, 0},
+      {-1, 0, 0},    {0.6, 0.8, 0},  // 0.36 + 0.64 rounds to exactly 1: on the circle, outside
+      {0.7, 0.7, 4}, {0.8, 0.7, 0},        {-0.99, 0.1, 4}, {1e-300, -1e-300, 4},
+      {2, 2, 0},     {std::nan(""), 0, 0},  // NaN < 1 is false
   };
   std::vector<double> xs, ys;
   for (const Case& c : cases) {
@@ -83,8 +83,8 @@ TEST(CompiledExpression, MuParserConstantsAndSemantics) {
   EXPECT_EQ(CompiledExpression::compile("1 ? 0 ? 3 : 4 : 5", 1).evaluate(x), 4);
   EXPECT_EQ(CompiledExpression::compile("rint(2.5) + rint(-2.5)", 1).evaluate(x), 1);  // 3 + -2
   EXPECT_EQ(CompiledExpression::compile("avg(1, 2, 3, 4)", 1).evaluate(x), 2.5);
-  EXPECT_EQ(CompiledExpression::compile("sum(1, 2, 3) + min(4, 2, 8) + max(1, 9, 3)", 1).evaluate(x),
-            17);
+  EXPECT_EQ(
+      CompiledExpression::compile("sum(1, 2, 3) + min(4, 2, 8) + max(1, 9, 3)", 1).evaluate(x), 17);
   EXPECT_EQ(CompiledExpression::compile("1e-400 + 1e3 + .5 + 5.", 1).evaluate(x), 1005.5);
 }
 

@@ -93,12 +93,11 @@ class Generator {
   }
   std::string primary(int d) {
     static const char* const vars[] = {"x0", "x1", "x2", "x", "y", "z"};
-    static const char* const literals[] = {"0", "1", "2", "3", "0.5", "1e-3", "3.25", ".5",
-                                           "5.", "1E2", "_pi", "_e", "10", "0.1"};
-    static const char* const unary[] = {"sin",  "cos",   "tan",  "asin", "acos", "atan",
-                                        "sinh", "cosh",  "tanh", "asinh", "acosh", "atanh",
-                                        "log2", "log10", "log",  "ln",   "exp",  "sqrt",
-                                        "sign", "rint",  "abs"};
+    static const char* const literals[] = {"0",  "1",  "2",   "3",   "0.5", "1e-3", "3.25",
+                                           ".5", "5.", "1E2", "_pi", "_e",  "10",   "0.1"};
+    static const char* const unary[] = {"sin",  "cos",  "tan",   "asin",  "acos",  "atan", "sinh",
+                                        "cosh", "tanh", "asinh", "acosh", "atanh", "log2", "log10",
+                                        "log",  "ln",   "exp",   "sqrt",  "sign",  "rint", "abs"};
     static const char* const variadic[] = {"min", "max", "sum", "avg"};
     const size_t r = d > 0 ? rng_.below(10) : rng_.below(2);
     switch (r) {
@@ -156,10 +155,10 @@ TEST(ExprFuzz, GeneratedExpressionsMatchMuParser) {
 }
 
 TEST(ExprFuzz, TokenSoupIsAcceptedExactlyWhenMuParserAcceptsIt) {
-  static const char* const tokens[] = {
-      "x0", "x1", "y",   "1",  "2.5", "_pi", "+",   "-",   "*",   "/",    "^",   "<",
-      "<=", "==", "!=",  "&&", "||",  "?",   ":",   "(",   ")",   ",",    "sin", "min",
-      "sum", "atan2", "(", ")", "x0", "1",  "-",   " "};
+  static const char* const tokens[] = {"x0",  "x1",    "y", "1", "2.5", "_pi", "+",   "-",
+                                       "*",   "/",     "^", "<", "<=",  "==",  "!=",  "&&",
+                                       "||",  "?",     ":", "(", ")",   ",",   "sin", "min",
+                                       "sum", "atan2", "(", ")", "x0",  "1",   "-",   " "};
   Rng rng(77);
   int accepted = 0;
   for (int i = 0; i < 20000; ++i) {
