@@ -25,7 +25,10 @@ Vec2 invert_uniform_triangle(const std::array<double, 3>& b) {
 }
 
 double triangle_area(const Vec3& p0, const Vec3& p1, const Vec3& p2) {
-  return 0.5 * length(cross(p1 - p0, p2 - p0));
+  // hypot, not sqrt(dot): squaring the cross product would underflow to 0 for triangles
+  // with sides near 1e-150 that still have a representable area.
+  const Vec3 n = cross(p1 - p0, p2 - p0);
+  return 0.5 * std::hypot(n.x, n.y, n.z);
 }
 
 double triangle_point_pdf(const Vec3& p0, const Vec3& p1, const Vec3& p2) {
