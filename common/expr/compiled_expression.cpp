@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <utility>
-#include <vector>
 
 #include "common/expr/expr_parser.hpp"
 #include "common/expr/expr_program.hpp"
@@ -49,10 +48,10 @@ void CompiledExpression::evaluate_batch(const double* const* xs, size_t n, doubl
     expr::run_batch(*program_, xs, n, out);
     return;
   }
-  std::vector<const double*> shifted(dimensions_);
+  const double* shifted[kMaxDimensions];
   for (size_t start = 0; start < n; start += kBatch) {
     for (size_t v = 0; v < dimensions_; ++v) shifted[v] = xs[v] + start;
-    expr::run_batch(*program_, shifted.data(), std::min(kBatch, n - start), out + start);
+    expr::run_batch(*program_, shifted, std::min(kBatch, n - start), out + start);
   }
 }
 
