@@ -105,11 +105,14 @@ void sample_uniform_simplex(SampleRng& rng, std::span<double> x) {
 double unit_ball_volume(std::uint32_t d) {
   // V_0 = 1, V_1 = 2, V_d = (2 pi / d) V_{d-2}: no Gamma function, no overflow.
   double v = (d % 2 == 0) ? 1.0 : 2.0;
-  for (std::uint32_t k = (d % 2 == 0) ? 2 : 3; k <= d; k += 2) v *= 2.0 * kPi / static_cast<double>(k);
+  for (std::uint32_t k = (d % 2 == 0) ? 2 : 3; k <= d; k += 2)
+    v *= 2.0 * kPi / static_cast<double>(k);
   return v;
 }
 
-double sphere_surface_area(std::uint32_t d) { return static_cast<double>(d) * unit_ball_volume(d); }
+double sphere_surface_area(std::uint32_t d) {
+  return static_cast<double>(d) * unit_ball_volume(d);
+}
 
 double simplex_volume(std::uint32_t d) {
   double v = 1.0;

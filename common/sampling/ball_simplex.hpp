@@ -13,11 +13,17 @@ namespace tally {
 inline constexpr std::uint32_t kMaxBallSimplexDim = 64;
 
 // Gaussian directions by Box-Muller: one pair of uniforms per two coordinates.
-constexpr std::uint32_t sphere_surface_uniform_count(std::uint32_t d) { return 2 * ((d + 1) / 2); }
+constexpr std::uint32_t sphere_surface_uniform_count(std::uint32_t d) {
+  return 2 * ((d + 1) / 2);
+}
 // Direction plus one uniform for the radius r = u^(1/d) (volume grows as r^d).
-constexpr std::uint32_t ball_uniform_count(std::uint32_t d) { return sphere_surface_uniform_count(d) + 1; }
+constexpr std::uint32_t ball_uniform_count(std::uint32_t d) {
+  return sphere_surface_uniform_count(d) + 1;
+}
 // d + 1 exponential spacings, normalised (a flat Dirichlet), keep the first d.
-constexpr std::uint32_t simplex_uniform_count(std::uint32_t d) { return d + 1; }
+constexpr std::uint32_t simplex_uniform_count(std::uint32_t d) {
+  return d + 1;
+}
 
 // x.size() = d; u.size() = the matching *_uniform_count(d). Preconditions are checked
 // and throw std::invalid_argument (they are set up once per job, not per sample).
@@ -38,8 +44,14 @@ double sphere_surface_area(std::uint32_t d);
 // Volume of {x_i >= 0, sum x_i <= 1} in R^d: 1 / d!.
 double simplex_volume(std::uint32_t d);
 
-inline double uniform_ball_pdf(std::uint32_t d) { return 1.0 / unit_ball_volume(d); }
-inline double uniform_sphere_surface_pdf(std::uint32_t d) { return 1.0 / sphere_surface_area(d); }
-inline double uniform_simplex_pdf(std::uint32_t d) { return 1.0 / simplex_volume(d); }
+inline double uniform_ball_pdf(std::uint32_t d) {
+  return 1.0 / unit_ball_volume(d);
+}
+inline double uniform_sphere_surface_pdf(std::uint32_t d) {
+  return 1.0 / sphere_surface_area(d);
+}
+inline double uniform_simplex_pdf(std::uint32_t d) {
+  return 1.0 / simplex_volume(d);
+}
 
 }  // namespace tally

@@ -33,7 +33,7 @@ Vec2 sample_uniform_disk_concentric(Vec2 u) {
 
 Vec2 invert_uniform_disk_concentric(Vec2 p) {
   const double r = std::sqrt(p.x * p.x + p.y * p.y);
-  double phi = std::atan2(p.y, p.x);  // (-pi, pi]
+  double phi = std::atan2(p.y, p.x);      // (-pi, pi]
   if (phi < -kPiOver4) phi += 2.0 * kPi;  // now [-pi/4, 7 pi/4): one branch per wedge
   double a, b;
   if (phi < kPiOver4) {  // right wedge: r = a > 0, theta = pi/4 * b / a
@@ -67,7 +67,9 @@ Vec2 sample_direction_2d(double u) {
   return {std::cos(theta), std::sin(theta)};
 }
 
-double invert_direction_2d(Vec2 d) { return angle_to_unit(d.y, d.x); }
+double invert_direction_2d(Vec2 d) {
+  return angle_to_unit(d.y, d.x);
+}
 
 std::optional<Vec2> sample_direction_2d_rejection(SampleRng& rng, std::uint64_t max_attempts,
                                                   RejectionStats& stats) {

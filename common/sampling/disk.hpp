@@ -13,7 +13,9 @@
 namespace tally {
 
 // Density of every uniform disk sampler below, w.r.t. area.
-constexpr double uniform_disk_pdf() { return kInvPi; }
+constexpr double uniform_disk_pdf() {
+  return kInvPi;
+}
 
 // Polar map: r = sqrt(u.x) (area grows with r^2, so r = u.x would crowd the centre),
 // theta = 2 pi u.y.
@@ -36,7 +38,9 @@ std::optional<Vec2> sample_uniform_disk_rejection(SampleRng& rng, std::uint64_t 
                                                   RejectionStats& stats);
 
 // Uniform 2-D unit directions, density w.r.t. angle.
-constexpr double direction_2d_pdf() { return kInv2Pi; }
+constexpr double direction_2d_pdf() {
+  return kInv2Pi;
+}
 Vec2 sample_direction_2d(double u);  // (cos, sin) of 2 pi u
 double invert_direction_2d(Vec2 d);
 

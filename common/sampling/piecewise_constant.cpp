@@ -36,9 +36,9 @@ std::span<const double> checked_table(std::span<const double> values, std::size_
     throw std::invalid_argument("PiecewiseConstant2D: need finite domain.lo.x < domain.hi.x");
   }
   if (nu == 0 || nv == 0 || values.size() != nu * nv) {
-    throw std::invalid_argument("PiecewiseConstant2D: expected nu * nv = " +
-                                std::to_string(nu) + " * " + std::to_string(nv) +
-                                " values, got " + std::to_string(values.size()));
+    throw std::invalid_argument("PiecewiseConstant2D: expected nu * nv = " + std::to_string(nu) +
+                                " * " + std::to_string(nv) + " values, got " +
+                                std::to_string(values.size()));
   }
   validate_weights(values, "PiecewiseConstant2D");
   return values;
@@ -99,8 +99,9 @@ PiecewiseConstant2D::PiecewiseConstant2D(std::span<const double> values, std::si
     : nu_(nu),
       nv_(nv),
       values_(checked_table(values, nu, nv, domain).begin(), values.end()),
-      marginal_(row_integrals(values, nu, nv, (domain.hi.x - domain.lo.x) / static_cast<double>(nu)),
-                domain.lo.y, domain.hi.y) {
+      marginal_(
+          row_integrals(values, nu, nv, (domain.hi.x - domain.lo.x) / static_cast<double>(nu)),
+          domain.lo.y, domain.hi.y) {
   conditional_.reserve(nv);
   const std::vector<double> ones(nu, 1.0);
   for (std::size_t v = 0; v < nv; ++v) {

@@ -25,7 +25,7 @@ class PiecewiseConstant1D {
   explicit PiecewiseConstant1D(std::span<const double> values, double min = 0.0, double max = 1.0);
 
   Sample sample(double u) const;
-  double pdf(double x) const;  // 0 outside [min, max] and in zero-valued cells
+  double pdf(double x) const;     // 0 outside [min, max] and in zero-valued cells
   double invert(double x) const;  // the u with sample(u).x == x (x clamped to the domain)
   double integral() const { return integral_; }  // of the function over [min, max]
 

@@ -49,8 +49,8 @@ const std::vector<std::array<std::uint32_t, 32>>& directions() {
 
 void check_dim(std::uint32_t dim) {
   if (dim >= kRqmcMaxDimensions) {
-    throw std::out_of_range("rqmc: dimension " + std::to_string(dim) + " >= " +
-                            std::to_string(kRqmcMaxDimensions));
+    throw std::out_of_range("rqmc: dimension " + std::to_string(dim) +
+                            " >= " + std::to_string(kRqmcMaxDimensions));
   }
 }
 

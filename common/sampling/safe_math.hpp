@@ -19,11 +19,15 @@ inline constexpr double kPiOver4 = 0.25 * std::numbers::pi;
 inline constexpr double kOneMinusEpsilon = 0x1.fffffffffffffp-1;
 
 // sqrt that treats a slightly negative argument (from rounding) as 0 instead of NaN.
-inline double safe_sqrt(double x) { return std::sqrt(std::max(0.0, x)); }
+inline double safe_sqrt(double x) {
+  return std::sqrt(std::max(0.0, x));
+}
 
 // Clamp a value that should be a uniform in [0, 1) back into that range: inverses
 // computed in floating point can land on 1 or a hair below 0.
-inline double clamp_unit(double u) { return std::clamp(u, 0.0, kOneMinusEpsilon); }
+inline double clamp_unit(double u) {
+  return std::clamp(u, 0.0, kOneMinusEpsilon);
+}
 
 // Angle atan2(y, x) in (-pi, pi] mapped to a uniform in [0, 1) (angle / 2 pi, wrapped).
 inline double angle_to_unit(double y, double x) {

@@ -9,18 +9,24 @@ namespace tally {
 // z = 1 - 2 u.x (Archimedes: equal z bands have equal area), phi = 2 pi u.y.
 Vec3 sample_uniform_sphere(Vec2 u);
 Vec2 invert_uniform_sphere(const Vec3& w);
-constexpr double uniform_sphere_pdf() { return kInv4Pi; }
+constexpr double uniform_sphere_pdf() {
+  return kInv4Pi;
+}
 
 // z = u.x in [0, 1), phi = 2 pi u.y.
 Vec3 sample_uniform_hemisphere(Vec2 u);
 Vec2 invert_uniform_hemisphere(const Vec3& w);
-constexpr double uniform_hemisphere_pdf() { return kInv2Pi; }
+constexpr double uniform_hemisphere_pdf() {
+  return kInv2Pi;
+}
 
 // Malley's method: a uniform point of the (concentric) disk lifted to the hemisphere has
 // density cos(theta) / pi, the importance sampling the lecture derives for irradiance.
 Vec3 sample_cosine_hemisphere(Vec2 u);
 Vec2 invert_cosine_hemisphere(const Vec3& w);
-inline double cosine_hemisphere_pdf(double cos_theta) { return std::max(cos_theta, 0.0) * kInvPi; }
+inline double cosine_hemisphere_pdf(double cos_theta) {
+  return std::max(cos_theta, 0.0) * kInvPi;
+}
 
 // Uniform in the cone cos(theta) >= cos_theta_max around +z (cos_theta_max in [-1, 1)),
 // e.g. the directions subtended by a sphere light. Computed through 1 - cos(theta) so that

@@ -25,6 +25,8 @@ void stratified_sample(std::uint32_t strata_per_dim, std::uint64_t sample_index,
                        std::span<double> out);
 
 // Density of a stratified point over the unit cube (over a whole sweep): 1.
-constexpr double stratified_pdf() { return 1.0; }
+constexpr double stratified_pdf() {
+  return 1.0;
+}
 
 }  // namespace tally

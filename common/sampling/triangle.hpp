@@ -12,7 +12,9 @@ namespace tally {
 std::array<double, 3> sample_uniform_triangle(Vec2 u);
 Vec2 invert_uniform_triangle(const std::array<double, 3>& b);
 // Density of (b0, b1) over the reference triangle {b0, b1 >= 0, b0 + b1 <= 1} (area 1/2).
-constexpr double uniform_triangle_barycentric_pdf() { return 2.0; }
+constexpr double uniform_triangle_barycentric_pdf() {
+  return 2.0;
+}
 
 double triangle_area(const Vec3& p0, const Vec3& p1, const Vec3& p2);
 

@@ -71,7 +71,8 @@ TEST(Ball, Ball3DRadiusAndPolarAngle) {
 
 TEST(Ball, Ball7DRadius) {
   EXPECT_TRUE(passes_chi_square(test::chi_square_1d(
-      0, 1, 101, [](std::uint64_t i) -> std::optional<double> { return std::pow(norm2(ball(7, 3, i)), 3.5); },
+      0, 1, 101,
+      [](std::uint64_t i) -> std::optional<double> { return std::pow(norm2(ball(7, 3, i)), 3.5); },
       [](double) { return 1.0; })));
 }
 
@@ -104,7 +105,9 @@ TEST(Simplex, Triangle2DIsUniform) {
         const std::vector<double> x = simplex(2, 6, i);
         return Vec2{x[0], x[1]};
       },
-      [](Vec2 p) { return p.x >= 0 && p.y >= 0 && p.x + p.y <= 1 + 1e-12 ? uniform_simplex_pdf(2) : 0.0; })));
+      [](Vec2 p) {
+        return p.x >= 0 && p.y >= 0 && p.x + p.y <= 1 + 1e-12 ? uniform_simplex_pdf(2) : 0.0;
+      })));
 }
 
 TEST(Simplex, Tetrahedron3DProjection) {
@@ -169,7 +172,8 @@ TEST(BallSimplex, Volumes) {
   EXPECT_DOUBLE_EQ(simplex_volume(3), 1.0 / 6.0);
   for (std::uint32_t d = 1; d <= 64; ++d) {
     const double half = d / 2.0;
-    EXPECT_NEAR(unit_ball_volume(d) / (std::pow(kPi, half) / std::tgamma(half + 1)), 1.0, 1e-12) << d;
+    EXPECT_NEAR(unit_ball_volume(d) / (std::pow(kPi, half) / std::tgamma(half + 1)), 1.0, 1e-12)
+        << d;
     EXPECT_NEAR(simplex_volume(d) * std::tgamma(d + 1.0), 1.0, 1e-12) << d;
   }
 }

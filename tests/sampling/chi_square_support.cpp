@@ -128,7 +128,8 @@ ChiSquareResult chi_square_grid(const Histogram2D& h, const Sampler2& sample, co
     bool any_zero = false, any_positive = false;
     for (int sy = 0; sy < ny_sub; ++sy) {
       for (int sx = 0; sx < nx_sub; ++sx) {
-        const Vec2 q{h.x0 + (ix + (sx + 0.5) / nx_sub) * wx, h.y0 + (iy + (sy + 0.5) / ny_sub) * wy};
+        const Vec2 q{h.x0 + (ix + (sx + 0.5) / nx_sub) * wx,
+                     h.y0 + (iy + (sy + 0.5) / ny_sub) * wy};
         const double v = pdf(q);
         sum += v;
         any_zero = any_zero || v == 0;
@@ -144,7 +145,8 @@ ChiSquareResult chi_square_grid(const Histogram2D& h, const Sampler2& sample, co
     for (int ix = 0; ix < h.nx; ++ix) {
       bool mixed = false;
       double integral = integrate_cell(ix, iy, mx, my, &mixed);
-      if (mixed) integral = integrate_cell(ix, iy, mx * kRefine, my == 1 ? 1 : my * kRefine, nullptr);
+      if (mixed)
+        integral = integrate_cell(ix, iy, mx * kRefine, my == 1 ? 1 : my * kRefine, nullptr);
       r.pdf_integral += integral;
       expected[static_cast<std::size_t>(iy) * static_cast<std::size_t>(h.nx) +
                static_cast<std::size_t>(ix)] = integral * drawn;
@@ -172,7 +174,7 @@ ChiSquareResult chi_square_1d(double x0, double x1, int cells, const Sampler1& s
         if (!x) return std::nullopt;
         return Vec2{*x, 0.5};
       },
-      [&](Vec2 p) { return pdf(p.x); }, options, m * m, 1);
+      [&](Vec2 p) { return pdf(p.x); }, options, m* m, 1);
 }
 
 ChiSquareResult chi_square_discrete(std::span<const double> probabilities,
@@ -206,7 +208,8 @@ ChiSquareResult chi_square_discrete(std::span<const double> probabilities,
                   r.p_value >= chi_square_test_alpha();
   // TALLY_CHI2_VERBOSE=1 prints every result, to see how far from alpha' tests pass.
   if (std::getenv("TALLY_CHI2_VERBOSE") != nullptr) {
-    std::printf("  [chi2] %s: %s\n", ::testing::UnitTest::GetInstance()->current_test_info()->name(),
+    std::printf("  [chi2] %s: %s\n",
+                ::testing::UnitTest::GetInstance()->current_test_info()->name(),
                 r.summary().c_str());
   }
   if (ok) return ::testing::AssertionSuccess() << r.summary();
@@ -214,7 +217,8 @@ ChiSquareResult chi_square_discrete(std::span<const double> probabilities,
 }
 
 ::testing::AssertionResult rejected_by_chi_square(const ChiSquareResult& r, double factor) {
-  if (r.p_value < chi_square_test_alpha() * factor) return ::testing::AssertionSuccess() << r.summary();
+  if (r.p_value < chi_square_test_alpha() * factor)
+    return ::testing::AssertionSuccess() << r.summary();
   return ::testing::AssertionFailure() << "not rejected: " << r.summary();
 }
 

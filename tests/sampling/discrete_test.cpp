@@ -25,8 +25,8 @@ double uniform(std::uint64_t stream, std::uint64_t index) {
 
 // Non-uniform, with zeros at the ends and in the middle, one dominant and some tiny
 // entries (expected counts below 5 exercise the pooling).
-const std::vector<double> kWeights = {0.0, 3.0,  1.0, 0.5, 0.0, 0.0, 7.5,  2e-6, 4.0, 0.25,
-                                      1.0, 0.0, 12.0, 3e-6, 2.0, 0.75, 0.0, 5.0, 1e-6, 0.0};
+const std::vector<double> kWeights = {0.0, 3.0, 1.0,  0.5,  0.0, 0.0,  7.5, 2e-6, 4.0,  0.25,
+                                      1.0, 0.0, 12.0, 3e-6, 2.0, 0.75, 0.0, 5.0,  1e-6, 0.0};
 
 std::vector<double> normalized(const std::vector<double>& w) {
   double total = 0;

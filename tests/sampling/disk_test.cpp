@@ -27,12 +27,15 @@ Vec2 u2(std::uint64_t stream, std::uint64_t index) {
 
 // Uniform over the unit disk, in Cartesian coordinates. The 1e-12 slack admits points
 // that rounding put an ulp outside the circle (cos^2 + sin^2 can exceed 1 by an ulp).
-double disk_pdf(Vec2 p) { return p.x * p.x + p.y * p.y <= 1.0 + 1e-12 ? uniform_disk_pdf() : 0.0; }
+double disk_pdf(Vec2 p) {
+  return p.x * p.x + p.y * p.y <= 1.0 + 1e-12 ? uniform_disk_pdf() : 0.0;
+}
 const test::Histogram2D kDiskHistogram{-1.0, 1.0, -1.0, 1.0, 64, 64};
 
 TEST(Disk, PolarIsUniform) {
   EXPECT_TRUE(passes_chi_square(chi_square_2d(
-      kDiskHistogram, [](std::uint64_t i) { return std::optional(sample_uniform_disk_polar(u2(1, i))); },
+      kDiskHistogram,
+      [](std::uint64_t i) { return std::optional(sample_uniform_disk_polar(u2(1, i))); },
       disk_pdf)));
 }
 
@@ -86,9 +89,13 @@ TEST(Disk, RejectionCapReturnsNulloptAndCounts) {
   EXPECT_EQ(rng.dims_used(), 17u);
 }
 
-double angle_of(Vec2 d) { return std::atan2(d.y, d.x); }
+double angle_of(Vec2 d) {
+  return std::atan2(d.y, d.x);
+}
 // Uniform angle in (-pi, pi]; a direction must also have unit length.
-double direction_pdf(double) { return direction_2d_pdf(); }
+double direction_pdf(double) {
+  return direction_2d_pdf();
+}
 
 TEST(Direction2D, AnalyticIsUniform) {
   EXPECT_TRUE(passes_chi_square(chi_square_1d(

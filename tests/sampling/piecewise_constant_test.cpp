@@ -77,7 +77,8 @@ TEST(PiecewiseConstant1D, PdfIntegralAndRoundTrip) {
     // the cell from x by floor() can disagree by an ulp on an exact cell edge).
     ASSERT_EQ(s.pdf, dist.pdf(s.x)) << u;
     ASSERT_NEAR(s.pdf, v[s.cell] / (sum * 5.0 / 37.0), 1e-12) << u;
-    ASSERT_NEAR(s.x, -2.0 + (static_cast<double>(s.cell) + 0.5) * 5.0 / 37.0, 0.5 * 5.0 / 37.0 + 1e-12)
+    ASSERT_NEAR(s.x, -2.0 + (static_cast<double>(s.cell) + 0.5) * 5.0 / 37.0,
+                0.5 * 5.0 / 37.0 + 1e-12)
         << u;
     const double back = dist.invert(s.x);
     ASSERT_TRUE(back >= 0 && back < 1) << u;

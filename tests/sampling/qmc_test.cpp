@@ -9,8 +9,8 @@
 #include <stdexcept>
 #include <vector>
 
-#include <boost/random/sobol.hpp>
 #include <gtest/gtest.h>
+#include <boost/random/sobol.hpp>
 
 #include "chi_square_support.hpp"
 #include "common/rng/counter_rng.hpp"
@@ -85,7 +85,8 @@ TEST(Qmc, ScramblingKeepsTheNetProperty) {
   for (std::uint64_t seed = 0; seed < 4; ++seed) {
     for (std::uint32_t dim = 0; dim < 16; ++dim) {
       std::vector<int> hits(1024, 0);
-      for (std::uint64_t i = 0; i < 1024; ++i) ++hits[static_cast<std::size_t>(rqmc_point(seed, i, dim) * 1024)];
+      for (std::uint64_t i = 0; i < 1024; ++i)
+        ++hits[static_cast<std::size_t>(rqmc_point(seed, i, dim) * 1024)];
       ASSERT_EQ(std::count(hits.begin(), hits.end(), 1), 1024) << "seed " << seed << " dim " << dim;
     }
     std::vector<int> boxes(1024, 0);
@@ -109,7 +110,8 @@ Replicates rqmc_replicates(int randomizations, std::uint64_t n, std::uint32_t di
   for (int r = 0; r < randomizations; ++r) {
     double acc = 0;
     for (std::uint64_t i = 0; i < n; ++i) {
-      for (std::uint32_t d = 0; d < dims; ++d) x[d] = rqmc_point(kSeed + static_cast<std::uint64_t>(r), i, d);
+      for (std::uint32_t d = 0; d < dims; ++d)
+        x[d] = rqmc_point(kSeed + static_cast<std::uint64_t>(r), i, d);
       acc += f(x);
     }
     const double est = acc / static_cast<double>(n);
@@ -148,8 +150,8 @@ TEST(Qmc, VarianceFarBelowPlainMonteCarlo) {
   });
   EXPECT_NEAR(r.mean, 1.0, 4 * std::sqrt(r.variance / 64) + 1e-12);
   std::printf("  RQMC variance reduction over MC at N = 1024: %.0fx\n", var_mc / r.variance);
-  EXPECT_LT(r.variance, var_mc / 100) << "RQMC " << r.variance << " vs MC " << var_mc
-                                      << " ratio " << var_mc / r.variance;
+  EXPECT_LT(r.variance, var_mc / 100)
+      << "RQMC " << r.variance << " vs MC " << var_mc << " ratio " << var_mc / r.variance;
 }
 
 }  // namespace

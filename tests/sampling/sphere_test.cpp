@@ -41,14 +41,14 @@ test::ChiSquareResult direction_chi_square(const test::Histogram2D& h, std::uint
 }
 
 TEST(Sphere, UniformSphere) {
-  EXPECT_TRUE(passes_chi_square(direction_chi_square(
-      kFullSphere, 1, sample_uniform_sphere, [](double) { return uniform_sphere_pdf(); })));
+  EXPECT_TRUE(passes_chi_square(direction_chi_square(kFullSphere, 1, sample_uniform_sphere,
+                                                     [](double) { return uniform_sphere_pdf(); })));
 }
 
 TEST(Sphere, UniformHemisphere) {
-  EXPECT_TRUE(passes_chi_square(direction_chi_square(
-      kFullSphere, 2, sample_uniform_hemisphere,
-      [](double z) { return z >= 0 ? uniform_hemisphere_pdf() : 0.0; })));
+  EXPECT_TRUE(passes_chi_square(
+      direction_chi_square(kFullSphere, 2, sample_uniform_hemisphere,
+                           [](double z) { return z >= 0 ? uniform_hemisphere_pdf() : 0.0; })));
 }
 
 TEST(Sphere, CosineHemisphere) {

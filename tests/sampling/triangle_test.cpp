@@ -30,7 +30,7 @@ TEST(Triangle, BarycentricsAreUniform) {
       },
       [](Vec2 p) {
         return p.x >= 0 && p.y >= 0 && p.x + p.y <= 1.0 + 1e-12 ? uniform_triangle_barycentric_pdf()
-                                                               : 0.0;
+                                                                : 0.0;
       })));
 }
 
@@ -38,7 +38,8 @@ TEST(Triangle, RoundTrip) {
   for (const double a : test::unit_test_grid(101)) {
     for (const double b : test::unit_test_grid(101)) {
       const std::array<double, 3> bary = sample_uniform_triangle({a, b});
-      for (const double bi : bary) ASSERT_TRUE(bi >= 0 && bi <= 1 && std::isfinite(bi)) << a << " " << b;
+      for (const double bi : bary)
+        ASSERT_TRUE(bi >= 0 && bi <= 1 && std::isfinite(bi)) << a << " " << b;
       const Vec2 v = invert_uniform_triangle(bary);
       ASSERT_TRUE(v.x >= 0 && v.x < 1 && v.y >= 0 && v.y < 1) << a << " " << b;
       EXPECT_NEAR(v.x, a, 1e-6) << a << " " << b;
