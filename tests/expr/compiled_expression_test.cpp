@@ -155,5 +155,24 @@ TEST(CompiledExpression, ThreadsEvaluatingTheSameExpressionAgree) {
   }
 }
 
+TEST(CompiledExpression, ThreadsCompilingConcurrentlyAgree) {
+  auto work = [](std::vector<double>& out) {
+    for (int i = 0; i < 200; ++i) {
+      const auto e = CompiledExpression::compile("sin(x0 * " + std::to_string(i) +
+                                                     ") + x1 ^ 2 < 0.5 ? avg(x0, x1, " +
+                                                     std::to_string(i) + ") : -x0",
+                                                 2);
+      const double p[2] = {0.25, -0.75};
+      out.push_back(e.evaluate(p));
+    }
+  };
+  std::vector<double> a, b;
+  std::thread ta(work, std::ref(a));
+  std::thread tb(work, std::ref(b));
+  ta.join();
+  tb.join();
+  EXPECT_EQ(a, b);
+}
+
 }  // namespace
 }  // namespace tally
