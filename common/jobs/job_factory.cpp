@@ -4,6 +4,7 @@
 
 #include "common/integrate/integration_job.hpp"
 #include "common/json/spec_reader.hpp"
+#include "common/lighting/lighting_job.hpp"
 
 namespace tally {
 
@@ -16,6 +17,7 @@ std::unique_ptr<JobDefinition> compile_job(const nlohmann::json& spec, const Job
   if (!it->is_string()) throw SpecError("/kind", "must be a string");
   const std::string& kind = it->get_ref<const std::string&>();
   if (kind == "integrate") return compile_integration_job(spec, limits);
+  if (kind == "lighting") return compile_lighting_job(spec, limits);
   throw SpecError("/kind", fmt::format("must be one of integrate, lighting; got \"{}\"", kind));
 }
 

@@ -1,0 +1,186 @@
+#include "common/lighting/image_kernel.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "common/lighting/embree_device.hpp"
+#include "common/stats/confidence.hpp"
+
+namespace tally {
+
+ImageKernel::ImageKernel(std::shared_ptr<const CompiledScene> scene, PathSettings settings, uint64_t seed,
+                         int tile_size, uint64_t max_pass_spp, std::optional<AdaptiveSettings> adaptive)
+    : scene_(std::move(scene)),
+      settings_(settings),
+      seed_(seed),
+      width_(scene_->scene.camera->width),
+      height_(scene_->scene.camera->height),
+      tile_(tile_size),
+      tiles_x_((width_ + tile_size - 1) / tile_size),
+      tiles_y_((height_ + tile_size - 1) / tile_size),
+      max_pass_spp_(max_pass_spp),
+      adaptive_(adaptive) {
+  tile_first_.resize(tile_count() + 1);
+  size_t ch = 0;
+  for (uint32_t t = 0; t < tile_count(); ++t) {
+    tile_first_[t] = ch;
+    const TileRect r = tile_rect(t);
+    ch += 3 * static_cast<size_t>(r.w) * static_cast<size_t>(r.h);
+  }
+  tile_first_[tile_count()] = ch;
+  const Camera& c = *scene_->scene.camera;
+  cam_pos_ = c.position;
+  cam_fwd_ = normalize(c.look_at - c.position);
+  cam_right_ = normalize(cross(cam_fwd_, c.up));
+  cam_up_ = cross(cam_right_, cam_fwd_);
+  tan_half_ = std::tan(0.5 * c.fov_deg * kPi / 180.0);
+  aspect_ = static_cast<double>(width_) / static_cast<double>(height_);
+}
+
+PassSchedule ImageKernel::schedule() const {
+  PassSchedule s;
+  s.first_pass_samples = 1;
+  s.max_pass_samples = max_pass_spp_;
+  // About 16k paths per block: a 32x32 tile gets 16 spp per block.
+  s.block_samples = std::max<uint64_t>(1, 16384 / static_cast<uint64_t>(tile_ * tile_));
+  return s;
+}
+
+TileRect ImageKernel::tile_rect(uint32_t tile) const {
+  const int tx = static_cast<int>(tile) % tiles_x_, ty = static_cast<int>(tile) / tiles_x_;
+  TileRect r;
+  r.x = tx * tile_;
+  r.y = ty * tile_;
+  r.w = std::min(tile_, width_ - r.x);
+  r.h = std::min(tile_, height_ - r.y);
+  return r;
+}
+
+size_t ImageKernel::pixel_channel(int x, int y) const {
+  const int tx = x / tile_, ty = y / tile_;
+  const uint32_t t = static_cast<uint32_t>(ty * tiles_x_ + tx);
+  const TileRect r = tile_rect(t);
+  return tile_first_[t] + 3 * (static_cast<size_t>(y - r.y) * static_cast<size_t>(r.w) + static_cast<size_t>(x - r.x));
+}
+
+void ImageKernel::run_block(const Block& block, BlockResult& out) const {
+  const TileRect r = tile_rect(block.partition);
+  out.first_channel = static_cast<uint32_t>(tile_first_[block.partition]);
+  out.tallies.assign(3 * static_cast<size_t>(r.w) * static_cast<size_t>(r.h), Tally{});
+  const PathTracer& tracer = *scene_->tracer;
+  std::vector<double> v[3];
+  for (auto& a : v) a.reserve(block.sample_count);
+  const double inv_w = 1.0 / width_, inv_h = 1.0 / height_;
+  for (int y = r.y; y < r.y + r.h; ++y) {
+    for (int x = r.x; x < r.x + r.w; ++x) {
+      const uint64_t key = stream_key(seed_, static_cast<uint64_t>(y) * static_cast<uint64_t>(width_) + static_cast<uint64_t>(x));
+      for (auto& a : v) a.clear();
+      for (uint64_t i = block.first_sample; i < block.first_sample + block.sample_count; ++i) {
+        const SampleRng rng(key, i);
+        const double sx = (2.0 * (x + rng.uniform(0)) * inv_w - 1.0) * tan_half_ * aspect_;
+        const double sy = (1.0 - 2.0 * (y + rng.uniform(1)) * inv_h) * tan_half_;
+        const Vec3 d = normalize(cam_fwd_ + cam_right_ * sx + cam_up_ * sy);
+        const Rgb L = tracer.camera(cam_pos_, d, settings_, rng, 2, out.counters);
+        out.counters.add(Counter::evaluations);
+        if (!std::isfinite(L.x) || !std::isfinite(L.y) || !std::isfinite(L.z)) {
+          out.counters.add(Counter::nonfinite);
+          continue;
+        }
+        v[0].push_back(L.x);
+        v[1].push_back(L.y);
+        v[2].push_back(L.z);
+      }
+      const size_t base = 3 * (static_cast<size_t>(y - r.y) * static_cast<size_t>(r.w) + static_cast<size_t>(x - r.x));
+      for (int c = 0; c < 3; ++c) out.tallies[base + static_cast<size_t>(c)] = Tally::from_batch(v[c].data(), v[c].size());
+    }
+  }
+  if (auto err = take_embree_error()) {
+    SampleFault f;
+    f.sample_index = block.first_sample;
+    f.point = {static_cast<double>(r.x), static_cast<double>(r.y)};
+    f.message = *err;
+    out.fault = std::move(f);
+  }
+}
+
+double ImageKernel::image_mean(const JobState& state) const {
+  double sum = 0;
+  for (const Tally& t : state.channels) sum += t.mean;
+  return state.channels.empty() ? 0.0 : sum / static_cast<double>(state.channels.size());
+}
+
+double ImageKernel::pixel_rel_error(const JobState& state, size_t ch, double confidence, double delta) const {
+  const Tally& t = state.channels[ch];
+  if (t.n < 2) return std::numeric_limits<double>::infinity();
+  const double half = critical_value(confidence, t.n) * std::sqrt(t.variance() / static_cast<double>(t.n));
+  return half / (std::fabs(t.mean) + delta);
+}
+
+std::vector<uint32_t> ImageKernel::active_partitions(const JobState& state) const {
+  if (!adaptive_) return Kernel::active_partitions(state);
+  const double delta = std::max(1e-3 * std::fabs(image_mean(state)), std::numeric_limits<double>::min());
+  std::vector<uint32_t> active;
+  for (uint32_t t = 0; t < tile_count(); ++t) {
+    bool need = state.partition_samples[t] < adaptive_->min_spp;
+    for (size_t ch = tile_first_[t]; !need && ch < tile_first_[t + 1]; ++ch) {
+      need = pixel_rel_error(state, ch, 0.95, delta) > adaptive_->rel_error;
+    }
+    if (need) active.push_back(t);
+  }
+  return active;
+}
+
+ErrorSummary ImageKernel::error_summary(const JobState& state, double confidence) const {
+  constexpr double inf = std::numeric_limits<double>::infinity();
+  const double mean = image_mean(state);
+  const double delta = std::max(1e-3 * std::fabs(mean), std::numeric_limits<double>::min());
+  double sum_h = 0, sum_r = 0;
+  uint64_t n_min = std::numeric_limits<uint64_t>::max();
+  for (const Tally& t : state.channels) {
+    if (t.n < 2) return {inf, inf, std::numeric_limits<double>::quiet_NaN(), mean};
+    const double half = critical_value(confidence, t.n) * std::sqrt(t.variance() / static_cast<double>(t.n));
+    sum_h += half;
+    sum_r += half / (std::fabs(t.mean) + delta);
+    n_min = std::min(n_min, t.n);
+  }
+  const double count = static_cast<double>(state.channels.size());
+  ErrorSummary e;
+  e.abs_error = sum_h / count;
+  e.rel_error = sum_r / count;
+  // sigma such that z sigma / sqrt(n) = abs_error, and mean such that abs/mean = rel:
+  // the engine's 1/sqrt(n) prediction of the samples still needed is then exact for
+  // both kinds of target.
+  e.sigma = e.abs_error * std::sqrt(static_cast<double>(n_min)) / critical_value(confidence, n_min);
+  e.mean = e.rel_error > 0 ? e.abs_error / e.rel_error : mean;
+  return e;
+}
+
+ImageSnapshot ImageKernel::snapshot(const JobState& state, const TileRect& rect) const {
+  ImageSnapshot s;
+  s.x0 = std::clamp(rect.x, 0, width_);
+  s.y0 = std::clamp(rect.y, 0, height_);
+  s.width = std::clamp(rect.w, 0, width_ - s.x0);
+  s.height = std::clamp(rect.h, 0, height_ - s.y0);
+  s.full_width = width_;
+  s.full_height = height_;
+  const size_t n = static_cast<size_t>(s.width) * static_cast<size_t>(s.height);
+  s.rgb.resize(3 * n);
+  s.stderr_rgb.resize(3 * n);
+  s.samples.resize(n);
+  for (int y = 0; y < s.height; ++y) {
+    for (int x = 0; x < s.width; ++x) {
+      const size_t ch = pixel_channel(s.x0 + x, s.y0 + y);
+      const size_t i = static_cast<size_t>(y) * static_cast<size_t>(s.width) + static_cast<size_t>(x);
+      for (size_t c = 0; c < 3; ++c) {
+        const Tally& t = state.channels[ch + c];
+        s.rgb[3 * i + c] = static_cast<float>(t.mean);
+        s.stderr_rgb[3 * i + c] = t.n > 1 ? static_cast<float>(t.std_error()) : 0.0f;
+      }
+      s.samples[i] = static_cast<float>(state.channels[ch].n);
+    }
+  }
+  return s;
+}
+
+}  // namespace tally

@@ -1,0 +1,71 @@
+#pragma once
+// Image queries: every pixel's radiance through a pinhole camera. Partitions are
+// square tiles; the channels are tile-major (tile t owns [tile_first_channel(t),
+// + 3 * tile pixels), its pixels row-major inside the tile, RGB interleaved), so a block
+// (one tile x a range of samples per pixel) fills one contiguous channel range.
+// "Samples" of the job are samples per pixel: pass k draws min(2^k, max_pass_spp) spp.
+// Pixel (x, y), sample i uses SampleRng(stream_key(seed, y * width + x), i): dimensions
+// 0-1 jitter the pixel, the path uses 2 onwards.
+//
+// Error summary (what stop rules on images look at): per pixel, the half-width h of the
+// confidence interval of each channel, and r = h / (|mean| + delta) with
+// delta = 1e-3 * (mean over the image) guarding black pixels. abs_error is the mean of h
+// over all channels, rel_error the mean of r. (A percentile would punish a few fireflies
+// more; the mean tracks overall noise, which is what progressive previews show.)
+// Adaptive sampling: a tile stays active while it has fewer than min_spp samples or any
+// of its channels has r above the adaptive target.
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "common/engine/image_source.hpp"
+#include "common/engine/kernel.hpp"
+#include "common/lighting/compiled_scene.hpp"
+
+namespace tally {
+
+struct AdaptiveSettings {
+  double rel_error = 0.05;
+  uint64_t min_spp = 16;
+};
+
+class ImageKernel final : public Kernel, public ImageSource {
+ public:
+  ImageKernel(std::shared_ptr<const CompiledScene> scene, PathSettings settings, uint64_t seed,
+              int tile_size, uint64_t max_pass_spp, std::optional<AdaptiveSettings> adaptive);
+
+  // Kernel
+  size_t channel_count() const override { return 3 * static_cast<size_t>(width_) * static_cast<size_t>(height_); }
+  uint32_t partition_count() const override { return tile_count(); }
+  PassSchedule schedule() const override;
+  std::vector<uint32_t> active_partitions(const JobState& state) const override;
+  void run_block(const Block& block, BlockResult& out) const override;
+  ErrorSummary error_summary(const JobState& state, double confidence) const override;
+
+  // ImageSource
+  int width() const override { return width_; }
+  int height() const override { return height_; }
+  uint32_t tile_count() const override { return static_cast<uint32_t>(tiles_x_ * tiles_y_); }
+  TileRect tile_rect(uint32_t tile) const override;
+  ImageSnapshot snapshot(const JobState& state, const TileRect& rect) const override;
+  using ImageSource::snapshot;
+
+  size_t pixel_channel(int x, int y) const;  // first of the pixel's 3 channels
+  int tile_size() const { return tile_; }
+
+ private:
+  double pixel_rel_error(const JobState& state, size_t ch, double z_conf, double delta) const;
+  double image_mean(const JobState& state) const;
+
+  std::shared_ptr<const CompiledScene> scene_;
+  PathSettings settings_;
+  uint64_t seed_;
+  int width_, height_, tile_, tiles_x_, tiles_y_;
+  uint64_t max_pass_spp_;
+  std::optional<AdaptiveSettings> adaptive_;
+  std::vector<size_t> tile_first_;
+  Vec3 cam_pos_, cam_fwd_, cam_right_, cam_up_;
+  double tan_half_ = 0, aspect_ = 1;
+};
+
+}  // namespace tally

@@ -1,0 +1,182 @@
+#include "common/lighting/light_set.hpp"
+
+#include <cmath>
+#include <limits>
+
+#include "common/sampling/disk.hpp"
+#include "common/sampling/safe_math.hpp"
+#include "common/sampling/sphere.hpp"
+#include "common/sampling/triangle.hpp"
+
+namespace tally {
+
+namespace {
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// Outside the sphere by a relative margin: then the cone sampler applies.
+bool outside_sphere(const Shape& s, const Vec3& x) {
+  const Vec3 d = s.center - x;
+  return dot(d, d) > s.radius * s.radius * (1.0 + 1e-6);
+}
+
+double cone_cos_max(const Shape& s, const Vec3& x) {
+  const Vec3 d = s.center - x;
+  const double sin2 = s.radius * s.radius / dot(d, d);
+  return safe_sqrt(1.0 - sin2);
+}
+
+double area_to_solid_angle(double pdf_area, const Vec3& x, const Vec3& p, const Vec3& n) {
+  const Vec3 d = p - x;
+  const double d2 = dot(d, d);
+  if (!(d2 > 0)) return kInf;
+  const double cos_l = std::fabs(dot(n, d)) / std::sqrt(d2);
+  if (!(cos_l > 0)) return kInf;
+  return pdf_area * d2 / cos_l;
+}
+}  // namespace
+
+Rgb emitted(const Scene& scene, uint32_t shape, const Vec3& n, const Vec3& w) {
+  const Material& m = scene.materials[scene.shapes[shape].material];
+  if (!m.emits()) return {};
+  if (m.two_sided || dot(n, w) > 0) return m.emission;
+  return {};
+}
+
+LightSet::LightSet(const Scene& scene) : scene_(scene), light_of_shape_(scene.shapes.size(), -1) {
+  sky_ = scene.sky.has_value() && !is_black(*scene.sky);
+  for (uint32_t i = 0; i < scene.shapes.size(); ++i) {
+    const Shape& s = scene.shapes[i];
+    if (!scene.materials[s.material].emits()) continue;
+    AreaLight l;
+    l.shape = i;
+    switch (s.type) {
+      case ShapeType::sphere: l.area = 4.0 * kPi * s.radius * s.radius; break;
+      case ShapeType::disk: l.area = kPi * s.radius * s.radius; break;
+      case ShapeType::quad: l.area = length(cross(s.edge_u, s.edge_v)); break;
+      case ShapeType::mesh: {
+        std::vector<double> w(s.triangles.size());
+        for (size_t t = 0; t < w.size(); ++t) {
+          const auto& tri = s.triangles[t];
+          w[t] = triangle_area(s.vertices[tri[0]], s.vertices[tri[1]], s.vertices[tri[2]]);
+          if (!std::isfinite(w[t])) w[t] = 0;
+          l.area += w[t];
+        }
+        if (l.area > 0) l.triangles.emplace(w);
+        break;
+      }
+    }
+    if (!(l.area > 0) || !std::isfinite(l.area)) {
+      dropped_.push_back(s.pointer);
+      continue;
+    }
+    light_of_shape_[i] = static_cast<int>(area_.size());
+    area_.push_back(std::move(l));
+  }
+}
+
+LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1, double u2) const {
+  LightSample out;
+  const size_t count = sampled_count();
+  if (count == 0) return out;
+  const double scaled = u0 * static_cast<double>(count);
+  const size_t pick = std::min(count - 1, static_cast<size_t>(scaled));
+  const double u_rest = std::min(scaled - static_cast<double>(pick), kOneMinusEpsilon);
+  const double select = 1.0 / static_cast<double>(count);
+  if (pick == area_.size()) {  // the sky
+    const Frame f = Frame::from_normal(n);
+    out.wi = f.to_world(sample_cosine_hemisphere({u1, u2}));
+    const double pdf = cosine_hemisphere_pdf(dot(n, out.wi));
+    if (!(pdf > 0)) return out;
+    out.pdf = pdf * select;
+    out.dist = kInf;
+    out.le = *scene_.sky;
+    out.sky = true;
+    return out;
+  }
+  const AreaLight& l = area_[pick];
+  const Shape& s = scene_.shapes[l.shape];
+  double pdf_solid = 0;
+  if (s.type == ShapeType::sphere && outside_sphere(s, x)) {
+    const Vec3 to_c = s.center - x;
+    const double dc = length(to_c);
+    const double cos_max = cone_cos_max(s, x);
+    pdf_solid = uniform_cone_pdf(cos_max);
+    if (!(pdf_solid > 0) || !std::isfinite(pdf_solid)) return out;
+    const Vec3 wi = Frame::from_normal(to_c / dc).to_world(sample_uniform_cone({u1, u2}, cos_max));
+    // Nearest intersection; at the silhouette rounding may miss: use the closest point.
+    const double b = dot(to_c, wi);
+    const Vec3 l_perp = to_c - wi * b;
+    const double disc = s.radius * s.radius - dot(l_perp, l_perp);
+    const double t = b - safe_sqrt(disc);
+    const Vec3 q = x + wi * t - s.center;
+    const double ql = length(q);
+    out.n = ql > 0 ? q / ql : -wi;
+    out.p = s.center + out.n * s.radius;
+    out.wi = wi;
+  } else {
+    double pdf_area = 1.0 / l.area;
+    switch (s.type) {
+      case ShapeType::sphere: {
+        out.n = sample_uniform_sphere({u1, u2});
+        out.p = s.center + out.n * s.radius;
+        break;
+      }
+      case ShapeType::disk: {
+        const Vec2 d = sample_uniform_disk_concentric({u1, u2});
+        const Frame f = Frame::from_normal(s.normal);
+        out.p = s.center + f.t * (s.radius * d.x) + f.b * (s.radius * d.y);
+        out.n = s.normal;
+        break;
+      }
+      case ShapeType::quad: {
+        out.p = s.corner + s.edge_u * u1 + s.edge_v * u2;
+        out.n = normalize(cross(s.edge_u, s.edge_v));
+        break;
+      }
+      case ShapeType::mesh: {
+        const size_t t = l.triangles->sample(u_rest);
+        const auto& tri = s.triangles[t];
+        const Vec3 &a = s.vertices[tri[0]], &b = s.vertices[tri[1]], &c = s.vertices[tri[2]];
+        const TrianglePointSample ts = sample_triangle_point(a, b, c, {u1, u2});
+        if (!(ts.pdf > 0)) return out;
+        out.p = ts.p;
+        const Vec3 nn = cross(b - a, c - a);
+        const double len = length(nn);
+        if (!(len > 0)) return out;
+        out.n = nn / len;
+        break;
+      }
+    }
+    const Vec3 d = out.p - x;
+    const double d2 = dot(d, d);
+    if (!(d2 > 0)) return out;
+    out.wi = d / std::sqrt(d2);
+    const double cos_l = std::fabs(dot(out.n, out.wi));
+    if (!(cos_l > 1e-12)) return out;  // edge-on: no sample rather than an Inf weight
+    pdf_solid = pdf_area * d2 / cos_l;
+  }
+  out.dist = length(out.p - x);
+  out.le = emitted(scene_, l.shape, out.n, -out.wi);
+  out.pdf = pdf_solid * select;
+  if (!std::isfinite(out.pdf)) out.pdf = 0;
+  return out;
+}
+
+double LightSet::pdf_hit(const Vec3& x, const Hit& hit) const {
+  const int li = light_of_shape_[hit.shape];
+  if (li < 0) return 0.0;
+  const double select = 1.0 / static_cast<double>(sampled_count());
+  const AreaLight& l = area_[static_cast<size_t>(li)];
+  const Shape& s = scene_.shapes[l.shape];
+  if (s.type == ShapeType::sphere && outside_sphere(s, x)) {
+    return uniform_cone_pdf(cone_cos_max(s, x)) * select;
+  }
+  return area_to_solid_angle(1.0 / l.area, x, hit.p, hit.n) * select;
+}
+
+double LightSet::pdf_sky(const Vec3& n, const Vec3& wi) const {
+  if (!sky_) return 0.0;
+  return cosine_hemisphere_pdf(dot(n, wi)) / static_cast<double>(sampled_count());
+}
+
+}  // namespace tally

@@ -1,0 +1,63 @@
+#pragma once
+// The lights that next-event estimation samples: emissive shapes ("area lights") and
+// the constant sky. One is chosen uniformly, then a point on it:
+//   - quads, disks, triangle meshes: uniformly by area (meshes: triangle by area via an
+//     alias table), pdf converted to solid angle with d^2 / |cos theta_l|;
+//   - spheres seen from outside: uniformly in the cone they subtend (exactly the
+//     visible cap, so no sample is wasted on the far side); from inside: by area;
+//   - the sky: cosine-weighted around the receiver's normal.
+// Point and directional lights are not sampled: every estimator adds them
+// deterministically (a hemisphere sample can never hit them).
+// Lights of zero area are dropped (they emit no power) and listed in `dropped`.
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "common/lighting/accel.hpp"
+#include "common/lighting/scene.hpp"
+#include "common/sampling/alias_table.hpp"
+
+namespace tally {
+
+struct LightSample {
+  Vec3 wi{};        // unit direction from x towards the light
+  double dist = 0;  // to the light point (inf for the sky)
+  Vec3 p{}, n{};    // light point and its normal (area lights)
+  Rgb le{};         // emitted radiance towards x (0 if the point faces away)
+  double pdf = 0;   // solid angle, including the choice of the light; 0: no sample
+  bool sky = false;
+};
+
+class LightSet {
+ public:
+  explicit LightSet(const Scene& scene);
+
+  size_t sampled_count() const { return area_.size() + (sky_ ? 1 : 0); }
+  bool empty() const { return sampled_count() == 0; }
+  const std::vector<std::string>& dropped() const { return dropped_; }
+  bool is_light(uint32_t shape) const { return light_of_shape_[shape] >= 0; }
+
+  // u0 picks the light (and a triangle), (u1, u2) the point / direction.
+  LightSample sample(const Vec3& x, const Vec3& n, double u0, double u1, double u2) const;
+  // Solid-angle density (with the choice of light) of reaching `hit` on an emissive
+  // shape from x; inf when the hit is edge-on (so MIS gives the BSDF sample weight 0).
+  double pdf_hit(const Vec3& x, const Hit& hit) const;
+  double pdf_sky(const Vec3& n, const Vec3& wi) const;
+
+ private:
+  struct AreaLight {
+    uint32_t shape = 0;
+    double area = 0;
+    std::optional<AliasTable> triangles;  // meshes
+  };
+  const Scene& scene_;
+  std::vector<AreaLight> area_;
+  std::vector<int> light_of_shape_;
+  bool sky_ = false;
+  std::vector<std::string> dropped_;
+};
+
+// Emitted radiance of `shape` at a point with normal n towards direction w (unit).
+Rgb emitted(const Scene& scene, uint32_t shape, const Vec3& n, const Vec3& w);
+
+}  // namespace tally

@@ -1,0 +1,177 @@
+#include "common/lighting/path_tracer.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "common/lighting/ray_offset.hpp"
+
+namespace tally {
+
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+// Shadow rays stop this fraction short of the (already offset) light point.
+constexpr double kShadowShorten = 1.0 - 1e-5;
+
+double power_heuristic(double a, double b) {
+  if (!std::isfinite(a)) return 1.0;
+  if (!std::isfinite(b)) return 0.0;
+  const double a2 = a * a, b2 = b * b;
+  return a2 + b2 > 0 ? a2 / (a2 + b2) : 0.0;
+}
+
+}  // namespace
+
+Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const SampleRng& rng, uint32_t dim0,
+                          Counters& c) const {
+  Rgb L{};
+  Rgb beta{1, 1, 1};
+  const bool nee = s.strategy == Strategy::light_area || s.strategy == Strategy::mis;
+  for (int bounce = 0;; ++bounce) {
+    const Material& m = scene_.materials[v.material];
+    if (!m.reflects() && !plan_.full) break;
+    const uint32_t d0 = dim0 + kDimsPerVertex * static_cast<uint32_t>(bounce);
+    const Vec3 origin = offset_ray_origin(v.p, v.n);
+
+    if (!m.is_delta()) {
+      for (const DeltaLight& dl : scene_.delta_lights) {
+        Vec3 wi;
+        double dist = kInf;
+        Rgb e = dl.intensity;
+        if (dl.type == DeltaLightType::point) {
+          const Vec3 to = dl.position - v.p;
+          const double d2 = dot(to, to);
+          if (!(d2 > 0)) continue;
+          dist = std::sqrt(d2);
+          wi = to / dist;
+          e = e / d2;
+        } else {
+          wi = dl.direction;
+        }
+        const double cos_i = dot(v.n, wi);
+        if (cos_i <= 0) continue;
+        const Rgb f = bsdf_eval(m, v.n, v.wo, wi);
+        if (is_black(f)) continue;
+        if (plan_.shadows) {
+          c.add(Counter::shadow_rays);
+          const Vec3 to = dist < kInf ? dl.position - origin : wi;
+          const double len = dist < kInf ? length(to) : 1.0;
+          if (accel_.occluded(origin, to / len, dist < kInf ? len * kShadowShorten : kInf)) continue;
+        }
+        L += beta * f * e * cos_i;
+      }
+      if (nee && !lights_.empty()) {
+        c.add(Counter::light_samples);
+        const LightSample ls = lights_.sample(v.p, v.n, rng.uniform(d0), rng.uniform(d0 + 1), rng.uniform(d0 + 2));
+        const double cos_i = dot(v.n, ls.wi);
+        if (ls.pdf > 0 && !is_black(ls.le) && cos_i > 0) {
+          const Rgb f = bsdf_eval(m, v.n, v.wo, ls.wi);
+          if (!is_black(f)) {
+            bool visible = true;
+            if (plan_.shadows) {
+              c.add(Counter::shadow_rays);
+              if (ls.sky) {
+                visible = !accel_.occluded(origin, ls.wi, kInf);
+              } else {
+                const Vec3 ln = dot(ls.n, ls.wi) < 0 ? ls.n : -ls.n;  // the side facing v
+                const Vec3 target = offset_ray_origin(ls.p, ln);
+                const Vec3 to = target - origin;
+                const double len = length(to);
+                visible = len > 0 && !accel_.occluded(origin, to / len, len * kShadowShorten);
+              }
+            }
+            if (visible) {
+              double w = 1.0;
+              if (s.strategy == Strategy::mis) {
+                w = power_heuristic(ls.pdf, direction_pdf(s.strategy, m, v.n, v.wo, ls.wi));
+              }
+              L += beta * f * ls.le * (cos_i * w / ls.pdf);
+            }
+          }
+        }
+      }
+    }
+
+    // A BSDF/hemisphere ray is needed if its hit can contribute emission here, or if
+    // the path continues from it.
+    const bool more_vertices = bounce + 1 < s.max_depth && plan_.indirect;
+    const bool gathers = s.strategy != Strategy::light_area || m.is_delta();
+    if (!gathers && !more_vertices) break;
+    const DirectionSample ds = sample_direction(s.strategy, m, v.n, v.wo, {rng.uniform(d0 + 3), rng.uniform(d0 + 4)});
+    c.add(ds.delta ? Counter::specular_events : Counter::bsdf_samples);
+    if (!(ds.pdf > 0) || (is_black(ds.weight) && !plan_.full)) break;
+    const Rgb beta_next = beta * ds.weight;
+    // Weight of emission found by this ray (MIS needs the light pdf of its direction).
+    auto emission_weight = [&](double light_pdf) {
+      if (ds.delta) return 1.0;
+      switch (s.strategy) {
+        case Strategy::uniform_hemisphere:
+        case Strategy::cosine_hemisphere: return 1.0;
+        case Strategy::light_area: return 0.0;
+        case Strategy::mis: return power_heuristic(ds.pdf, light_pdf);
+      }
+      return 1.0;
+    };
+    const bool counts_emission = gathers;
+    c.add(Counter::bounce_rays);
+    const Vec3 o = dot(ds.wi, v.n) >= 0 ? origin : offset_ray_origin(v.p, -v.n);
+    const std::optional<Hit> hit = accel_.intersect(o, ds.wi, kInf);
+    if (!hit) {
+      if (plan_.sky && (counts_emission || plan_.full)) {
+        c.add(Counter::sky_lookups);
+        if (scene_.sky && counts_emission) {
+          const double w = emission_weight(s.strategy == Strategy::mis ? lights_.pdf_sky(v.n, ds.wi) : 0.0);
+          L += beta_next * *scene_.sky * w;
+        }
+      }
+      break;
+    }
+    if (plan_.emission && (counts_emission || plan_.full)) {
+      c.add(Counter::emission_lookups);
+      const Rgb le = emitted(scene_, hit->shape, hit->n, -ds.wi);
+      if (!is_black(le) && counts_emission) {
+        const double w = emission_weight(s.strategy == Strategy::mis && !ds.delta ? lights_.pdf_hit(v.p, *hit) : 0.0);
+        L += beta_next * le * w;
+      }
+    }
+    if (!more_vertices) break;
+    beta = beta_next;
+    if (s.russian_roulette && bounce + 1 >= 2) {
+      const double q = std::clamp(max_component(beta), 0.05, 1.0);
+      if (rng.uniform(d0 + 5) >= q) {
+        c.add(Counter::roulette_terminations);
+        break;
+      }
+      beta = beta / q;
+    }
+    Vec3 n = hit->n;
+    if (dot(n, ds.wi) > 0) n = -n;  // face the incoming ray
+    v = Vertex{hit->p, n, -ds.wi, scene_.shapes[hit->shape].material};
+  }
+  return L;
+}
+
+Rgb PathTracer::camera(const Vec3& o, const Vec3& d, const PathSettings& s, const SampleRng& rng,
+                       uint32_t dim0, Counters& c) const {
+  c.add(Counter::camera_rays);
+  const std::optional<Hit> hit = accel_.intersect(o, d, kInf);
+  if (!hit) {
+    if (plan_.sky) {
+      c.add(Counter::sky_lookups);
+      if (scene_.sky) return *scene_.sky;
+    }
+    return {};
+  }
+  Rgb L{};
+  if (plan_.emission) {
+    c.add(Counter::emission_lookups);
+    L += emitted(scene_, hit->shape, hit->n, -d);
+  }
+  Vec3 n = hit->n;
+  if (dot(n, d) > 0) n = -n;
+  L += reflected(Vertex{hit->p, n, -d, scene_.shapes[hit->shape].material}, s, rng, dim0, c);
+  return L;
+}
+
+}  // namespace tally

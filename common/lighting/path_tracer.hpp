@@ -1,0 +1,58 @@
+#pragma once
+// The estimators of the reflection equation
+//   L_o(p, w_o) = L_e(p, w_o) + ∫_H f_r(p, w_i -> w_o) L_i(p, w_i) cos(theta_i) dw_i,
+// with L_i expanded recursively up to max_depth bounces (max_depth 1 = direct light).
+// At each vertex the strategy decides how w_i is drawn and which terms count:
+//   uniform_hemisphere  p = 1/(2 pi); emission is gathered where the ray lands
+//   cosine_hemisphere   p = cos/pi;   same
+//   light_area          one light sample by area (next-event estimation) + a shadow
+//                       ray; BSDF-sampled bounces carry indirect light only
+//   mis                 one light sample and one BSDF sample, power heuristic (beta=2)
+// Point/directional lights are added deterministically by every strategy; a mirror is
+// always followed in its one direction. Random numbers: dimension 6k..6k+5 at the
+// k-th vertex (light choice, light point x2, direction x2, roulette).
+#include <cstdint>
+
+#include "common/engine/counters.hpp"
+#include "common/lighting/accel.hpp"
+#include "common/lighting/bsdf.hpp"
+#include "common/lighting/light_set.hpp"
+#include "common/lighting/planner.hpp"
+#include "common/rng/counter_rng.hpp"
+
+namespace tally {
+
+struct Vertex {
+  Vec3 p{};
+  Vec3 n{};   // unit normal on the side of wo
+  Vec3 wo{};  // unit, away from the surface
+  uint32_t material = 0;
+};
+
+struct PathSettings {
+  Strategy strategy = Strategy::mis;
+  int max_depth = 1;
+  bool russian_roulette = false;
+};
+
+class PathTracer {
+ public:
+  PathTracer(const Scene& scene, const Accel& accel, const LightSet& lights, const Plan& plan)
+      : scene_(scene), accel_(accel), lights_(lights), plan_(plan) {}
+
+  // Reflected radiance at v towards v.wo (without v's own emission).
+  Rgb reflected(Vertex v, const PathSettings& s, const SampleRng& rng, uint32_t dim0, Counters& c) const;
+  // Radiance along a camera ray (o, unit d); uses dimensions from dim0.
+  Rgb camera(const Vec3& o, const Vec3& d, const PathSettings& s, const SampleRng& rng, uint32_t dim0,
+             Counters& c) const;
+
+  static constexpr uint32_t kDimsPerVertex = 6;
+
+ private:
+  const Scene& scene_;
+  const Accel& accel_;
+  const LightSet& lights_;
+  const Plan& plan_;
+};
+
+}  // namespace tally

@@ -1,0 +1,74 @@
+#include "common/lighting/planner.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+
+namespace tally {
+
+nlohmann::json Plan::to_json() const {
+  nlohmann::json effects_json = nlohmann::json::array();
+  for (const PlanEffect& e : effects) effects_json.push_back({{"effect", e.name}, {"on", e.on}, {"why", e.why}});
+  return {{"mode", full ? "full" : "auto"}, {"effects", effects_json}};
+}
+
+Plan make_plan(const Scene& scene, const PlanQuery& q, bool full) {
+  Plan p;
+  p.full = full;
+  auto add = [&](const char* name, bool& flag, bool needed, std::string why) {
+    flag = full || needed;
+    p.effects.push_back({name, flag, full && !needed ? "forced on by \"plan\": \"full\" (" + why + ")" : std::move(why)});
+  };
+
+  // shadows
+  const bool any_nee = std::any_of(q.strategies.begin(), q.strategies.end(), [](Strategy s) {
+    return s == Strategy::light_area || s == Strategy::mis;
+  });
+  const bool delta_lights = !scene.delta_lights.empty();
+  const bool nonshape_lights = delta_lights || scene.sky.has_value();
+  const bool all_convex = std::all_of(scene.shapes.begin(), scene.shapes.end(), [](const Shape& s) { return s.convex(); });
+  const size_t allowed = (q.image ? 1u : 0u) + (nonshape_lights ? 0u : 1u);
+  if (!any_nee && !delta_lights) {
+    add("shadow_rays", p.shadows, false, "the hemisphere estimators trace no shadow rays and there are no point or directional lights");
+  } else if (all_convex && scene.shapes.size() <= allowed) {
+    add("shadow_rays", p.shadows, false,
+        fmt::format("nothing can occlude a light: {} convex shape(s), none between a receiver and a light",
+                    scene.shapes.size()));
+  } else {
+    add("shadow_rays", p.shadows, true,
+        all_convex ? fmt::format("{} shapes: one may lie between a receiver and a light", scene.shapes.size())
+                   : std::string("a non-convex mesh may occlude lights (or itself)"));
+  }
+
+  // indirect
+  const bool reflective = std::any_of(scene.shapes.begin(), scene.shapes.end(), [&](const Shape& s) {
+    return scene.materials[s.material].reflects();
+  });
+  if (q.max_depth <= 1) {
+    add("indirect", p.indirect, false, "max_depth is 1: direct lighting only");
+  } else if (!reflective) {
+    add("indirect", p.indirect, false, "no shape reflects light (all reflectances are zero)");
+  } else {
+    add("indirect", p.indirect, true, fmt::format("max_depth {} and reflective shapes", q.max_depth));
+  }
+
+  // specular
+  bool mirror = std::any_of(scene.shapes.begin(), scene.shapes.end(), [&](const Shape& s) {
+    return scene.materials[s.material].is_delta();
+  });
+  for (uint32_t m : q.point_materials) mirror = mirror || scene.materials[m].is_delta();
+  add("specular", p.specular, mirror, mirror ? "a mirror material is present" : "no mirror materials");
+
+  // sky
+  const bool sky = scene.sky.has_value() && !is_black(*scene.sky);
+  add("sky", p.sky, sky, sky ? "the scene has a sky" : "no sky: rays that miss return 0");
+
+  // emission
+  const bool emitters = std::any_of(scene.shapes.begin(), scene.shapes.end(), [&](const Shape& s) {
+    return scene.materials[s.material].emits();
+  });
+  add("emission", p.emission, emitters, emitters ? "emissive shapes are present" : "no shape emits light");
+  return p;
+}
+
+}  // namespace tally

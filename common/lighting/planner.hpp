@@ -1,0 +1,52 @@
+#pragma once
+// Decides, from the scene and the query, which effects a lighting job must simulate
+// and switches the rest off (DESIGN.md, "Simulate only what the scene calls for").
+// Rules (each is sufficient, never a heuristic that could change the answer):
+//   shadows   off when no segment from a shading point to a light can be blocked: every
+//             shape is convex (sphere, quad, disk, single triangle) and the shapes that
+//             are neither the receiver nor the light number zero. A receiver is a shape
+//             for images and a free point for point queries; point lights, directional
+//             lights and the sky are not shapes, so then no other shape may exist.
+//             Also off when nothing traces shadow rays (hemisphere estimators and no
+//             point/directional lights).
+//   indirect  off when max_depth is 1 or no shape reflects light (all albedos zero).
+//   specular  off when no material is a mirror (no delta bounces can happen).
+//   sky       off without a sky (misses return 0 without a lookup).
+//   emission  off when no shape emits (hits are not looked up for emitted radiance).
+// "plan": "full" forces every effect on: the tests compare both.
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "common/lighting/bsdf.hpp"
+#include "common/lighting/scene.hpp"
+
+namespace tally {
+
+struct PlanEffect {
+  std::string name;
+  bool on = true;
+  std::string why;
+};
+
+struct Plan {
+  bool full = false;
+  bool shadows = true;
+  bool indirect = true;
+  bool specular = true;
+  bool sky = true;
+  bool emission = true;
+  std::vector<PlanEffect> effects;
+  nlohmann::json to_json() const;
+};
+
+struct PlanQuery {
+  bool image = false;
+  int max_depth = 1;
+  std::vector<Strategy> strategies;
+  std::vector<uint32_t> point_materials;  // materials of the query points
+};
+
+Plan make_plan(const Scene& scene, const PlanQuery& query, bool full);
+
+}  // namespace tally

@@ -1,0 +1,50 @@
+#pragma once
+// Point queries: L_o at given points for several estimators on common random numbers
+// (estimator e at point k, sample i uses SampleRng(stream_key(seed, k), i) for every e).
+// Channel layout: ((e * points) + k) * 3 + rgb. One partition. Wall time per estimator
+// is measured inside run_block (process-local, not checkpointed: it is a rate, not a
+// result) to report time per sample and efficiency 1 / (sigma^2 t).
+#include <atomic>
+#include <memory>
+#include <vector>
+
+#include "common/engine/kernel.hpp"
+#include "common/lighting/compiled_scene.hpp"
+
+namespace tally {
+
+struct QueryPoint {
+  Vertex vertex;  // local coordinates, normal on the side of wo
+  Rgb emission{};  // the point's own L_e towards wo
+  Vec3 world_p{};
+};
+
+class PointKernel final : public Kernel {
+ public:
+  PointKernel(std::shared_ptr<const CompiledScene> scene, std::vector<QueryPoint> points,
+              std::vector<Strategy> strategies, int max_depth, bool russian_roulette, uint64_t seed);
+
+  size_t channel_count() const override { return strategies_.size() * points_.size() * 3; }
+  PassSchedule schedule() const override;
+  void run_block(const Block& block, BlockResult& out) const override;
+
+  size_t channel(size_t estimator, size_t point, int rgb) const {
+    return (estimator * points_.size() + point) * 3 + static_cast<size_t>(rgb);
+  }
+  const std::vector<QueryPoint>& points() const { return points_; }
+  const std::vector<Strategy>& strategies() const { return strategies_; }
+  // Seconds spent per sample of one estimator at one point (0 before any sample).
+  double seconds_per_sample(size_t estimator) const;
+
+ private:
+  std::shared_ptr<const CompiledScene> scene_;
+  std::vector<QueryPoint> points_;
+  std::vector<Strategy> strategies_;
+  int max_depth_;
+  bool rr_;
+  uint64_t seed_;
+  std::unique_ptr<std::atomic<uint64_t>[]> nanos_;    // per estimator
+  std::unique_ptr<std::atomic<uint64_t>[]> samples_;  // per estimator (point-samples)
+};
+
+}  // namespace tally

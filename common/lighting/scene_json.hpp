@@ -1,0 +1,31 @@
+#pragma once
+// The "scene" object of a lighting job spec (format in docs/lighting.md):
+//   {"camera": {...}?, "materials": {"name": {...}}, "shapes": [...], "lights": [...]}
+// Unknown fields are errors; sizes are checked against JobLimits before anything big
+// is allocated; OBJ files load only from inside JobLimits::asset_dir.
+#include <filesystem>
+#include <string>
+
+#include "common/engine/job_definition.hpp"
+#include "common/json/spec_reader.hpp"
+#include "common/lighting/scene.hpp"
+
+namespace tally {
+
+Scene parse_scene(SpecReader& scene, const JobLimits& limits);
+
+// A material given by name (into scene.materials) or inline as an object (appended).
+uint32_t parse_material_ref(const nlohmann::json& j, const std::string& pointer, Scene& scene);
+
+Vec3 read_vec3(SpecReader& r, std::string_view key);
+Vec3 read_direction(SpecReader& r, std::string_view key);  // normalised, non-zero
+
+// Resolves `relative` inside `asset_dir`: no absolute paths, no "..", and no symlink
+// that leads outside. Throws SpecError(pointer) otherwise.
+std::filesystem::path resolve_asset(const std::string& asset_dir, const std::string& relative,
+                                    const std::string& pointer);
+
+// Moves the scene into its local frame (see scene.hpp) and returns the translation.
+void localize_scene(Scene& scene);
+
+}  // namespace tally
