@@ -1,0 +1,43 @@
+#pragma once
+// Socket-free request and response types: the request handler turns one into the
+// other, so every route is unit-testable without a network. Only the listener and
+// session (http_server.cpp) know about Beast.
+#include <memory>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <vector>
+
+namespace tally {
+
+class EventStream;
+
+struct HttpRequest {
+  std::string method;  // "GET", "POST", ...
+  std::string target;  // path and query, e.g. "/v1/jobs?state=running"
+  std::vector<std::pair<std::string, std::string>> headers;  // names in lower case
+  std::string body;
+
+  std::string_view header(std::string_view lower_name) const;
+  std::string_view path() const;
+  // Decoded value of a query parameter; empty if absent.
+  std::string query_param(std::string_view name) const;
+  bool has_query_param(std::string_view name) const;
+};
+
+struct HttpResponse {
+  int status = 200;
+  std::vector<std::pair<std::string, std::string>> headers;
+  std::string body;
+  // Non-null: the body is an unbounded stream (SSE / NDJSON) sent with chunked
+  // encoding; `body` is ignored.
+  std::shared_ptr<EventStream> stream;
+
+  void set_header(std::string name, std::string value);
+  std::string_view header(std::string_view name) const;  // case-insensitive
+};
+
+std::string url_decode(std::string_view s);
+bool iequals(std::string_view a, std::string_view b);
+
+}  // namespace tally

@@ -1,0 +1,42 @@
+#pragma once
+// Where jobs live between restarts. The server talks to this interface only, so a
+// store shared by several servers can replace the embedded SQLite one later.
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace tally {
+
+struct StoredJob {
+  std::string id;
+  int64_t seq = 0;            // submission order
+  std::string spec;           // the job spec as submitted (JSON text)
+  int priority = 0;
+  std::string state;          // queued | running | succeeded | failed | cancelled
+  std::string stop_rule;      // current rule (JSON), which extend may have changed
+  std::string error;          // failure message, "" if none
+  std::string result;         // final status JSON of a finished job, "" otherwise
+  std::optional<std::string> checkpoint;  // encode_checkpoint bytes; nullopt on save = keep
+  double created_at = 0, started_at = 0, finished_at = 0;  // unix seconds, 0 = not yet
+};
+
+class JobStore {
+ public:
+  virtual ~JobStore() = default;
+  // Insert or update one job atomically. A nullopt checkpoint keeps the stored one.
+  virtual void save(const StoredJob& job) = 0;
+  // Every job, in submission order (checkpoints included).
+  virtual std::vector<StoredJob> load_all() = 0;
+  // Counts server starts; event ids are made unique across restarts with it.
+  virtual uint64_t next_epoch() = 0;
+};
+
+// The embedded default: <data_dir>/tally.db, WAL mode.
+std::unique_ptr<JobStore> open_sqlite_store(const std::string& data_dir);
+
+// For tests and --data-dir ":memory:"-like use.
+std::unique_ptr<JobStore> make_memory_store();
+
+}  // namespace tally

@@ -1,0 +1,112 @@
+// tally-server: the HTTP/JSON job server. See docs/api.md.
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <future>
+
+#include "common/jobs/job_factory.hpp"
+#include "server/cpu_quota.hpp"
+#include "server/http_server.hpp"
+#include "server/job_manager.hpp"
+#include "server/job_store.hpp"
+#include "server/listen_address.hpp"
+#include "server/metrics.hpp"
+#include "server/request_handler.hpp"
+
+#if __has_include("common/image/image_io.hpp")
+#include "common/image/image_io.hpp"
+#define TALLY_HAVE_IMAGE_IO 1
+#endif
+
+int main(int argc, char** argv) {
+  using namespace tally;
+  CLI::App app{"tally-server: Monte Carlo estimation over HTTP/JSON"};
+  std::string listen = "127.0.0.1:8080";
+  std::string data_dir = "./var";
+  std::string port_file;
+  unsigned workers = 0;
+  HttpServerConfig http;
+  ManagerConfig mc;
+  HandlerConfig hc;
+  app.add_option("--listen", listen, "address:port to listen on (port 0: any free port)")->capture_default_str();
+  app.add_option("--workers", workers, "worker threads (default: usable CPUs, honouring a cgroup CPU quota)");
+  app.add_option("--data-dir", data_dir, "directory of the job database")->capture_default_str();
+  app.add_option("--asset-dir", mc.limits.asset_dir, "directory scenes may load OBJ files from");
+  app.add_option("--port-file", port_file, "write the bound port to this file once listening");
+  app.add_option("--io-threads", http.io_threads, "threads serving connections")->capture_default_str();
+  app.add_option("--max-body", http.max_body_bytes, "request body limit in bytes")->capture_default_str();
+  app.add_option("--max-header", http.max_header_bytes, "request header limit in bytes")->capture_default_str();
+  app.add_option("--idle-timeout", http.idle_timeout_s, "seconds a connection may wait for a request")->capture_default_str();
+  app.add_option("--read-timeout", http.read_timeout_s, "seconds to receive a whole request once it started")
+      ->capture_default_str();
+  app.add_option("--write-timeout", http.write_timeout_s, "seconds to send a response (per event-stream chunk)")
+      ->capture_default_str();
+  app.add_option("--heartbeat", http.heartbeat_s, "seconds between keep-alive comments on idle event streams")
+      ->capture_default_str();
+  app.add_option("--max-connections", http.max_connections, "open connections")->capture_default_str();
+  app.add_option("--max-json-depth", hc.max_json_depth, "nesting depth of request JSON")->capture_default_str();
+  app.add_option("--max-running", mc.max_running, "jobs sharing the workers at once")->capture_default_str();
+  app.add_option("--max-queued", mc.max_queued, "jobs waiting for a running slot (then 503)")->capture_default_str();
+  app.add_option("--max-dimensions", mc.limits.max_dimensions, "per-job cap: integration dimensions")->capture_default_str();
+  app.add_option("--max-channels", mc.limits.max_channels, "per-job cap: channels")->capture_default_str();
+  app.add_option("--max-samples", mc.caps.max_samples, "per-job cap: samples")->capture_default_str();
+  app.add_option("--max-seconds", mc.caps.max_seconds, "per-job cap: compute seconds")->capture_default_str();
+  app.add_option("--max-pixels", mc.limits.max_pixels, "per-job cap: image pixels")->capture_default_str();
+  app.add_option("--checkpoint-interval", mc.checkpoint_interval_s, "least seconds between a job's checkpoints")
+      ->capture_default_str();
+  app.add_option("--event-buffer", mc.event_buffer, "events kept per job for Last-Event-ID resume")->capture_default_str();
+  app.add_option("--pilot-seconds", hc.pilot_seconds, "length of the validate pilot run")->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+
+  const auto addr = parse_listen_address(listen);
+  if (!addr) {
+    fmt::print(stderr, "tally-server: --listen must be host:port, got \"{}\"\n", listen);
+    return 2;
+  }
+  http.address = addr->host;
+  http.port = addr->port;
+  mc.workers = workers > 0 ? workers : default_worker_count();
+  mc.limits.max_samples = mc.caps.max_samples;
+  mc.limits.max_seconds = mc.caps.max_seconds;
+#ifdef TALLY_HAVE_IMAGE_IO
+  hc.images.exr = [](const ImageSnapshot& s, const nlohmann::json& meta) { return encode_exr(s, meta); };
+  hc.images.png = [](const ImageSnapshot& s) { return encode_png(s); };
+#endif
+
+  try {
+    auto store = open_sqlite_store(data_dir);
+    Metrics metrics;
+    JobManager manager(mc, *store, [](const nlohmann::json& spec, const JobLimits& limits) {
+      return compile_job(spec, limits);
+    });
+    manager.recover();
+    RequestHandler handler(manager, metrics, hc);
+    HttpServer server(http, handler, metrics);
+    std::promise<int> signalled;
+    server.on_signal([&signalled](int sig) { signalled.set_value(sig); });
+    const uint16_t port = server.start();
+    if (!port_file.empty()) {
+      const std::string tmp = port_file + ".tmp";
+      std::ofstream(tmp) << port << "\n";
+      std::filesystem::rename(tmp, port_file);
+    }
+    fmt::print("tally-server listening on http://{}:{} ({} workers, data in {})\n", http.address, port, mc.workers,
+               std::filesystem::absolute(data_dir).string());
+    std::fflush(stdout);
+
+    const int sig = signalled.get_future().get();
+    fmt::print("tally-server: signal {}: checkpointing jobs and shutting down\n", sig);
+    std::fflush(stdout);
+    server.stop_accepting();
+    handler.set_ready(false);
+    manager.shutdown();  // checkpoints unfinished jobs, ends every event stream
+    server.stop(2.0);
+    return 0;
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "tally-server: {}\n", e.what());
+    return 1;
+  }
+}

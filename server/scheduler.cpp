@@ -1,0 +1,191 @@
+#include "server/scheduler.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+
+namespace tally {
+
+int clamp_priority(int priority) { return std::clamp(priority, -5, 5); }
+double priority_weight(int priority) { return static_cast<double>(clamp_priority(priority) + 6); }
+
+Scheduler::Scheduler(unsigned workers, SchedulerCallbacks callbacks, double chunk_target_seconds)
+    : cb_(std::move(callbacks)), chunk_target_(chunk_target_seconds) {
+  workers = std::max(1u, workers);
+  threads_.reserve(workers);
+  for (unsigned i = 0; i < workers; ++i) threads_.emplace_back([this] { worker_loop(); });
+}
+
+Scheduler::~Scheduler() { stop(); }
+
+void Scheduler::stop() {
+  {
+    std::lock_guard lock(mu_);
+    stopping_ = true;
+  }
+  cv_.notify_all();
+  for (auto& t : threads_) {
+    if (t.joinable()) t.join();
+  }
+  std::lock_guard lock(mu_);
+  active_.clear();
+}
+
+size_t Scheduler::scheduled_jobs() const {
+  std::lock_guard lock(mu_);
+  return active_.size();
+}
+
+double Scheduler::min_vtime_locked() const {
+  double v = std::numeric_limits<double>::infinity();
+  for (const auto& [id, a] : active_) v = std::min(v, a->vtime);
+  return std::isfinite(v) ? v : 0.0;
+}
+
+void Scheduler::start_pass_locked(Active& a, std::vector<Block> blocks) {
+  a.blocks = std::move(blocks);
+  a.results.clear();
+  a.results.resize(a.blocks.size());
+  a.next = a.done = 0;
+  a.pass_started = false;
+}
+
+void Scheduler::add(const std::string& id, std::shared_ptr<const Kernel> kernel, std::vector<Block> first_pass,
+                    int priority) {
+  if (first_pass.empty()) return;
+  {
+    std::lock_guard lock(mu_);
+    if (stopping_) return;
+    auto a = std::make_unique<Active>();
+    a->id = id;
+    a->kernel = std::move(kernel);
+    a->weight = priority_weight(priority);
+    // Join at the current virtual time: a newcomer neither starves nor is starved.
+    a->vtime = min_vtime_locked();
+    start_pass_locked(*a, std::move(first_pass));
+    active_[id] = std::move(a);
+  }
+  cv_.notify_all();
+}
+
+bool Scheduler::cancel(const std::string& id) {
+  bool call_now = false;
+  {
+    std::lock_guard lock(mu_);
+    auto it = active_.find(id);
+    if (it == active_.end()) return false;
+    Active& a = *it->second;
+    if (a.cancel_requested) return true;
+    a.cancel_requested = true;
+    if (a.inflight == 0 && !a.committing) {
+      active_.erase(it);
+      call_now = true;
+    }
+  }
+  if (call_now && cb_.cancelled) cb_.cancelled(id);
+  return true;
+}
+
+Scheduler::Active* Scheduler::pick_locked() {
+  Active* best = nullptr;
+  for (auto& [id, a] : active_) {
+    if (a->cancel_requested || a->committing || a->next >= a->blocks.size()) continue;
+    if (!best || a->vtime < best->vtime) best = a.get();
+  }
+  return best;
+}
+
+size_t Scheduler::chunk_size_locked(const Active& a) const {
+  const size_t left = a.blocks.size() - a.next;
+  // Spread a pass over the workers even when its blocks are cheap.
+  const size_t spread = std::max<size_t>(1, (a.blocks.size() + 2 * threads_.size() - 1) / (2 * threads_.size()));
+  size_t n = 1;
+  if (a.block_seconds > 0) {
+    n = static_cast<size_t>(std::clamp(chunk_target_ / a.block_seconds, 1.0, 4096.0));
+  }
+  return std::max<size_t>(1, std::min({n, spread, left}));
+}
+
+void Scheduler::worker_loop() {
+  std::unique_lock lock(mu_);
+  for (;;) {
+    Active* a = nullptr;
+    cv_.wait(lock, [&] { return stopping_ || (a = pick_locked()) != nullptr; });
+    if (stopping_) return;
+    const size_t begin = a->next;
+    const size_t end = begin + chunk_size_locked(*a);
+    a->next = end;
+    a->inflight += 1;
+    if (!a->pass_started) {
+      a->pass_started = true;
+      a->pass_start = std::chrono::steady_clock::now();
+    }
+    const double estimate = a->block_seconds * static_cast<double>(end - begin);
+    a->vtime += estimate / a->weight;
+    const Kernel* kernel = a->kernel.get();
+    const Block* blocks = a->blocks.data();
+    BlockResult* results = a->results.data();
+    lock.unlock();
+
+    busy_.fetch_add(1, std::memory_order_relaxed);
+    const auto t0 = std::chrono::steady_clock::now();
+    uint64_t samples = 0;
+    for (size_t i = begin; i < end; ++i) {
+      results[i].block_index = blocks[i].index;
+      kernel->run_block(blocks[i], results[i]);
+      samples += blocks[i].sample_count;
+    }
+    const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    busy_.fetch_sub(1, std::memory_order_relaxed);
+    samples_done_.fetch_add(samples, std::memory_order_relaxed);
+
+    lock.lock();
+    a->inflight -= 1;
+    a->done += end - begin;
+    a->vtime += (dt - estimate) / a->weight;
+    const double per_block = dt / static_cast<double>(end - begin);
+    a->block_seconds = a->block_seconds > 0 ? 0.7 * a->block_seconds + 0.3 * per_block : per_block;
+
+    if (a->cancel_requested) {
+      if (a->inflight == 0) {
+        const std::string id = a->id;
+        active_.erase(id);
+        lock.unlock();
+        if (cb_.cancelled) cb_.cancelled(id);
+        lock.lock();
+      }
+      continue;
+    }
+    if (a->done < a->blocks.size()) continue;
+
+    // Last chunk of the pass: commit it (without the lock: other jobs keep running).
+    a->committing = true;
+    const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - a->pass_start).count();
+    std::vector<Block> blocks_done = std::move(a->blocks);
+    std::vector<BlockResult> results_done = std::move(a->results);
+    const std::string id = a->id;
+    lock.unlock();
+    std::vector<Block> next = cb_.pass_done(id, blocks_done, std::move(results_done), wall);
+    lock.lock();
+    auto it = active_.find(id);
+    if (it == active_.end()) continue;  // stop() cleared it
+    Active& job = *it->second;
+    job.committing = false;
+    if (job.cancel_requested && !next.empty()) {
+      active_.erase(it);
+      lock.unlock();
+      if (cb_.cancelled) cb_.cancelled(id);
+      lock.lock();
+      continue;
+    }
+    if (next.empty()) {
+      active_.erase(it);
+      continue;
+    }
+    start_pass_locked(job, std::move(next));
+    cv_.notify_all();
+  }
+}
+
+}  // namespace tally

@@ -1,0 +1,93 @@
+#pragma once
+// The worker pool. Each running job contributes the blocks of its current pass,
+// handed out in chunks; workers take the next chunk from the job with the least
+// virtual time (stride scheduling: a chunk charges its measured run time divided
+// by the job's weight), so running jobs share the CPUs fairly and a short job
+// submitted behind a long one finishes promptly. Results land in per-block slots
+// and are committed in block order by whoever finishes a pass's last chunk, so the
+// bits do not depend on worker count, chunking or other jobs.
+#include <atomic>
+#include <condition_variable>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "common/engine/kernel.hpp"
+
+namespace tally {
+
+struct SchedulerCallbacks {
+  // All blocks of the job's pass have run: commit them and return the next pass's
+  // blocks (empty: the job leaves the scheduler). Runs on a worker thread.
+  std::function<std::vector<Block>(const std::string& id, const std::vector<Block>& blocks,
+                                   std::vector<BlockResult>&& results, double wall_seconds)>
+      pass_done;
+  // A cancelled job has no chunk in flight any more; its partial pass is dropped.
+  std::function<void(const std::string& id)> cancelled;
+};
+
+// CPU share is proportional to priority_weight(priority).
+int clamp_priority(int priority);
+double priority_weight(int priority);
+
+class Scheduler {
+ public:
+  Scheduler(unsigned workers, SchedulerCallbacks callbacks, double chunk_target_seconds = 0.004);
+  ~Scheduler();
+  Scheduler(const Scheduler&) = delete;
+  Scheduler& operator=(const Scheduler&) = delete;
+
+  void add(const std::string& id, std::shared_ptr<const Kernel> kernel, std::vector<Block> first_pass,
+           int priority = 0);
+  // Stops handing out the job's chunks. Returns false if the job is not scheduled.
+  // The `cancelled` callback runs once no chunk is in flight (maybe on this thread).
+  bool cancel(const std::string& id);
+  // Finishes the chunks in flight, drops partial passes, joins the workers.
+  void stop();
+
+  unsigned workers() const { return static_cast<unsigned>(threads_.size()); }
+  size_t scheduled_jobs() const;
+  uint64_t samples_done() const { return samples_done_.load(std::memory_order_relaxed); }
+  unsigned busy_workers() const { return busy_.load(std::memory_order_relaxed); }
+
+ private:
+  struct Active {
+    std::string id;
+    std::shared_ptr<const Kernel> kernel;
+    double weight = 1.0;
+    double vtime = 0.0;
+    std::vector<Block> blocks;
+    std::vector<BlockResult> results;
+    size_t next = 0;       // next block to hand out
+    size_t done = 0;       // blocks finished
+    unsigned inflight = 0; // chunks running
+    double block_seconds = 0.0;  // running estimate of one block's run time
+    std::chrono::steady_clock::time_point pass_start;
+    bool pass_started = false;
+    bool committing = false;
+    bool cancel_requested = false;
+  };
+
+  void worker_loop();
+  Active* pick_locked();
+  size_t chunk_size_locked(const Active& a) const;
+  void start_pass_locked(Active& a, std::vector<Block> blocks);
+  double min_vtime_locked() const;
+
+  SchedulerCallbacks cb_;
+  double chunk_target_;
+  mutable std::mutex mu_;
+  std::condition_variable cv_;
+  std::map<std::string, std::unique_ptr<Active>> active_;
+  std::string last_picked_;
+  bool stopping_ = false;
+  std::atomic<uint64_t> samples_done_{0};
+  std::atomic<unsigned> busy_{0};
+  std::vector<std::thread> threads_;
+};
+
+}  // namespace tally
