@@ -21,6 +21,11 @@ struct LocalRunOptions {
 };
 
 void run_local(JobRunner& runner, const LocalRunOptions& options);
+inline void run_local(JobRunner& runner, unsigned threads) {
+  LocalRunOptions o;
+  o.threads = threads;
+  run_local(runner, o);
+}
 
 // Threads this process may use (affinity mask; at least 1).
 unsigned available_cpus();

@@ -90,7 +90,11 @@ uint64_t SpecReader::integer(std::string_view key, uint64_t lo, uint64_t hi) {
     return x;
   }
   if (v.is_number_integer()) {
-    throw SpecError(p, fmt::format("must be in [{}, {}], got {}", lo, hi, v.get<int64_t>()));
+    const int64_t x = v.get<int64_t>();
+    if (x < 0 || static_cast<uint64_t>(x) < lo || static_cast<uint64_t>(x) > hi) {
+      throw SpecError(p, fmt::format("must be in [{}, {}], got {}", lo, hi, x));
+    }
+    return static_cast<uint64_t>(x);
   }
   if (v.is_number_float()) {
     const double d = v.get<double>();

@@ -1,0 +1,102 @@
+#include "common/engine/job_runner.hpp"
+
+#include <gtest/gtest.h>
+
+#include "common/engine/local_executor.hpp"
+#include "common/rng/counter_rng.hpp"
+
+namespace tally {
+namespace {
+
+// A kernel whose samples are U(0,1): mean 1/2, variance 1/12.
+class UniformValues final : public Kernel {
+ public:
+  size_t channel_count() const override { return 1; }
+  PassSchedule schedule() const override { return {1000, 64000, 500}; }
+  void run_block(const Block& b, BlockResult& out) const override {
+    const uint64_t key = stream_key(9, 0);
+    Tally t;
+    for (uint64_t i = 0; i < b.sample_count; ++i) t.add(SampleRng(key, b.first_sample + i).uniform(0));
+    out.tallies = {t};
+  }
+};
+
+TEST(JobRunner, MaxSamplesStopsExactly) {
+  StopRule rule;
+  rule.max_samples = 12345;
+  JobRunner r(std::make_shared<UniformValues>(), rule, JobCaps{});
+  run_local(r, 2);
+  EXPECT_EQ(r.stop_reason(), StopReason::max_samples);
+  EXPECT_EQ(r.state().samples, 12345u);
+  EXPECT_EQ(r.state().channels[0].n, 12345u);
+}
+
+TEST(JobRunner, ErrorTargetStopsWhenMet) {
+  StopRule rule;
+  rule.abs_error = 1e-3;
+  JobRunner r(std::make_shared<UniformValues>(), rule, JobCaps{});
+  run_local(r, 1);
+  EXPECT_EQ(r.stop_reason(), StopReason::error_target);
+  EXPECT_TRUE(r.target_met());
+  EXPECT_LE(r.error().abs_error, 1e-3);
+  // (1.96 * sqrt(1/12) / 1e-3)^2 = 320,110 samples needed; the planner aims passes at
+  // the predicted need, so it should not overshoot by more than a pass's headroom.
+  EXPECT_GT(r.state().samples, 300'000u);
+  EXPECT_LT(r.state().samples, 420'000u);
+}
+
+TEST(JobRunner, CapStopsJobsWithoutOtherLimits) {
+  StopRule rule;
+  rule.rel_error = 1e-12;  // unreachable
+  JobCaps caps;
+  caps.max_samples = 50'000;
+  JobRunner r(std::make_shared<UniformValues>(), rule, caps);
+  run_local(r, 2);
+  EXPECT_EQ(r.stop_reason(), StopReason::sample_cap);
+  EXPECT_FALSE(r.target_met());
+  EXPECT_EQ(r.state().samples, 50'000u);
+}
+
+TEST(JobRunner, PredictionMatchesClosedForm) {
+  StopRule rule;
+  rule.abs_error = 1e-4;
+  rule.max_samples = 100'000;
+  JobRunner r(std::make_shared<UniformValues>(), rule, JobCaps{});
+  run_local(r, 1);
+  const auto p = r.prediction();
+  ASSERT_TRUE(p.has_value());
+  const double expect = std::pow(1.959963985 * std::sqrt(1.0 / 12.0) / 1e-4, 2);
+  EXPECT_NEAR(p->samples_needed, expect, 0.02 * expect);  // sigma estimated from 1e5 samples
+}
+
+TEST(JobRunner, ExtendReopensAFinishedJob) {
+  StopRule rule;
+  rule.max_samples = 5000;
+  JobRunner r(std::make_shared<UniformValues>(), rule, JobCaps{});
+  run_local(r, 1);
+  ASSERT_TRUE(r.finished());
+  rule.max_samples = 20000;
+  r.extend(rule);
+  EXPECT_FALSE(r.finished());
+  run_local(r, 1);
+  EXPECT_EQ(r.state().samples, 20000u);
+}
+
+TEST(JobRunner, CancelStopsAtPassBoundary) {
+  StopRule rule;
+  rule.max_samples = 1'000'000;
+  JobRunner r(std::make_shared<UniformValues>(), rule, JobCaps{});
+  std::atomic<bool> cancel{false};
+  LocalRunOptions o;
+  o.threads = 1;
+  o.cancel = &cancel;
+  o.on_pass = [&](const JobRunner& jr) {
+    if (jr.state().passes == 2) cancel = true;
+  };
+  run_local(r, o);
+  EXPECT_EQ(r.stop_reason(), StopReason::cancelled);
+  EXPECT_EQ(r.state().passes, 2u);
+}
+
+}  // namespace
+}  // namespace tally

@@ -1,0 +1,68 @@
+// Coverage of the reported 95% interval over many seeds: the fraction of runs whose
+// interval contains the closed-form value must lie in [0.93, 0.97]. With 2,000 seeds
+// the binomial sd of the fraction is 0.0049, so the band is +-4.1 sd: a correct
+// implementation fails it with probability < 1e-4 per case (and, seeds being fixed,
+// the suite is deterministic).
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <numbers>
+
+#include "common/integrate/genz.hpp"
+#include "integrate/run_support.hpp"
+
+namespace tally {
+namespace {
+
+using nlohmann::json;
+
+double coverage(json spec, double exact, int seeds) {
+  int hits = 0;
+  for (int s = 0; s < seeds; ++s) {
+    spec["seed"] = 100000 + s;
+    const auto r = testing::run_spec(spec, 1);
+    const Estimate e = r->estimate(0);
+    hits += (e.ci_lo <= exact && exact <= e.ci_hi) ? 1 : 0;
+  }
+  const double c = static_cast<double>(hits) / seeds;
+  std::printf("coverage %.4f over %d seeds: %s\n", c, seeds, spec["integrand"].dump().c_str());
+  return c;
+}
+
+constexpr int kSeeds = 2000;
+
+TEST(Coverage, UnitDisk) {
+  const double c = coverage({{"kind", "integrate"}, {"integrand", {{"builtin", "unit_disk"}}},
+                             {"stop", {{"max_samples", 4096}}}},
+                            std::numbers::pi, kSeeds);
+  EXPECT_GE(c, 0.93);
+  EXPECT_LE(c, 0.97);
+}
+
+TEST(Coverage, GenzFamilies) {
+  for (GenzFamily f : {GenzFamily::oscillatory, GenzFamily::product_peak, GenzFamily::gaussian,
+                       GenzFamily::continuous}) {
+    const GenzParams p{f, {1.3, 2.1, 0.7}, {0.3, 0.6, 0.45}};
+    const json spec = {{"kind", "integrate"},
+                       {"integrand", {{"builtin", "genz"}, {"family", genz_family_name(f)}, {"a", p.a}, {"u", p.u}}},
+                       {"stop", {{"max_samples", 4096}}}};
+    const double c = coverage(spec, genz_exact(p), kSeeds);
+    EXPECT_GE(c, 0.93) << genz_family_name(f);
+    EXPECT_LE(c, 0.97) << genz_family_name(f);
+  }
+}
+
+// RQMC: the t interval over 16 independent randomizations must cover too.
+TEST(Coverage, RandomizedQmc) {
+  const GenzParams p{GenzFamily::gaussian, {1.3, 2.1, 0.7}, {0.3, 0.6, 0.45}};
+  const json spec = {{"kind", "integrate"},
+                     {"integrand", {{"builtin", "genz"}, {"family", "gaussian"}, {"a", p.a}, {"u", p.u}}},
+                     {"estimator", {{"type", "qmc"}, {"points", 64}}},
+                     {"stop", {{"max_samples", 16}}}};
+  const double c = coverage(spec, genz_exact(p), 1000);  // sd 0.0069: band is +-2.9 sd
+  EXPECT_GE(c, 0.93);
+  EXPECT_LE(c, 0.97);
+}
+
+}  // namespace
+}  // namespace tally
