@@ -1,0 +1,76 @@
+#pragma once
+// Runs lighting specs through the production path: JSON -> compile_lighting_job ->
+// JobRunner -> run_local -> tallies.
+#include <cmath>
+#include <memory>
+#include <nlohmann/json.hpp>
+
+#include "common/engine/job_definition.hpp"
+#include "common/engine/job_runner.hpp"
+#include "common/engine/local_executor.hpp"
+#include "common/lighting/lighting_job.hpp"
+#include "common/math/vec3.hpp"
+
+namespace tally::test {
+
+using json = nlohmann::json;
+
+struct JobRun {
+  std::unique_ptr<JobDefinition> job;
+  std::unique_ptr<JobRunner> runner;
+  const Tally& channel(size_t c) const { return runner->state().channels.at(c); }
+  uint64_t counter(Counter c) const { return runner->state().counters[c]; }
+};
+
+inline JobRun run_spec(const json& spec, unsigned threads = 1, const JobLimits& limits = {}) {
+  JobRun r;
+  r.job = compile_lighting_job(spec, limits);
+  r.runner = std::make_unique<JobRunner>(r.job->kernel(), r.job->stop_rule(), JobCaps{});
+  LocalRunOptions o;
+  o.threads = threads;
+  run_local(*r.runner, o);
+  return r;
+}
+
+inline json vec(const Vec3& v) { return json::array({v.x, v.y, v.z}); }
+
+inline json diffuse(double a) { return {{"type", "diffuse"}, {"albedo", {a, a, a}}}; }
+inline json emitter(double l, bool two_sided = false) {
+  return {{"type", "emissive"}, {"radiance", {l, l, l}}, {"two_sided", two_sided}};
+}
+
+// A point query at the origin, normal +z, diffuse albedo rho.
+inline json point_spec(const json& scene, const std::vector<std::string>& estimators, uint64_t samples,
+                       double rho = 0.5, uint64_t seed = 7) {
+  return {{"kind", "lighting"},
+          {"seed", seed},
+          {"scene", scene},
+          {"query", {{"type", "points"},
+                     {"points", json::array({{{"p", {0, 0, 0}}, {"n", {0, 0, 1}}, {"material", diffuse(rho)}}})}}},
+          {"estimators", estimators},
+          {"stop", {{"max_samples", samples}}}};
+}
+
+// Lambert's formula for a polygon above the horizon of (p, n), atan2 form.
+inline double lambert_irradiance(const std::vector<Vec3>& poly, const Vec3& p, const Vec3& n, double L) {
+  double sum = 0;
+  for (size_t i = 0; i < poly.size(); ++i) {
+    const Vec3 a = normalize(poly[i] - p), b = normalize(poly[(i + 1) % poly.size()] - p);
+    const Vec3 c = cross(a, b);
+    const double s = length(c);
+    sum += std::atan2(s, dot(a, b)) * dot(n, c / s);
+  }
+  return 0.5 * L * std::fabs(sum);
+}
+
+// The lecture's scene: a receiver, a square area light and an occluder partly between.
+inline json lecture_scene() {
+  return {{"materials", {{"white", diffuse(0.8)}, {"grey", diffuse(0.3)}, {"lamp", emitter(5.0)}}},
+          {"shapes", json::array({
+                         {{"type", "quad"}, {"corner", {-3, -3, 0}}, {"edge_u", {6, 0, 0}}, {"edge_v", {0, 6, 0}}, {"material", "white"}},
+                         {{"type", "quad"}, {"corner", {-0.5, -0.5, 2}}, {"edge_u", {0, 1, 0}}, {"edge_v", {1, 0, 0}}, {"material", "lamp"}},
+                         {{"type", "quad"}, {"corner", {-0.2, -0.6, 1}}, {"edge_u", {0, 0.7, 0}}, {"edge_v", {0.7, 0, 0}}, {"material", "grey"}},
+                     })}};
+}
+
+}  // namespace tally::test
