@@ -111,10 +111,15 @@ double ImageKernel::image_mean(const JobState& state) const {
 }
 
 double ImageKernel::pixel_rel_error(const JobState& state, size_t ch, double confidence, double delta) const {
-  const Tally& t = state.channels[ch];
-  if (t.n < 2) return std::numeric_limits<double>::infinity();
-  const double half = critical_value(confidence, t.n) * std::sqrt(t.variance() / static_cast<double>(t.n));
-  return half / (std::fabs(t.mean) + delta);
+  // The pixel's RGB average: half-width of its mean over |its mean| + delta.
+  double half = 0, mean = 0;
+  for (size_t c = 0; c < 3; ++c) {
+    const Tally& t = state.channels[ch + c];
+    if (t.n < 2) return std::numeric_limits<double>::infinity();
+    half += critical_value(confidence, t.n) * std::sqrt(t.variance() / static_cast<double>(t.n));
+    mean += std::fabs(t.mean);
+  }
+  return half / (mean + 3 * delta);
 }
 
 std::vector<uint32_t> ImageKernel::active_partitions(const JobState& state) const {
@@ -123,7 +128,7 @@ std::vector<uint32_t> ImageKernel::active_partitions(const JobState& state) cons
   std::vector<uint32_t> active;
   for (uint32_t t = 0; t < tile_count(); ++t) {
     bool need = state.partition_samples[t] < adaptive_->min_spp;
-    for (size_t ch = tile_first_[t]; !need && ch < tile_first_[t + 1]; ++ch) {
+    for (size_t ch = tile_first_[t]; !need && ch < tile_first_[t + 1]; ch += 3) {
       need = pixel_rel_error(state, ch, 0.95, delta) > adaptive_->rel_error;
     }
     if (need) active.push_back(t);

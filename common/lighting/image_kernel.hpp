@@ -13,7 +13,8 @@
 // over all channels, rel_error the mean of r. (A percentile would punish a few fireflies
 // more; the mean tracks overall noise, which is what progressive previews show.)
 // Adaptive sampling: a tile stays active while it has fewer than min_spp samples or any
-// of its channels has r above the adaptive target.
+// of its pixels has r above the adaptive target, r computed on the pixel's RGB average
+// (sum of the channel half-widths / sum of |channel means|).
 #include <memory>
 #include <optional>
 #include <vector>
