@@ -88,5 +88,6 @@ void run_disk_study(const Options& o);
 void run_lighting_study(const Options& o);
 void run_rqmc_study(const Options& o);
 void run_peer_study(const Options& o);
+void run_peer_tuning(const Options& o);
 
 }  // namespace tally::study
