@@ -9,6 +9,23 @@
 
 namespace tally {
 
+namespace {
+// critical_value (a t quantile) is costly; almost every channel has the same n.
+struct CriticalCache {
+  double confidence = -1;
+  uint64_t n = 0;
+  double z = 0;
+  double operator()(double conf, uint64_t count) {
+    if (conf != confidence || count != n) {
+      confidence = conf;
+      n = count;
+      z = critical_value(conf, count);
+    }
+    return z;
+  }
+};
+}  // namespace
+
 ImageKernel::ImageKernel(std::shared_ptr<const CompiledScene> scene, PathSettings settings, uint64_t seed,
                          int tile_size, uint64_t max_pass_spp, std::optional<AdaptiveSettings> adaptive)
     : scene_(std::move(scene)),
@@ -112,11 +129,12 @@ double ImageKernel::image_mean(const JobState& state) const {
 
 double ImageKernel::pixel_rel_error(const JobState& state, size_t ch, double confidence, double delta) const {
   // The pixel's RGB average: half-width of its mean over |its mean| + delta.
+  thread_local CriticalCache critical;
   double half = 0, mean = 0;
   for (size_t c = 0; c < 3; ++c) {
     const Tally& t = state.channels[ch + c];
     if (t.n < 2) return std::numeric_limits<double>::infinity();
-    half += critical_value(confidence, t.n) * std::sqrt(t.variance() / static_cast<double>(t.n));
+    half += critical(confidence, t.n) * std::sqrt(t.variance() / static_cast<double>(t.n));
     mean += std::fabs(t.mean);
   }
   return half / (mean + 3 * delta);
@@ -140,11 +158,12 @@ ErrorSummary ImageKernel::error_summary(const JobState& state, double confidence
   constexpr double inf = std::numeric_limits<double>::infinity();
   const double mean = image_mean(state);
   const double delta = std::max(1e-3 * std::fabs(mean), std::numeric_limits<double>::min());
+  CriticalCache critical;
   double sum_h = 0, sum_r = 0;
   uint64_t n_min = std::numeric_limits<uint64_t>::max();
   for (const Tally& t : state.channels) {
     if (t.n < 2) return {inf, inf, std::numeric_limits<double>::quiet_NaN(), mean};
-    const double half = critical_value(confidence, t.n) * std::sqrt(t.variance() / static_cast<double>(t.n));
+    const double half = critical(confidence, t.n) * std::sqrt(t.variance() / static_cast<double>(t.n));
     sum_h += half;
     sum_r += half / (std::fabs(t.mean) + delta);
     n_min = std::min(n_min, t.n);
