@@ -1,0 +1,297 @@
+#!/usr/bin/env bash
+# Builds the tally-server image with podman and checks it end to end, on loopback only:
+#   build (multi-stage, tests in the build stage) -> image size, no compiler inside
+#   run with a named volume -> start-up time to /readyz -> HEALTHCHECK (tally health)
+#   submit an integration job with the CLI from the host -> mean within 4 stderr of pi
+#   submit a long job -> SIGTERM (podman stop -t 30) -> clean exit 0, checkpoint logged
+#   new container on the same volume -> the finished job is there with a bit-identical
+#   result, the long job resumed from its checkpoint (samples kept) -> cancel it
+# Every wait is bounded; the containers and volume it made are removed on exit.
+#
+# Usage: docker/test-image.sh [--no-build] [--tests fast|all|none] [--keep]
+# Environment: TALLY_IMAGE (default localhost/tally:test), TALLY_CLI (host CLI binary;
+# default: the one in the image, copied out), TALLY_TEST_PORT (first port tried, 18080),
+# JOBS (build parallelism, 2), CONTAINERS_CONF (default ../shared/containers/containers.conf).
+set -euo pipefail
+
+here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+repo=$(cd "$here/.." && pwd)
+build=1
+tests=fast
+keep=0
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --no-build) build=0 ;;
+    --tests) tests=$2; shift ;;
+    --keep) keep=1 ;;
+    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
+    *) echo "test-image: unknown argument $1" >&2; exit 2 ;;
+  esac
+  shift
+done
+
+if [ -z "${CONTAINERS_CONF:-}" ] && [ -f "$repo/../shared/containers/containers.conf" ]; then
+  CONTAINERS_CONF=$(cd "$repo/../shared/containers" && pwd)/containers.conf
+  export CONTAINERS_CONF
+fi
+image=${TALLY_IMAGE:-localhost/tally:test}
+base_image=localhost/debian-min:bookworm
+jobs=${JOBS:-2}
+run_id=$$
+name1=tally-test-$run_id-a
+name2=tally-test-$run_id-b
+volume=tally-test-data-$run_id
+work=$(mktemp -d /tmp/tally-test-image.XXXXXX)
+passed=0
+failed=0
+
+log() { printf '[%s] %s\n' "$(date +%H:%M:%S)" "$*"; }
+pass() { passed=$((passed + 1)); log "PASS $*"; }
+fail() { failed=$((failed + 1)); log "FAIL $*"; }
+die() { log "FATAL $*"; exit 1; }
+now() { date +%s.%N; }
+elapsed() { python3 -c "import sys; print(f'{float(sys.argv[2]) - float(sys.argv[1]):.2f}')" "$1" "$2"; }
+
+cleanup() {
+  local rc=$?
+  if [ "$keep" -eq 0 ]; then
+    for c in "$name1" "$name2"; do timeout 60 podman rm -f -t 5 "$c" >/dev/null 2>&1 || true; done
+    timeout 60 podman volume rm -f "$volume" >/dev/null 2>&1 || true
+  else
+    log "kept: containers $name1 $name2, volume $volume"
+  fi
+  rm -rf "$work"
+  exit $rc
+}
+trap cleanup EXIT
+trap 'exit 130' INT TERM
+
+# --- tools -------------------------------------------------------------------------
+need=()
+for p in podman buildah runc debootstrap uidmap fuse-overlayfs slirp4netns curl python3; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || need+=("$p")
+done
+if [ ${#need[@]} -gt 0 ]; then
+  log "installing ${need[*]}"
+  export DEBIAN_FRONTEND=noninteractive
+  timeout 600 apt-get update -qq
+  timeout 1200 apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null
+fi
+log "podman $(podman --version | awk '{print $3}'), CONTAINERS_CONF=${CONTAINERS_CONF:-unset}"
+
+# --- base image (no registry here: debootstrap from the Debian mirror) -------------
+if ! podman image exists "$base_image"; then
+  mirror=$(awk '/^URIs:/{print $2; exit}' /etc/apt/sources.list.d/debian.sources 2>/dev/null || true)
+  mirror=${mirror:-http://deb.debian.org/debian}
+  log "creating $base_image with debootstrap from $mirror"
+  timeout 1200 debootstrap --variant=minbase bookworm "$work/rootfs" "$mirror" >"$work/debootstrap.log" 2>&1 ||
+    { tail -20 "$work/debootstrap.log"; die "debootstrap failed"; }
+  # Package lists and caches would stay in the lowest layer of every image: drop them.
+  rm -rf "$work/rootfs/var/lib/apt/lists/"* "$work/rootfs/var/cache/apt/"*.bin "$work/rootfs/var/cache/apt/archives/"*.deb
+  tar -C "$work/rootfs" -c . | timeout 600 podman import - "$base_image" >/dev/null
+  rm -rf "$work/rootfs"
+fi
+
+# --- build -------------------------------------------------------------------------
+if [ "$build" -eq 1 ]; then
+  log "building $image (TESTS=$tests, JOBS=$jobs); log in $work/build.log"
+  t0=$(now)
+  if ! timeout 5400 nice -n 10 podman build --format docker --layers \
+      --build-arg BASE="$base_image" --build-arg TESTS="$tests" --build-arg JOBS="$jobs" \
+      -f "$repo/docker/Dockerfile" -t "$image" "$repo" >"$work/build.log" 2>&1; then
+    tail -40 "$work/build.log"
+    die "podman build failed"
+  fi
+  build_s=$(elapsed "$t0" "$(now)")
+  grep -E 'tests passed|Test #|tests failed|^building:' "$work/build.log" | tail -3 | sed 's/^/    /'
+  pass "image built in ${build_s}s"
+else
+  podman image exists "$image" || die "$image does not exist (drop --no-build)"
+fi
+
+size_bytes=$(podman image inspect --format '{{.Size}}' "$image")
+size_mb=$((size_bytes / 1000 / 1000))
+base_mb=$(( $(podman image inspect --format '{{.Size}}' "$base_image") / 1000 / 1000 ))
+log "image size: ${size_mb} MB (base image ${base_mb} MB)"
+
+cfg=$(podman image inspect --format '{{.Config.User}}|{{json .Config.Entrypoint}}|{{json .Config.ExposedPorts}}|{{json .Config.Volumes}}' "$image")
+hc=$(podman image inspect --format '{{json .Config.Healthcheck}}' "$image" 2>/dev/null || echo null)
+log "image config: $cfg"
+case "$cfg" in 10001:10001\|*tini*) pass "non-root user 10001 and tini entrypoint" ;; *) fail "user/entrypoint: $cfg" ;; esac
+if echo "$hc" | grep -q '"tally","health"'; then pass "HEALTHCHECK kept (docker format): $hc"; else fail "no HEALTHCHECK in image config: $hc"; fi
+if found=$(timeout 60 podman run --rm --entrypoint /bin/sh "$image" -c \
+    'for t in gcc g++ cc c++ clang cmake ld curl wget; do command -v $t; done; true'); [ -z "$found" ]; then
+  pass "no compiler, linker or curl in the runtime image"
+else
+  fail "tools in the runtime image: $found"
+fi
+
+# --- the CLI on the host -----------------------------------------------------------
+cli=${TALLY_CLI:-}
+if [ -z "$cli" ]; then
+  # The CLI that was built with this image, copied out (the host has the libraries).
+  cid=$(podman create "$image")
+  podman cp "$cid:/usr/local/bin/tally" "$work/tally" >/dev/null
+  podman rm "$cid" >/dev/null
+  cli=$work/tally
+fi
+"$cli" --help >/dev/null || die "host CLI $cli does not run"
+"$cli" --help | grep -q ' submit' || die "host CLI $cli has no submit command"
+log "host CLI: $cli"
+
+# --- run ---------------------------------------------------------------------------
+port=${TALLY_TEST_PORT:-18080}
+for _ in $(seq 1 100); do
+  (exec 3<>"/dev/tcp/127.0.0.1/$port") 2>/dev/null || break
+  port=$((port + 1))
+done
+url=http://127.0.0.1:$port
+podman volume create "$volume" >/dev/null
+
+create() {  # name -> container created (not started), hardened as in compose.yaml
+  podman create --name "$1" -p "127.0.0.1:$port:8080" -v "$volume:/var/lib/tally" \
+    --read-only --tmpfs /tmp --cap-drop ALL --security-opt no-new-privileges \
+    --stop-timeout 30 "$image" --listen 0.0.0.0:8080 --data-dir /var/lib/tally --workers 2 >/dev/null
+}
+wait_ready() {  # name -> prints seconds from `podman start` to /readyz 200; bounded by 60 s
+  local t0 t1
+  t0=$(now)
+  podman start "$1" >/dev/null
+  for _ in $(seq 1 1200); do
+    if curl -fsS -m 1 -o /dev/null "$url/readyz" 2>/dev/null; then
+      t1=$(now); elapsed "$t0" "$t1"; return 0
+    fi
+    [ "$(podman inspect --format '{{.State.Running}}' "$1")" = true ] || break
+    sleep 0.05
+  done
+  podman logs "$1" | tail -20 >&2
+  return 1
+}
+wait_healthy() {  # name -> 0 when the image's HEALTHCHECK passes; bounded by 30 s
+  for _ in $(seq 1 30); do
+    if podman healthcheck run "$1" >/dev/null 2>&1; then return 0; fi
+    sleep 1
+  done
+  return 1
+}
+status_json() { "$cli" --server "$url" get "$1" --json; }
+field() {  # json-file path.to.field
+  python3 -c 'import json,sys
+v=json.load(open(sys.argv[1]))
+for k in sys.argv[2].split("."): v=v[k] if isinstance(v,dict) else None
+print(json.dumps(v) if isinstance(v,(dict,list)) else v)' "$1" "$2"
+}
+
+create "$name1"
+startup1=$(wait_ready "$name1") || die "container did not become ready within 60 s"
+pass "start-up: ${startup1}s from podman start to /readyz 200 (port $port, loopback only)"
+log "server log: $(podman logs "$name1" 2>&1 | head -1)"
+if wait_healthy "$name1"; then
+  pass "HEALTHCHECK healthy: $(podman inspect --format '{{.State.Health.Status}}' "$name1" 2>/dev/null || true)"
+else
+  if podman exec "$name1" /usr/local/bin/tally --help 2>&1 | grep -q ' health'; then
+    fail "HEALTHCHECK (tally health) did not pass within 30 s: $(podman exec "$name1" /usr/local/bin/tally health 2>&1 | head -2)"
+  else
+    fail "HEALTHCHECK: the image's CLI has no 'health' command (client/main.cpp must call add_health_command)"
+  fi
+fi
+uid=$(podman exec "$name1" sh -c 'id -u' 2>/dev/null || true)
+[ "$uid" = 10001 ] && pass "server runs as uid 10001" || fail "server uid: $uid"
+pid1=$(podman exec "$name1" sh -c 'cat /proc/1/comm' 2>/dev/null || true)
+[ "$pid1" = tini ] && pass "PID 1 is tini" || fail "PID 1 is '$pid1'"
+
+# A job to completion, watched from the host.
+cat >"$work/disk.json" <<'EOF'
+{"kind": "integrate", "integrand": {"builtin": "unit_disk"}, "seed": 7, "stop": {"max_samples": 50000000}}
+EOF
+t0=$(now)
+if ! timeout 300 "$cli" --server "$url" submit "$work/disk.json" --watch >"$work/submit.out" 2>"$work/submit.err"; then
+  cat "$work/submit.err" | tail -5
+  die "tally submit --watch failed"
+fi
+job=$(head -1 "$work/submit.out")
+log "job $job finished in $(elapsed "$t0" "$(now)")s: $(tail -1 "$work/submit.err" | tr -d '\r' | cut -c1-160)"
+status_json "$job" >"$work/job1.json"
+state=$(field "$work/job1.json" state)
+mean=$(field "$work/job1.json" estimate.mean)
+se=$(field "$work/job1.json" estimate.std_error)
+n=$(field "$work/job1.json" samples)
+log "result: state=$state mean=$mean std_error=$se samples=$n"
+if [ "$state" = succeeded ] && python3 -c 'import math,sys; m,s=map(float,sys.argv[1:3]); sys.exit(0 if s>0 and abs(m-math.pi)<=4*s else 1)' "$mean" "$se"; then
+  pass "mean $mean within 4 stderr of pi (|mean-pi|/stderr = $(python3 -c 'import math,sys; print(f"{abs(float(sys.argv[1])-math.pi)/float(sys.argv[2]):.2f}")' "$mean" "$se"))"
+else
+  fail "job result: state=$state mean=$mean std_error=$se"
+fi
+
+# A long job that is still running when the container stops.
+cat >"$work/long.json" <<'EOF'
+{"kind": "integrate", "integrand": {"builtin": "unit_disk"}, "seed": 11, "stop": {"max_samples": 50000000000}}
+EOF
+long=$(timeout 30 "$cli" --server "$url" submit "$work/long.json" | head -1)
+long_before=0
+for _ in $(seq 1 60); do
+  status_json "$long" >"$work/long0.json"
+  long_before=$(field "$work/long0.json" samples)
+  [ "${long_before:-0}" -gt 0 ] && [ "$(field "$work/long0.json" state)" = running ] && break
+  sleep 0.5
+done
+sleep 2
+status_json "$long" >"$work/long0.json"
+long_before=$(field "$work/long0.json" samples)
+log "long job $long: $(field "$work/long0.json" state), $long_before samples before the stop"
+
+# SIGTERM: tini forwards it, the server checkpoints and exits 0 well inside 30 s.
+t0=$(now)
+timeout 90 podman stop -t 30 "$name1" >/dev/null
+stop_s=$(elapsed "$t0" "$(now)")
+code=$(podman inspect --format '{{.State.ExitCode}}' "$name1")
+podman logs "$name1" >"$work/server1.log" 2>&1 || true
+if [ "$code" = 0 ] && python3 -c 'import sys; sys.exit(0 if float(sys.argv[1]) < 25 else 1)' "$stop_s"; then
+  pass "podman stop -t 30: exit code 0 after ${stop_s}s (SIGTERM, not SIGKILL)"
+else
+  fail "podman stop: exit code $code after ${stop_s}s"
+fi
+if grep -q 'checkpointing jobs' "$work/server1.log"; then
+  pass "server logged: $(grep 'checkpointing jobs' "$work/server1.log" | head -1)"
+else
+  fail "no shutdown message in the server log"; tail -5 "$work/server1.log"
+fi
+
+# A new container on the same volume.
+create "$name2"
+startup2=$(wait_ready "$name2") || die "second container did not become ready within 60 s"
+pass "restart on the same volume: ${startup2}s to /readyz 200"
+status_json "$job" >"$work/job2.json" || die "job $job is gone after the restart"
+same=$(python3 - "$work/job1.json" "$work/job2.json" <<'EOF'
+import json, sys
+a, b = (json.load(open(p)) for p in sys.argv[1:3])
+keys = ["state", "samples", "estimate", "bits"]
+print("yes" if all(a.get(k) == b.get(k) for k in keys) else
+      "no: " + "; ".join(f"{k}: {a.get(k)} != {b.get(k)}" for k in keys if a.get(k) != b.get(k)))
+EOF
+)
+if [ "$same" = yes ]; then
+  pass "job $job still there after the restart, same state/samples/estimate/bits (mean $(field "$work/job2.json" estimate.mean))"
+else
+  fail "job $job changed across the restart: $same"
+fi
+sleep 1
+status_json "$long" >"$work/long1.json" || die "long job $long is gone after the restart"
+long_state=$(field "$work/long1.json" state)
+long_after=$(field "$work/long1.json" samples)
+if [ "${long_after:-0}" -ge "${long_before:-1}" ] && [ "$long_state" != failed ]; then
+  pass "long job resumed from its checkpoint: $long_state, $long_after samples (>= $long_before before the stop)"
+else
+  fail "long job after restart: state=$long_state samples=$long_after (before: $long_before)"
+fi
+timeout 30 "$cli" --server "$url" cancel "$long" >/dev/null 2>&1 || true
+timeout 30 "$cli" --server "$url" list >"$work/list.out" 2>&1 || true
+log "tally list after the restart:"; sed 's/^/    /' "$work/list.out" | head -5
+
+timeout 90 podman stop -t 30 "$name2" >/dev/null
+code2=$(podman inspect --format '{{.State.ExitCode}}' "$name2")
+[ "$code2" = 0 ] && pass "second container stopped cleanly (exit 0)" || fail "second container exit code $code2"
+
+log "summary: image ${size_mb} MB; start-up ${startup1}s (empty volume), ${startup2}s (restart with 2 jobs); stop ${stop_s}s"
+log "test-image: $passed passed, $failed failed"
+[ "$failed" -eq 0 ]
