@@ -21,6 +21,7 @@ constexpr size_t kB = kIntegrandBatch;
 // Per-thread structure-of-arrays buffers for one batch.
 struct Scratch {
   std::vector<double> u, x, f, pdf;
+  std::vector<uint64_t> base = std::vector<uint64_t>(kIntegrandBatch);
   std::vector<const double*> u_ptr, x_cptr;
   std::vector<double*> x_ptr;
 
@@ -48,9 +49,14 @@ Scratch& scratch() {
 
 // True if every value is finite (x * 0 is NaN exactly for NaN and +-Inf).
 bool all_finite(const double* v, size_t n) {
-  double acc = 0.0;
-  for (size_t i = 0; i < n; ++i) acc += v[i] * 0.0;
-  return acc == 0.0;
+  // Four independent accumulators: no serial add chain in the hot loop.
+  double acc[4] = {0.0, 0.0, 0.0, 0.0};
+  size_t i = 0;
+  for (; i + 4 <= n; i += 4) {
+    for (size_t k = 0; k < 4; ++k) acc[k] += v[i + k] * 0.0;
+  }
+  for (; i < n; ++i) acc[0] += v[i] * 0.0;
+  return (acc[0] + acc[1]) + (acc[2] + acc[3]) == 0.0;
 }
 
 void record_fault(BlockResult& out, uint64_t sample_index, double value, const Scratch& s, size_t i,
@@ -86,7 +92,14 @@ class IntegrationKernelBase : public Kernel {
     thread_local std::vector<double> values;
     values.resize(b.sample_count);
     const size_t n = fill(b.first_sample, b.sample_count, values.data(), out);
-    for (size_t i = 0; i < n; ++i) out.tail.offer(std::fabs(values[i]));
+    double threshold = out.tail.threshold();
+    for (size_t i = 0; i < n; ++i) {
+      const double m = std::fabs(values[i]);
+      if (m > threshold) {
+        out.tail.offer(m);
+        threshold = out.tail.threshold();
+      }
+    }
     out.tallies.assign(1, Tally::from_batch(values.data(), n));
   }
   virtual uint64_t evaluations_per_sample() const { return 1; }
@@ -95,10 +108,29 @@ class IntegrationKernelBase : public Kernel {
   virtual size_t fill(uint64_t first, uint64_t count, double* values, BlockResult& out) const = 0;
 
   // Uniforms of samples [first, first + n) into the scratch rows, open interval (0,1).
+  // Structure-of-arrays loops over the batch, one dimension at a time, so the
+  // compiler can pipeline (and with AVX2, vectorize) the mixer.
   void draw_uniforms(Scratch& s, uint64_t first, size_t n, uint32_t uniforms) const {
+    fill_bases(s, first, n);
+    for (uint32_t k = 0; k < uniforms; ++k) fill_row(s.urow(k), s.base.data(), n, k, 0x1.0p-54, 0x1.0p-53);
+  }
+  // Uniform points of a box straight into the coordinate rows: x = lo + w * u with
+  // u = (m + 1/2) 2^-53 folded into one multiply-add per coordinate.
+  void draw_box_points(Scratch& s, uint64_t first, size_t n, const Domain& box) const {
+    fill_bases(s, first, n);
+    for (size_t k = 0; k < box.dimensions(); ++k) {
+      const double lo = box.lower()[k], w = box.upper()[k] - box.lower()[k];
+      fill_row(s.x_ptr[k], s.base.data(), n, static_cast<uint32_t>(k), lo + w * 0x1.0p-54, w * 0x1.0p-53);
+    }
+  }
+  void fill_bases(Scratch& s, uint64_t first, size_t n) const {
+    uint64_t* base = s.base.data();
+    for (size_t i = 0; i < n; ++i) base[i] = SampleRng::sample_base(key_, first + i);
+  }
+  static void fill_row(double* row, const uint64_t* base, size_t n, uint32_t k, double offset, double scale) {
     for (size_t i = 0; i < n; ++i) {
-      const SampleRng rng(key_, first + i);
-      for (uint32_t k = 0; k < uniforms; ++k) s.urow(k)[i] = rng.open_uniform(k);
+      const auto m = static_cast<int64_t>(SampleRng::bits_at(base[i], k) >> 11);
+      row[i] = offset + scale * static_cast<double>(m);
     }
   }
 
@@ -132,8 +164,12 @@ class UniformKernel final : public IntegrationKernelBase {
     const double measure = D.measure();
     for (uint64_t off = 0; off < count; off += kB) {
       const size_t n = static_cast<size_t>(std::min<uint64_t>(kB, count - off));
-      draw_uniforms(s, first + off, n, D.uniforms());
-      D.map_uniform(s.u_ptr.data(), n, s.x_ptr.data());
+      if (D.is_box()) {
+        draw_box_points(s, first + off, n, D);
+      } else {
+        draw_uniforms(s, first + off, n, D.uniforms());
+        D.map_uniform(s.u_ptr.data(), n, s.x_ptr.data());
+      }
       double* v = values + off;
       p_.integrand->evaluate_batch(s.x_cptr.data(), n, v);
       for (size_t i = 0; i < n; ++i) v[i] *= measure;

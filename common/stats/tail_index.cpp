@@ -6,7 +6,7 @@
 
 namespace tally {
 
-void TailTracker::offer(double magnitude) {
+void TailTracker::offer_slow(double magnitude) {
   if (!(magnitude > 0.0) || !std::isfinite(magnitude)) return;
   if (heap_.size() < capacity_) {
     heap_.push_back(magnitude);

@@ -17,8 +17,16 @@ class TailTracker {
 
   // Keeps the `capacity` largest magnitudes offered. O(1) for values below the kept
   // minimum, which is almost every sample.
-  void offer(double magnitude);
+  void offer(double magnitude) {
+    // Fast path, inlined into sampling loops: almost every value is below the kept minimum.
+    if (heap_.size() == capacity_ && !(magnitude > heap_.front())) return;
+    offer_slow(magnitude);
+  }
   void merge(const TailTracker& other);
+  // Values at or below this are not kept (hoist it out of loops; it only rises).
+  double threshold() const {
+    return heap_.size() < capacity_ ? 0.0 : heap_.front();
+  }
   // Largest kept values, descending.
   std::vector<double> sorted_values() const;
   const std::vector<double>& heap() const { return heap_; }
@@ -34,6 +42,7 @@ class TailTracker {
   static constexpr double kWarnBelow = 2.3;
 
  private:
+  void offer_slow(double magnitude);
   size_t capacity_;
   std::vector<double> heap_;  // min-heap of the largest magnitudes
 };
