@@ -12,6 +12,7 @@
 #include "server/json_depth.hpp"
 #include "server/pilot.hpp"
 #include "server/problem.hpp"
+#include "server/static_files.hpp"
 
 namespace tally {
 
@@ -120,6 +121,7 @@ HttpResponse RequestHandler::handle(const HttpRequest& request) {
   HttpResponse res;
   try {
     if (!m.route) {
+      if (auto file = serve_static_file(request)) return *file;  // the preview page, examples
       if (!m.allow.empty()) {
         std::string allow;
         for (const auto& a : m.allow) allow += (allow.empty() ? "" : ", ") + a;

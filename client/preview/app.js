@@ -1,0 +1,624 @@
+// tally preview: a dependency-free page over the server's JSON API and event stream.
+//
+// Data flow (docs/preview.md):
+//   GET /v1/jobs            the job list, polled every 2 s
+//   GET /examples/index.json, /examples/NAME.json   bundled specs for the form
+//   POST /v1/jobs/validate, POST /v1/jobs            the form
+//   GET /v1/jobs/ID         status: spec, plan, stop rule, image size, trace
+//   GET /v1/jobs/ID/events  EventSource: progress, state, tile, end (ids; the browser
+//                           resumes with Last-Event-ID after a dropped connection)
+//   GET /v1/jobs/ID/tiles/N pixels of a tile named by a `tile` event, fetched at most
+//                           every 250 ms (slower as the image converges), coalesced
+//   DELETE /v1/jobs/ID, POST /v1/jobs/ID/extend      the buttons
+'use strict';
+
+(() => {
+  const $ = (id) => document.getElementById(id);
+
+  // ------------------------------------------------------------------ helpers
+
+  async function api(method, url, body) {
+    const init = { method, headers: { Accept: 'application/json' } };
+    if (body !== undefined) {
+      init.headers['Content-Type'] = 'application/json';
+      init.body = typeof body === 'string' ? body : JSON.stringify(body);
+    }
+    const res = await fetch(url, init);
+    const text = await res.text();
+    let json = null;
+    try { json = text ? JSON.parse(text) : null; } catch (e) { json = null; }
+    if (!res.ok) {
+      const err = new Error(problemText(res.status, json, text));
+      err.status = res.status;
+      err.problem = json;
+      throw err;
+    }
+    return json;
+  }
+
+  function problemText(status, p, text) {
+    if (p && (p.detail || p.title)) {
+      let s = `${status} ${p.title || ''}: ${p.detail || ''}`;
+      if (p.pointer) s += `\nat ${p.pointer}`;
+      if (Array.isArray(p.errors)) {
+        for (const e of p.errors) s += `\n${e.pointer || ''}: ${e.detail || ''}`;
+      }
+      return s;
+    }
+    return `${status}: ${text || 'request failed'}`;
+  }
+
+  function fmtNum(v, digits = 4) {
+    if (v === null || v === undefined || Number.isNaN(v)) return '—';
+    if (!Number.isFinite(v)) return v > 0 ? '∞' : '−∞';
+    if (v === 0) return '0';
+    const a = Math.abs(v);
+    if (a >= 1e-3 && a < 1e6) return Number(v.toPrecision(digits)).toString();
+    return v.toExponential(digits - 1);
+  }
+
+  function fmtCount(n) {
+    if (n === null || n === undefined) return '—';
+    if (n < 1e3) return String(n);
+    const units = [['G', 1e9], ['M', 1e6], ['k', 1e3]];
+    for (const [u, s] of units) if (n >= s) return (n / s).toPrecision(3) + u;
+    return String(n);
+  }
+
+  function fmtDuration(s) {
+    if (s === null || s === undefined || !Number.isFinite(s)) return '—';
+    if (s < 1) return `${Math.round(s * 1000)} ms`;
+    if (s < 60) return `${s.toFixed(1)} s`;
+    if (s < 3600) return `${Math.floor(s / 60)} min ${Math.round(s % 60)} s`;
+    return `${Math.floor(s / 3600)} h ${Math.round((s % 3600) / 60)} min`;
+  }
+
+  function el(tag, attrs, ...children) {
+    const e = document.createElement(tag);
+    for (const [k, v] of Object.entries(attrs || {})) {
+      if (k === 'class') e.className = v; else e.setAttribute(k, v);
+    }
+    for (const c of children) e.append(c instanceof Node ? c : document.createTextNode(String(c)));
+    return e;
+  }
+
+  // sRGB OETF and 8-bit rounding exactly as the server's PNG encoder
+  // (common/image/image_io.cpp): clamp to [0, 1], NaN -> 0, round half away from 0.
+  function srgb8(v) {
+    if (!(v > 0)) return 0;  // also NaN
+    if (v >= 1) return 255;
+    const s = v <= 0.0031308 ? 12.92 * v : 1.055 * Math.pow(v, 1 / 2.4) - 0.055;
+    return Math.round(255 * s);
+  }
+
+  // Perceptual heat ramp (inferno-like), t in [0, 1].
+  const RAMP = [[0, 0, 4], [59, 15, 112], [140, 41, 129], [222, 73, 104], [254, 159, 109], [252, 253, 191]];
+  function heat(t) {
+    t = Math.min(1, Math.max(0, t)) * (RAMP.length - 1);
+    const i = Math.min(RAMP.length - 2, Math.floor(t));
+    const f = t - i, a = RAMP[i], b = RAMP[i + 1];
+    return [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])];
+  }
+
+  // ------------------------------------------------------------------ test hook
+  // Browser tests read what the page saw (pass numbers, tile fetches) and can drop
+  // the event stream; nothing else uses this object.
+  const hook = {
+    jobId: null,
+    passesSeen: [],       // pass of every progress event received, in order
+    eventIds: [],         // ids of every event received
+    tileFetches: 0,
+    tileEvents: 0,
+    flushes: 0,
+    reconnects: 0,
+    ended: false,
+    settled: false,       // job ended and every announced tile is drawn
+    lastEventId: null,
+    dropStream: () => view && view.dropStream(),
+  };
+  window.tallyPreview = hook;
+
+  // ------------------------------------------------------------------ job list
+
+  let selectedId = null;
+  let view = null;
+
+  async function refreshJobs() {
+    try {
+      const data = await api('GET', '/v1/jobs');
+      $('server-status').textContent = 'server ok';
+      $('server-status').classList.remove('down');
+      renderJobs(data.jobs || []);
+    } catch (e) {
+      $('server-status').textContent = 'server unreachable';
+      $('server-status').classList.add('down');
+    }
+  }
+
+  function renderJobs(jobs) {
+    const tbody = $('jobs').querySelector('tbody');
+    tbody.replaceChildren();
+    $('jobs-empty').hidden = jobs.length > 0;
+    for (const j of jobs.slice().reverse()) {
+      const tr = el('tr', { 'data-id': j.id },
+        el('td', {}, el('code', {}, j.id)),
+        el('td', {}, j.kind || ''),
+        el('td', {}, el('span', { class: `state ${j.state}` }, j.state)),
+        el('td', { class: 'num' }, j.passes ?? '—'),
+        el('td', { class: 'num' }, fmtCount(j.samples)));
+      if (j.id === selectedId) tr.classList.add('selected');
+      tr.addEventListener('click', () => { location.hash = `#/jobs/${encodeURIComponent(j.id)}`; });
+      tbody.append(tr);
+    }
+  }
+
+  // ------------------------------------------------------------------ the form
+
+  async function loadExamples() {
+    try {
+      const data = await api('GET', '/examples/index.json');
+      const sel = $('example-select');
+      for (const ex of data.examples || []) {
+        const label = `${ex.name}${ex.kind ? ` (${ex.kind}${ex.image ? ', image' : ''})` : ''}`;
+        sel.append(el('option', { value: ex.url }, label));
+      }
+    } catch (e) { /* no examples bundled */ }
+  }
+
+  async function pickExample() {
+    const url = $('example-select').value;
+    if (!url) return;
+    const res = await fetch(url);
+    $('spec').value = await res.text();
+  }
+
+  function specText() {
+    const text = $('spec').value.trim();
+    JSON.parse(text);  // a clear message before the server is asked
+    return text;
+  }
+
+  function showResult(node, isError) {
+    const box = $('submit-result');
+    box.replaceChildren(node);
+    box.className = isError ? 'error-text' : '';
+  }
+
+  async function validate() {
+    let text;
+    try { text = specText(); } catch (e) { showResult(el('pre', {}, `not JSON: ${e.message}`), true); return; }
+    showResult(el('p', { class: 'muted' }, 'validating (short pilot run)…'));
+    try {
+      const r = await api('POST', '/v1/jobs/validate', text);
+      const p = r.prediction || {};
+      const lines = [`valid ${r.kind} job`];
+      if (r.pilot) lines.push(`pilot: ${JSON.stringify(r.pilot)}`);
+      if (r.prediction) lines.push(`prediction: ${JSON.stringify(p)}`);
+      if (r.note) lines.push(r.note);
+      showResult(el('div', {}, el('p', {}, lines[0]), el('pre', {}, lines.slice(1).join('\n') +
+        `\nplan: ${JSON.stringify(r.plan, null, 1)}`)));
+    } catch (e) {
+      showResult(el('pre', {}, e.message), true);
+    }
+  }
+
+  async function submit(ev) {
+    ev.preventDefault();
+    let text;
+    try { text = specText(); } catch (e) { showResult(el('pre', {}, `not JSON: ${e.message}`), true); return; }
+    try {
+      const r = await api('POST', '/v1/jobs', text);
+      showResult(el('p', {}, 'submitted ', el('code', {}, r.id)));
+      location.hash = `#/jobs/${encodeURIComponent(r.id)}`;
+      refreshJobs();
+    } catch (e) {
+      showResult(el('pre', {}, e.message), true);
+    }
+  }
+
+  // ------------------------------------------------------------------ job view
+
+  class JobView {
+    constructor(id) {
+      this.id = id;
+      this.status = null;
+      this.es = null;
+      this.closed = false;
+      this.lastEventId = null;
+      this.lastPass = 0;
+      this.ended = false;
+      this.progress = null;
+      this.points = [];          // convergence: [compute_seconds, error]
+      this.tiles = new Map();    // tile -> {x, y, w, h, mean, se, samples, pass}
+      this.dirty = new Map();    // tile -> pass of the newest tile event not yet fetched
+      this.inflight = 0;
+      this.lastFlush = 0;
+      this.firstTileAt = 0;
+      this.timer = null;
+      this.retryDelay = 1000;
+      this.mode = 'mean';
+      this.canvas = $('image');
+      this.ctx = this.canvas.getContext('2d', { willReadFrequently: true });
+      Object.assign(hook, { jobId: id, passesSeen: [], eventIds: [], tileFetches: 0, tileEvents: 0, flushes: 0,
+                            reconnects: 0, ended: false, settled: false, lastEventId: null });
+    }
+
+    async start() {
+      $('job-view').hidden = false;
+      $('job-id').textContent = this.id;
+      $('plan').textContent = '';
+      $('stats').querySelector('tbody').replaceChildren();
+      this.message(null);
+      await this.loadStatus();
+      if (this.closed) return;
+      this.connect(null);
+      this.timer = setInterval(() => this.tick(), 50);
+    }
+
+    close() {
+      this.closed = true;
+      if (this.es) this.es.close();
+      this.es = null;
+      clearInterval(this.timer);
+    }
+
+    message(text, info) {
+      const m = $('job-message');
+      m.hidden = !text;
+      m.textContent = text || '';
+      m.className = info ? 'message info' : 'message';
+    }
+
+    async loadStatus() {
+      try {
+        this.status = await api('GET', `/v1/jobs/${encodeURIComponent(this.id)}`);
+      } catch (e) {
+        this.message(e.message);
+        return;
+      }
+      const s = this.status;
+      this.setState(s.state, s.stop_reason);
+      $('plan').textContent = JSON.stringify(s.plan, null, 2);
+      const rule = s.stop_rule || {};
+      const cur = s.samples || 0;
+      $('extend-samples').value = rule.max_samples ? Math.max(rule.max_samples * 2, cur * 2) : Math.max(cur * 2, 1000);
+      if (s.error_message) this.message(s.error_message);
+      this.setupImage(s);
+      // The history before this page opened (integration jobs keep channel 0's trace).
+      if (this.points.length === 0 && !this.image && Array.isArray(s.trace)) {
+        for (const t of s.trace) if (t[0] > 0 && t[3] > 0) this.points.push([t[0], t[3]]);
+      }
+      if (s.passes !== undefined) this.onProgress(s, true);
+    }
+
+    setupImage(s) {
+      let w = 0, h = 0;
+      const img = s.result && s.result.image ? s.result.image : null;
+      if (img) { w = img.width; h = img.height; }
+      else if (s.spec && s.spec.query && s.spec.query.type === 'image' && s.spec.scene && s.spec.scene.camera) {
+        [w, h] = s.spec.scene.camera.resolution;
+      }
+      if (!w || !h) { $('image-box').hidden = true; this.image = null; return; }
+      $('image-box').hidden = false;
+      if (this.image && this.image.w === w && this.image.h === h) return;
+      this.image = { w, h, tileSize: img ? img.tile_size : (s.spec.query.tile_size || 32),
+                     tileCount: img ? img.tiles : null };
+      this.canvas.width = w;
+      this.canvas.height = h;
+      this.ctx.fillStyle = '#000';
+      this.ctx.fillRect(0, 0, w, h);
+      // Draw whatever the job already has: every tile once.
+      const ts = this.image.tileSize;
+      const count = this.image.tileCount || Math.ceil(w / ts) * Math.ceil(h / ts);
+      if ((s.passes || 0) > 0) for (let t = 0; t < count; ++t) this.dirty.set(t, s.passes);
+    }
+
+    setState(state, reason) {
+      const e = $('job-state');
+      e.textContent = state + (reason && reason !== 'none' && reason !== 'running' ? ` · ${reason}` : '');
+      e.className = `state ${state}`;
+      const active = state === 'queued' || state === 'running';
+      $('cancel-btn').disabled = !active;
+      $('extend-btn').disabled = active;
+    }
+
+    // --- the event stream -------------------------------------------------
+
+    connect(afterId) {
+      if (this.closed) return;
+      let url = `/v1/jobs/${encodeURIComponent(this.id)}/events`;
+      // A new EventSource sends no Last-Event-ID; the query parameter does the same.
+      if (afterId !== null && afterId !== undefined) url += `?last_event_id=${encodeURIComponent(afterId)}`;
+      const es = new EventSource(url);
+      this.es = es;
+      const on = (type, fn) => es.addEventListener(type, (ev) => {
+        if (this.es !== es) return;
+        if (ev.lastEventId) { this.lastEventId = ev.lastEventId; hook.lastEventId = ev.lastEventId; }
+        hook.eventIds.push(ev.lastEventId);
+        let data = null;
+        try { data = JSON.parse(ev.data); } catch (e) { return; }
+        fn(data);
+      });
+      on('progress', (d) => this.onProgress(d, false));
+      on('state', (d) => { this.setState(d.state, d.stop_reason); if (d.error_message) this.message(d.error_message); });
+      on('tile', (d) => this.onTile(d));
+      on('end', (d) => this.onEnd(d));
+      on('shutdown', () => this.message('the server is shutting down; the page reconnects when it is back', true));
+      es.onopen = () => { this.retryDelay = 1000; if (!this.ended) this.message(null); };
+      es.onerror = () => {
+        if (this.es !== es || this.ended) return;
+        if (es.readyState === EventSource.CLOSED) {
+          // The browser gave up (e.g. an HTTP error while the server restarts):
+          // reconnect ourselves from the last id we saw, with backoff.
+          hook.reconnects++;
+          this.es = null;
+          const delay = this.retryDelay;
+          this.retryDelay = Math.min(this.retryDelay * 2, 15000);
+          setTimeout(() => { if (!this.closed && !this.ended) this.connect(this.lastEventId); }, delay);
+        } else {
+          // CONNECTING: the browser retries by itself and sends Last-Event-ID.
+          hook.reconnects++;
+          this.message('connection lost; reconnecting…', true);
+        }
+      };
+    }
+
+    // Simulates a dropped connection (tests): close, then resume from the last id.
+    dropStream() {
+      if (this.es) this.es.close();
+      this.es = null;
+      hook.reconnects++;
+      setTimeout(() => this.connect(this.lastEventId), 300);
+    }
+
+    onProgress(p, fromStatus) {
+      if (!fromStatus) {
+        hook.passesSeen.push(p.pass ?? p.passes);
+        this.lastPass = p.pass ?? p.passes;
+      }
+      this.progress = p;
+      const x = p.compute_seconds;
+      const y = this.image ? (p.error && p.error.abs) : (p.estimate && p.estimate.std_error);
+      if (x > 0 && y > 0 && Number.isFinite(y)) {
+        const last = this.points[this.points.length - 1];
+        if (!last || x > last[0]) this.points.push([x, y]);
+      }
+      this.renderStats();
+      this.renderPlot();
+    }
+
+    onTile(d) {
+      hook.tileEvents++;
+      if (!this.image) return;
+      if (!this.firstTileAt) this.firstTileAt = performance.now();
+      this.dirty.set(d.tile, d.pass);
+      if (!this.tiles.has(d.tile)) this.tiles.set(d.tile, { x: d.x, y: d.y, w: d.w, h: d.h, pass: 0 });
+    }
+
+    onEnd(d) {
+      this.ended = true;
+      hook.ended = true;
+      if (this.es) this.es.close();
+      this.es = null;
+      this.setState(d.state, d.stop_reason);
+      if (d.error_message) this.message(d.error_message);
+      else if (d.target_met === false && d.state === 'succeeded') this.message(`stopped (${d.stop_reason}) before the error target was met`, true);
+      this.lastFlush = 0;  // draw the final tiles now
+      this.loadStatus();
+      refreshJobs();
+    }
+
+    // The tile fetch period grows as the image converges: 250 ms for the first
+    // seconds, then ∝ √time (the visible change per update shrinks like 1/√n), at most 2 s.
+    interval() {
+      if (!this.firstTileAt) return 250;
+      const t = (performance.now() - this.firstTileAt) / 1000;
+      return Math.min(2000, Math.max(250, 250 * Math.sqrt(t / 4)));
+    }
+
+    tick() {
+      if (this.closed || !this.image) return;
+      const now = performance.now();
+      if (this.dirty.size > 0 && this.inflight === 0 && now - this.lastFlush >= (this.ended ? 0 : this.interval())) {
+        this.flush();
+      }
+      hook.settled = this.ended && this.dirty.size === 0 && this.inflight === 0;
+    }
+
+    flush() {
+      this.lastFlush = performance.now();
+      hook.flushes++;
+      const batch = [...this.dirty.entries()];
+      this.dirty.clear();
+      const base = `/v1/jobs/${encodeURIComponent(this.id)}/tiles/`;
+      for (const [n, pass] of batch) {
+        this.inflight++;
+        hook.tileFetches++;
+        fetch(base + n).then((r) => (r.ok ? r.json() : Promise.reject(new Error(`tile ${n}: ${r.status}`))))
+          .then((t) => this.onTileData(n, t))
+          .catch(() => { if (!this.dirty.has(n)) this.dirty.set(n, pass); })
+          .finally(() => { this.inflight--; this.tick(); });
+      }
+      $('tile-info').textContent = `${batch.length} tile${batch.length === 1 ? '' : 's'} updated · every ${Math.round(this.interval())} ms`;
+    }
+
+    onTileData(n, t) {
+      if (this.closed) return;
+      const tile = {
+        x: t.x, y: t.y, w: t.w, h: t.h, pass: t.pass,
+        mean: Float32Array.from(t.mean), se: Float32Array.from(t.std_error), samples: Float32Array.from(t.samples),
+      };
+      const old = this.tiles.get(n);
+      if (old && old.mean && old.pass > tile.pass) return;  // an older answer overtaken
+      this.tiles.set(n, tile);
+      this.drawTile(tile);
+    }
+
+    drawTile(t) {
+      const img = this.ctx.createImageData(t.w, t.h);
+      const px = img.data;
+      for (let i = 0, m = t.w * t.h; i < m; ++i) {
+        let r, g, b;
+        if (this.mode === 'mean') {
+          r = srgb8(t.mean[3 * i]); g = srgb8(t.mean[3 * i + 1]); b = srgb8(t.mean[3 * i + 2]);
+        } else {
+          const mu = Math.abs(t.mean[3 * i]) + Math.abs(t.mean[3 * i + 1]) + Math.abs(t.mean[3 * i + 2]);
+          const se = t.se[3 * i] + t.se[3 * i + 1] + t.se[3 * i + 2];
+          let v = 0;
+          if (se > 0) v = (Math.log10(Math.max(se / Math.max(mu, 1e-12), 1e-3)) + 3) / 3;  // 0.1% .. 100%
+          [r, g, b] = heat(v);
+        }
+        px[4 * i] = r; px[4 * i + 1] = g; px[4 * i + 2] = b; px[4 * i + 3] = 255;
+      }
+      this.ctx.putImageData(img, t.x, t.y);
+    }
+
+    setMode(mode) {
+      this.mode = mode;
+      $('heat-legend').hidden = mode !== 'stderr';
+      for (const t of this.tiles.values()) if (t.mean) this.drawTile(t);
+    }
+
+    // --- statistics and the plot ---------------------------------------
+
+    renderStats() {
+      const p = this.progress;
+      if (!p) return;
+      const rows = [];
+      const est = p.estimate || {};
+      const conf = est.confidence ? `${Math.round(est.confidence * 1000) / 10}%` : '95%';
+      rows.push(['pass', p.pass ?? p.passes]);
+      // An image job counts samples per pixel.
+      rows.push([this.image ? 'samples per pixel' : 'samples', fmtCount(p.samples)]);
+      if (this.image) {
+        rows.push([`mean ${conf} CI half-width`, `${fmtNum(p.error && p.error.abs)} (relative ${fmtNum(p.error && p.error.rel && 100 * p.error.rel, 3)}%)`]);
+      } else {
+        rows.push(['mean ± std. error', `${fmtNum(est.mean, 7)} ± ${fmtNum(est.std_error, 3)}`]);
+        rows.push([`${conf} CI`, `[${fmtNum(est.ci && est.ci[0], 7)}, ${fmtNum(est.ci && est.ci[1], 7)}]`]);
+        rows.push(['relative error', p.error ? `${fmtNum(p.error.rel && 100 * p.error.rel, 3)}%` : '—']);
+      }
+      rows.push(['samples/s', fmtCount(Math.round(p.samples_per_second || 0))]);
+      rows.push(['compute time', fmtDuration(p.compute_seconds)]);
+      const eta = p.eta_seconds ?? (p.prediction && p.prediction.seconds_remaining);
+      rows.push(['ETA', this.ended ? 'done' : fmtDuration(eta)]);
+      if (p.stop_reason && p.stop_reason !== 'none') rows.push(['stop reason', `${p.stop_reason}${p.target_met ? ' (target met)' : ''}`]);
+      const tbody = $('stats').querySelector('tbody');
+      tbody.replaceChildren(...rows.map(([k, v]) => el('tr', {}, el('td', {}, k), el('td', {}, v))));
+      // Progress: compute time spent over time spent + time still needed.
+      let frac = this.ended ? 1 : 0;
+      if (!this.ended && eta !== null && eta !== undefined && Number.isFinite(eta) && p.compute_seconds > 0) {
+        const wall = p.samples_per_second > 0 ? p.samples / p.samples_per_second : p.compute_seconds;
+        frac = wall / (wall + eta);
+      }
+      $('progress-bar').style.width = `${Math.round(100 * Math.min(1, Math.max(0, frac)))}%`;
+    }
+
+    // Log-log plot of the error against compute time, with a t^-1/2 guide.
+    renderPlot() {
+      const c = $('plot');
+      const ctx = c.getContext('2d');
+      const W = c.width, H = c.height, L = 58, R = 12, T = 12, B = 36;
+      ctx.clearRect(0, 0, W, H);
+      ctx.font = '11px system-ui, sans-serif';
+      ctx.fillStyle = '#6b7482';
+      const pts = this.points;
+      if (pts.length < 2) { ctx.fillText('waiting for two passes…', L, H / 2); return; }
+      const lx = pts.map((p) => Math.log10(p[0])), ly = pts.map((p) => Math.log10(p[1]));
+      let x0 = Math.floor(Math.min(...lx)), x1 = Math.ceil(Math.max(...lx));
+      let y0 = Math.floor(Math.min(...ly)), y1 = Math.ceil(Math.max(...ly));
+      if (x1 === x0) x1++;
+      if (y1 === y0) y1++;
+      const sx = (v) => L + ((v - x0) / (x1 - x0)) * (W - L - R);
+      const sy = (v) => H - B - ((v - y0) / (y1 - y0)) * (H - T - B);
+      ctx.strokeStyle = '#e3e6ea';
+      ctx.lineWidth = 1;
+      ctx.textAlign = 'center';
+      for (let d = x0; d <= x1; ++d) {
+        ctx.beginPath(); ctx.moveTo(sx(d), T); ctx.lineTo(sx(d), H - B); ctx.stroke();
+        ctx.fillText(`1e${d}`, sx(d), H - B + 14);
+      }
+      ctx.textAlign = 'right';
+      for (let d = y0; d <= y1; ++d) {
+        ctx.beginPath(); ctx.moveTo(L, sy(d)); ctx.lineTo(W - R, sy(d)); ctx.stroke();
+        ctx.fillText(`1e${d}`, L - 4, sy(d) + 4);
+      }
+      ctx.textAlign = 'center';
+      ctx.fillText('compute time (s)', L + (W - L - R) / 2, H - 6);
+      ctx.save();
+      ctx.translate(12, T + (H - T - B) / 2);
+      ctx.rotate(-Math.PI / 2);
+      ctx.fillText(this.image ? 'mean CI half-width' : 'standard error', 0, 0);
+      ctx.restore();
+      // Guide: slope -1/2 through the first point.
+      ctx.strokeStyle = '#b8c0cc';
+      ctx.setLineDash([4, 4]);
+      ctx.beginPath();
+      ctx.moveTo(sx(lx[0]), sy(ly[0]));
+      ctx.lineTo(sx(x1), sy(ly[0] - 0.5 * (x1 - lx[0])));
+      ctx.stroke();
+      ctx.setLineDash([]);
+      ctx.strokeStyle = '#2f6fdb';
+      ctx.lineWidth = 2;
+      ctx.beginPath();
+      for (let i = 0; i < pts.length; ++i) (i ? ctx.lineTo : ctx.moveTo).call(ctx, sx(lx[i]), sy(ly[i]));
+      ctx.stroke();
+      ctx.fillStyle = '#2f6fdb';
+      ctx.beginPath();
+      ctx.arc(sx(lx[lx.length - 1]), sy(ly[ly.length - 1]), 3, 0, 2 * Math.PI);
+      ctx.fill();
+      ctx.fillStyle = '#6b7482';
+      ctx.textAlign = 'right';
+      ctx.fillText('– – ∝ t^(−1/2)', W - R - 4, T + 12);
+    }
+
+    // --- buttons --------------------------------------------------------
+
+    async cancel() {
+      try { await api('DELETE', `/v1/jobs/${encodeURIComponent(this.id)}`); refreshJobs(); }
+      catch (e) { this.message(e.message); }
+    }
+
+    async extend() {
+      const n = Number($('extend-samples').value);
+      if (!(n > 0)) { this.message('max samples must be a positive number'); return; }
+      try {
+        await api('POST', `/v1/jobs/${encodeURIComponent(this.id)}/extend`, { max_samples: Math.round(n) });
+        this.message(null);
+        this.ended = false;
+        hook.ended = false;
+        hook.settled = false;
+        this.connect(this.lastEventId);
+        refreshJobs();
+      } catch (e) { this.message(e.message); }
+    }
+  }
+
+  // ------------------------------------------------------------------ routing
+
+  function route() {
+    const m = /^#\/jobs\/(.+)$/.exec(location.hash);
+    const id = m ? decodeURIComponent(m[1]) : null;
+    if (view && view.id === id) return;
+    if (view) view.close();
+    view = null;
+    selectedId = id;
+    for (const tr of document.querySelectorAll('#jobs tbody tr')) tr.classList.toggle('selected', tr.dataset.id === id);
+    if (!id) { $('job-view').hidden = true; return; }
+    view = new JobView(id);
+    view.start();
+  }
+
+  $('example-select').addEventListener('change', pickExample);
+  $('validate-btn').addEventListener('click', validate);
+  $('submit-form').addEventListener('submit', submit);
+  $('cancel-btn').addEventListener('click', () => view && view.cancel());
+  $('extend-btn').addEventListener('click', () => view && view.extend());
+  for (const r of document.querySelectorAll('input[name=view]')) {
+    r.addEventListener('change', () => view && view.setMode(r.value));
+  }
+  window.addEventListener('hashchange', route);
+  loadExamples();
+  refreshJobs();
+  setInterval(refreshJobs, 2000);
+  route();
+})();
