@@ -1,22 +1,22 @@
-// `tally`: the command-line client. Offline `run`; server commands (submit, watch,
-// get, list, cancel, extend) live in remote_commands.cpp.
+// `tally`: the command-line client. Offline `run` (the embedded engine); server
+// commands submit/watch/get/list/cancel/extend (remote_commands.cpp), `health`
+// (container health checks) and `preview` (the tev bridge).
 #include <CLI/CLI.hpp>
 
 #include "client/exit_codes.hpp"
-#include "client/run_command.hpp"
-#if __has_include("client/remote_commands.hpp")
+#include "client/health_command.hpp"
+#include "client/preview_command.hpp"
 #include "client/remote_commands.hpp"
-#define TALLY_HAVE_REMOTE 1
-#endif
+#include "client/run_command.hpp"
 
 int main(int argc, char** argv) {
   CLI::App app{"tally: Monte Carlo estimates with honest error bars"};
   app.require_subcommand(1);
   int code = tally::exit_code::ok;
   tally::add_run_command(app, code);
-#ifdef TALLY_HAVE_REMOTE
   tally::add_remote_commands(app, code);
-#endif
+  tally::add_health_command(app, code);
+  tally::add_preview_command(app, code);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
