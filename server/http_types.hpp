@@ -13,6 +13,7 @@ namespace tally {
 class EventStream;
 
 struct HttpRequest {
+  using Headers = std::vector<std::pair<std::string, std::string>>;
   std::string method;  // "GET", "POST", ...
   std::string target;  // path and query, e.g. "/v1/jobs?state=running"
   std::vector<std::pair<std::string, std::string>> headers;  // names in lower case

@@ -123,6 +123,7 @@ json JobManager::engine_json_locked(const Job& job) const {
   if (is_terminal(job.status) && !job.final_result.is_null()) return job.final_result;
   if (!job.runner || !job.def) return json::object();
   json j = result_json(*job.runner, *job.def);
+  j["summary"] = job.def->summary_line(*job.runner);
   j["eta_seconds"] = eta_seconds(*job.runner);
   j["bits"] = tally_bits_json(job.runner->state());
   return j;

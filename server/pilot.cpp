@@ -67,6 +67,9 @@ json run_pilot(const JobDefinition& job, const PilotOptions& options) {
   if (cut && s.passes == 0) pilot["note"] = "the pilot could not finish one pass in time; no prediction";
 
   json pred = nullptr;
+  // The job will run on `parallelism` workers; the pilot ran on `threads`.
+  const double job_rate = rate * std::max(1u, options.parallelism) / std::max(1u, options.threads);
+  pilot["job_samples_per_second"] = job_rate;
   if (s.passes > 0 && rate > 0) {
     const double inf = std::numeric_limits<double>::infinity();
     double best_s = inf;
@@ -86,22 +89,24 @@ json run_pilot(const JobDefinition& job, const PilotOptions& options) {
         need = std::min(need, samples_for_half_width(err.sigma, rule.rel_error * std::fabs(err.mean), rule.confidence));
       }
       need = std::max(need, static_cast<double>(rule.min_samples));
-      consider("error_target", need, need / rate);
+      consider("error_target", need, need / job_rate);
     }
     if (rule.max_samples > 0) {
-      consider("max_samples", static_cast<double>(rule.max_samples), static_cast<double>(rule.max_samples) / rate);
+      consider("max_samples", static_cast<double>(rule.max_samples), static_cast<double>(rule.max_samples) / job_rate);
     }
-    if (rule.time_budget_s > 0) consider("time_budget", rule.time_budget_s * rate, rule.time_budget_s);
-    const double cap_s = std::min(options.caps.max_seconds, static_cast<double>(options.caps.max_samples) / rate);
-    consider("job_cap", cap_s * rate, cap_s);
+    if (rule.time_budget_s > 0) consider("time_budget", rule.time_budget_s * job_rate, rule.time_budget_s);
+    const double cap_s = std::min(options.caps.max_seconds, static_cast<double>(options.caps.max_samples) / job_rate);
+    consider("job_cap", cap_s * job_rate, cap_s);
     pred = {{"stops_by", fires},
-            {"samples", finite_or_null(best_s * rate)},
+            {"samples", finite_or_null(best_s * job_rate)},
             {"seconds", finite_or_null(best_s)},
             {"by_rule", by_rule},
             {"reliable", !runner.heavy_tail()}};
     json curve = json::array();
     for (const CostPoint& c : runner.cost_curve({1e-2, 1e-3, 1e-4})) {
-      curve.push_back({{"rel_error", c.rel_error}, {"samples", finite_or_null(c.samples)}, {"seconds", finite_or_null(c.seconds)}});
+      curve.push_back({{"rel_error", c.rel_error},
+                       {"samples", finite_or_null(c.samples)},
+                       {"seconds", finite_or_null(c.samples / job_rate)}});
     }
     pred["cost_curve"] = curve;
   }

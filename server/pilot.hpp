@@ -10,6 +10,7 @@ namespace tally {
 struct PilotOptions {
   double seconds = 0.3;  // no new pass starts after this; a pass is cut at 4x
   unsigned threads = 1;
+  unsigned parallelism = 1;  // workers the real job will get: predicted seconds scale by 1/this
   JobCaps caps;
 };
 

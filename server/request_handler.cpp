@@ -184,8 +184,9 @@ HttpResponse RequestHandler::post_job(const HttpRequest& req, const PathParams&)
   const int priority = parse_priority(req);
   const json spec = parse_json_body(req);
   auto job = manager_.submit(spec, priority);
+  const json summary = manager_.summary_json(*job);
   HttpResponse r = json_response(202, {{"id", job->id},
-                                       {"state", std::string(job_status_name(job->status))},
+                                       {"state", summary["state"]},
                                        {"links", {{"self", "/v1/jobs/" + job->id}, {"events", "/v1/jobs/" + job->id + "/events"}}}});
   r.set_header("Location", "/v1/jobs/" + job->id);
   return r;
@@ -266,6 +267,7 @@ HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathPara
   PilotOptions po;
   po.seconds = config_.pilot_seconds;
   po.caps = manager_.config().caps;
+  po.parallelism = manager_.config().workers;
   json pilot;
   try {
     pilot = run_pilot(*def, po);

@@ -1,0 +1,346 @@
+#include "client/remote_commands.hpp"
+
+#include <fmt/format.h>
+
+#include <chrono>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <thread>
+
+#include "client/exit_codes.hpp"
+#include "client/http_client.hpp"
+#include "client/progress_display.hpp"
+#include "client/sse_parser.hpp"
+
+namespace tally {
+
+using nlohmann::json;
+
+namespace {
+
+constexpr const char* kDefaultServer = "http://127.0.0.1:8080";
+
+struct RemoteOptions {
+  std::string server = kDefaultServer;
+};
+
+// An HTTP answer we did not want: print the problem detail, map to an exit code.
+struct RemoteFailure {
+  int code;
+};
+
+HttpClient make_client(const RemoteOptions& o) {
+  const auto url = parse_http_url(o.server);
+  if (!url) {
+    fmt::print(stderr, "tally: --server must be an http:// URL, got \"{}\"\n", o.server);
+    throw RemoteFailure{exit_code::usage};
+  }
+  return HttpClient(*url);
+}
+
+[[noreturn]] void fail_response(const ClientResponse& r) {
+  std::string detail = r.body;
+  try {
+    const json p = json::parse(r.body);
+    detail = p.value("detail", r.body);
+    if (p.contains("pointer") && !p["pointer"].get<std::string>().empty()) {
+      detail = p["pointer"].get<std::string>() + ": " + detail;
+    }
+  } catch (const std::exception&) {
+  }
+  while (!detail.empty() && detail.back() == '\n') detail.pop_back();
+  fmt::print(stderr, "tally: server answered {}: {}\n", r.status, detail);
+  // The request was wrong (bad spec, unknown job, wrong state): usage. Else: server trouble.
+  const bool ours = r.status == 400 || r.status == 404 || r.status == 405 || r.status == 409 || r.status == 413 ||
+                    r.status == 415 || r.status == 422;
+  throw RemoteFailure{ours ? exit_code::usage : exit_code::connection};
+}
+
+json get_json(HttpClient& c, const std::string& target) {
+  const ClientResponse r = c.request("GET", target);
+  if (r.status != 200) fail_response(r);
+  return json::parse(r.body);
+}
+
+std::string read_spec(const std::string& path) {
+  if (path == "-") {
+    std::stringstream ss;
+    ss << std::cin.rdbuf();
+    return ss.str();
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    fmt::print(stderr, "tally: cannot read {}\n", path);
+    throw RemoteFailure{exit_code::usage};
+  }
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+void print_status(const json& s) {
+  fmt::print("job {}  {}", s.value("id", "?"), s.value("state", "?"));
+  if (s.contains("stop_reason")) fmt::print("  (stop: {})", s.value("stop_reason", ""));
+  fmt::print("\n");
+  if (s.contains("summary") && s["summary"].is_string()) {
+    fmt::print("{}\n", s["summary"].get<std::string>());
+  } else {
+    fmt::print("{}\n", estimate_text(s));
+  }
+  const double rate = s.value("samples_per_second", 0.0);
+  fmt::print("{} samples in {} passes, {} compute, {}/s", format_count(s.value("samples", 0.0)), s.value("passes", 0),
+             format_duration(s.value("compute_seconds", 0.0)), format_count(rate));
+  if (s.contains("eta_seconds") && s["eta_seconds"].is_number() && s.value("state", "") == "running") {
+    fmt::print(", ETA {}", format_duration(s["eta_seconds"].get<double>()));
+  }
+  fmt::print("\n");
+  if (s.contains("error_message")) fmt::print("error: {}\n", s["error_message"].get<std::string>());
+  if (s.contains("diagnostics")) {
+    for (const auto& w : s["diagnostics"].value("warnings", json::array())) fmt::print("warning: {}\n", w.get<std::string>());
+  }
+}
+
+template <class F>
+void run_guarded(int& exit_code, F&& f) {
+  try {
+    exit_code = f();
+  } catch (const RemoteFailure& e) {
+    exit_code = e.code;
+  } catch (const ConnectionError& e) {
+    fmt::print(stderr, "tally: {}\n", e.what());
+    exit_code = exit_code::connection;
+  } catch (const json::exception& e) {
+    fmt::print(stderr, "tally: unexpected answer from the server: {}\n", e.what());
+    exit_code = exit_code::connection;
+  }
+}
+
+void add_server_option(CLI::App* cmd, RemoteOptions& o) {
+  cmd->add_option("--server", o.server, "server URL")->envname("TALLY_SERVER")->capture_default_str();
+}
+
+}  // namespace
+
+int exit_code_for_status(const json& s) {
+  const std::string state = s.value("state", "");
+  if (state == "failed" || state == "cancelled") return exit_code::job_failed;
+  if (state != "succeeded") return -1;
+  const json rule = s.value("stop_rule", json::object());
+  const bool has_target = rule.contains("abs_error") || rule.contains("rel_error");
+  if (has_target && !s.value("target_met", false)) return exit_code::target_not_met;
+  return exit_code::ok;
+}
+
+int watch_job(HttpClient& client, const std::string& id, bool quiet) {
+  ProgressDisplay display(stderr, detect_display(stderr));
+  {
+    const json s = get_json(client, "/v1/jobs/" + id);
+    display.set_stop_rule(s.value("stop_rule", json::object()));
+  }
+  std::string last_id;
+  bool ended = false;
+  int retries = 0;
+  while (!ended) {
+    bool got_any = false;
+    SseParser parser([&](const SseEvent& e) {
+      got_any = true;
+      if (e.event == "progress") {
+        if (!quiet) display.progress(json::parse(e.data));
+      } else if (e.event == "state") {
+        const json d = json::parse(e.data);
+        if (!quiet && d.value("state", "") != "running") display.message("state: " + d.value("state", "?"));
+      } else if (e.event == "end") {
+        ended = true;
+      } else if (e.event == "shutdown") {
+        if (!quiet) display.message("the server is shutting down; reconnecting when it is back");
+      }
+    });
+    HeaderList h = {{"Accept", "text/event-stream"}};
+    if (!last_id.empty()) h.emplace_back("Last-Event-ID", last_id);
+    try {
+      const ClientResponse r = client.stream(
+          "/v1/jobs/" + id + "/events", h,
+          [&](std::string_view bytes) {
+            parser.feed(bytes);
+            return !ended;
+          },
+          120.0);
+      if (r.status != 200) fail_response(r);
+    } catch (const ConnectionError& e) {
+      // Reconnect (the server may be restarting); give up after ~60 s of failures.
+      if (got_any) retries = 0;
+      if (++retries > 60) throw;
+    }
+    if (!parser.last_event_id().empty()) last_id = parser.last_event_id();
+    if (!ended) std::this_thread::sleep_for(std::chrono::seconds(1));
+  }
+  display.finish();
+  const json s = get_json(client, "/v1/jobs/" + id);
+  if (!quiet) print_status(s);
+  const int code = exit_code_for_status(s);
+  return code < 0 ? exit_code::ok : code;
+}
+
+void add_remote_commands(CLI::App& app, int& exit_code) {
+  // submit
+  {
+    auto opt = std::make_shared<RemoteOptions>();
+    auto file = std::make_shared<std::string>();
+    auto watch = std::make_shared<bool>(false);
+    auto priority = std::make_shared<int>(0);
+    CLI::App* cmd = app.add_subcommand("submit", "Submit a job spec (JSON file, - for stdin) to the server");
+    cmd->add_option("spec", *file, "job spec file")->required();
+    cmd->add_flag("--watch,-w", *watch, "follow the job until it ends");
+    cmd->add_option("--priority", *priority, "CPU share priority, -5..5")->check(CLI::Range(-5, 5));
+    add_server_option(cmd, *opt);
+    cmd->callback([=, &exit_code] {
+      run_guarded(exit_code, [&] {
+        HttpClient c = make_client(*opt);
+        const std::string body = read_spec(*file);
+        const ClientResponse r = c.request("POST", fmt::format("/v1/jobs?priority={}", *priority), body,
+                                           {{"Content-Type", "application/json"}});
+        if (r.status != 202) fail_response(r);
+        const std::string id = json::parse(r.body).at("id").get<std::string>();
+        fmt::print("{}\n", id);
+        std::fflush(stdout);
+        return *watch ? watch_job(c, id) : exit_code::ok;
+      });
+    });
+  }
+  // watch
+  {
+    auto opt = std::make_shared<RemoteOptions>();
+    auto id = std::make_shared<std::string>();
+    CLI::App* cmd = app.add_subcommand("watch", "Follow a job's progress until it ends");
+    cmd->add_option("id", *id, "job id")->required();
+    add_server_option(cmd, *opt);
+    cmd->callback([=, &exit_code] {
+      run_guarded(exit_code, [&] {
+        HttpClient c = make_client(*opt);
+        return watch_job(c, *id);
+      });
+    });
+  }
+  // get
+  {
+    auto opt = std::make_shared<RemoteOptions>();
+    auto id = std::make_shared<std::string>();
+    auto as_json = std::make_shared<bool>(false);
+    auto image = std::make_shared<std::string>();
+    CLI::App* cmd = app.add_subcommand("get", "Show a job's status and result");
+    cmd->add_option("id", *id, "job id")->required();
+    cmd->add_flag("--json", *as_json, "print the full status document");
+    cmd->add_option("--image", *image, "save the job's image (.exr or .png)");
+    add_server_option(cmd, *opt);
+    cmd->callback([=, &exit_code] {
+      run_guarded(exit_code, [&] {
+        HttpClient c = make_client(*opt);
+        const ClientResponse r = c.request("GET", "/v1/jobs/" + *id);
+        if (r.status != 200) fail_response(r);
+        const json s = json::parse(r.body);
+        if (*as_json) {
+          fmt::print("{}\n", s.dump(2));
+        } else {
+          print_status(s);
+        }
+        if (!image->empty()) {
+          const bool png = image->size() >= 4 && image->substr(image->size() - 4) == ".png";
+          const ClientResponse img = c.request("GET", "/v1/jobs/" + *id + (png ? "/image.png" : "/image.exr"));
+          if (img.status != 200) fail_response(img);
+          std::ofstream out(*image, std::ios::binary);
+          out.write(img.body.data(), static_cast<std::streamsize>(img.body.size()));
+          if (!out) {
+            fmt::print(stderr, "tally: cannot write {}\n", *image);
+            return exit_code::usage;
+          }
+          fmt::print(stderr, "wrote {} ({} bytes)\n", *image, img.body.size());
+        }
+        const int code = exit_code_for_status(s);
+        return code < 0 ? exit_code::ok : code;
+      });
+    });
+  }
+  // list
+  {
+    auto opt = std::make_shared<RemoteOptions>();
+    auto state = std::make_shared<std::string>();
+    CLI::App* cmd = app.add_subcommand("list", "List the server's jobs");
+    cmd->add_option("--state", *state, "only jobs in this state")
+        ->check(CLI::IsMember({"queued", "running", "succeeded", "failed", "cancelled"}));
+    add_server_option(cmd, *opt);
+    cmd->callback([=, &exit_code] {
+      run_guarded(exit_code, [&] {
+        HttpClient c = make_client(*opt);
+        const json j = get_json(c, state->empty() ? std::string("/v1/jobs") : "/v1/jobs?state=" + *state);
+        fmt::print("{:<18} {:<10} {:<10} {:>10} {:>20} {:>12}\n", "ID", "STATE", "KIND", "SAMPLES", "MEAN", "STDERR");
+        for (const auto& s : j.at("jobs")) {
+          auto num = [&](const char* k) {
+            return s.contains(k) && s[k].is_number() ? fmt::format("{:.10g}", s[k].get<double>()) : std::string("-");
+          };
+          fmt::print("{:<18} {:<10} {:<10} {:>10} {:>20} {:>12}\n", s.value("id", ""), s.value("state", ""),
+                     s.value("kind", ""), format_count(s.value("samples", 0.0)), num("mean"), num("std_error"));
+        }
+        return exit_code::ok;
+      });
+    });
+  }
+  // cancel
+  {
+    auto opt = std::make_shared<RemoteOptions>();
+    auto id = std::make_shared<std::string>();
+    CLI::App* cmd = app.add_subcommand("cancel", "Cancel a queued or running job");
+    cmd->add_option("id", *id, "job id")->required();
+    add_server_option(cmd, *opt);
+    cmd->callback([=, &exit_code] {
+      run_guarded(exit_code, [&] {
+        HttpClient c = make_client(*opt);
+        const ClientResponse r = c.request("DELETE", "/v1/jobs/" + *id);
+        if (r.status != 200 && r.status != 202) fail_response(r);
+        const json s = json::parse(r.body);
+        fmt::print("{} {}\n", *id, r.status == 200 ? "cancelled" : "cancelling (stops at the next chunk)");
+        (void)s;
+        return exit_code::ok;
+      });
+    });
+  }
+  // extend
+  {
+    auto opt = std::make_shared<RemoteOptions>();
+    auto id = std::make_shared<std::string>();
+    auto max_samples = std::make_shared<uint64_t>(0);
+    auto abs_error = std::make_shared<double>(0);
+    auto rel_error = std::make_shared<double>(0);
+    auto budget = std::make_shared<double>(0);
+    auto watch = std::make_shared<bool>(false);
+    CLI::App* cmd = app.add_subcommand("extend", "Reopen a finished job with more samples or a tighter target");
+    cmd->add_option("id", *id, "job id")->required();
+    auto* g = cmd->add_option_group("target", "the new stopping targets (at least one)");
+    g->add_option("--max-samples", *max_samples, "total samples")->check(CLI::PositiveNumber);
+    g->add_option("--abs-error", *abs_error, "target half-width of the interval")->check(CLI::PositiveNumber);
+    g->add_option("--rel-error", *rel_error, "target half-width / |mean|")->check(CLI::PositiveNumber);
+    g->add_option("--time-budget", *budget, "total compute seconds")->check(CLI::PositiveNumber);
+    g->require_option(1, 0);
+    cmd->add_flag("--watch,-w", *watch, "follow the job until it ends");
+    add_server_option(cmd, *opt);
+    cmd->callback([=, &exit_code] {
+      run_guarded(exit_code, [&] {
+        HttpClient c = make_client(*opt);
+        json body = json::object();
+        if (*max_samples > 0) body["max_samples"] = *max_samples;
+        if (*abs_error > 0) body["abs_error"] = *abs_error;
+        if (*rel_error > 0) body["rel_error"] = *rel_error;
+        if (*budget > 0) body["time_budget_s"] = *budget;
+        const ClientResponse r = c.request("POST", "/v1/jobs/" + *id + "/extend", body.dump(),
+                                           {{"Content-Type", "application/json"}});
+        if (r.status != 202) fail_response(r);
+        fmt::print("{} extended\n", *id);
+        std::fflush(stdout);
+        return *watch ? watch_job(c, *id) : exit_code::ok;
+      });
+    });
+  }
+}
+
+}  // namespace tally

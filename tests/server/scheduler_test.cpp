@@ -1,0 +1,127 @@
+// The worker pool: bits independent of worker count and of other jobs, fair
+// sharing (a short job behind a long one finishes promptly), cancellation at
+// chunk boundaries.
+#include <gtest/gtest.h>
+
+#include <bit>
+
+#include "server/scheduler.hpp"
+#include "server_test_support.hpp"
+
+namespace tally::test {
+namespace {
+
+using nlohmann::json;
+
+std::string bits_of(Harness& h, const std::string& id) { return h.call_json("GET", "/v1/jobs/" + id).at("bits").dump(); }
+
+TEST(Scheduler, BitIdenticalForAnyWorkerCountAndNeighbours) {
+  std::string reference;
+  for (unsigned workers : {1u, 2u, 4u}) {
+    Harness h(test_manager_config(workers));
+    // Neighbours compete for the workers while the measured job runs.
+    const std::string n1 = h.submit(fake_spec(kForever, 5, 7));
+    const std::string id = h.submit(fake_spec(300000, 3, 42));
+    const std::string n2 = h.submit(fake_spec(kForever, 1, 9, true));
+    ASSERT_TRUE(h.wait_state(id, "succeeded", 60));
+    const std::string bits = bits_of(h, id);
+    if (reference.empty()) {
+      reference = bits;
+    } else {
+      EXPECT_EQ(bits, reference) << workers << " workers";
+    }
+    h.call("DELETE", "/v1/jobs/" + n1);
+    h.call("DELETE", "/v1/jobs/" + n2);
+  }
+  // And alone on one worker.
+  Harness h(test_manager_config(1));
+  const std::string id = h.submit(fake_spec(300000, 3, 42));
+  ASSERT_TRUE(h.wait_state(id, "succeeded", 60));
+  EXPECT_EQ(bits_of(h, id), reference);
+}
+
+TEST(Scheduler, ShortJobBehindALongOneFinishesPromptly) {
+  Harness h(test_manager_config(2));
+  // The long job alone would take minutes; its passes are huge.
+  const std::string long_id = h.submit(fake_spec(kForever, 200));
+  ASSERT_TRUE(wait_until([&] { return h.call_json("GET", "/v1/jobs/" + long_id).at("state") == "running"; }));
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  // Time the short job alone-equivalent: the same work on an idle harness.
+  const auto t0 = std::chrono::steady_clock::now();
+  const std::string short_id = h.submit(fake_spec(100000, 200));
+  ASSERT_TRUE(h.wait_state(short_id, "succeeded", 60));
+  const double shared_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_EQ(h.state(long_id), "running");
+  h.call("DELETE", "/v1/jobs/" + long_id);
+
+  Harness idle(test_manager_config(2));
+  const auto t1 = std::chrono::steady_clock::now();
+  const std::string alone = idle.submit(fake_spec(100000, 200));
+  ASSERT_TRUE(idle.wait_state(alone, "succeeded", 60));
+  const double alone_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+  // Fair share: about 2x alone. FIFO would be "never". Generous bound for loaded CI.
+  EXPECT_LT(shared_s, 6 * alone_s + 1.0) << "shared " << shared_s << " s, alone " << alone_s << " s";
+}
+
+TEST(Scheduler, PriorityGetsALargerShare) {
+  Harness h(test_manager_config(1));
+  const std::string low = h.submit(fake_spec(kForever, 100));
+  HttpResponse r = h.call("POST", "/v1/jobs?priority=5", fake_spec(kForever, 100).dump());
+  ASSERT_EQ(r.status, 202);
+  const std::string high = json::parse(r.body).at("id");
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  const double sl = h.call_json("GET", "/v1/jobs/" + low).at("samples");
+  const double sh = h.call_json("GET", "/v1/jobs/" + high).at("samples");
+  h.call("DELETE", "/v1/jobs/" + low);
+  h.call("DELETE", "/v1/jobs/" + high);
+  // Weights 6 vs 11; passes are committed whole, so allow slack.
+  EXPECT_GT(sh, sl) << sh << " vs " << sl;
+}
+
+TEST(Scheduler, CancelStopsAtAChunkBoundary) {
+  Harness h(test_manager_config(2));
+  const std::string id = h.submit(fake_spec(kForever, 300));
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  const auto t0 = std::chrono::steady_clock::now();
+  h.call("DELETE", "/v1/jobs/" + id);
+  ASSERT_TRUE(h.wait_state(id, "cancelled", 10));
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 2.0);
+  EXPECT_EQ(h.call_json("GET", "/v1/jobs/" + id).at("stop_reason"), "cancelled");
+}
+
+TEST(Scheduler, DirectUseCommitsInBlockOrder) {
+  // The raw scheduler with a recording callback: results arrive complete and indexed.
+  std::mutex mu;
+  std::condition_variable cv;
+  int passes = 0;
+  auto job = compile_fake_job(fake_spec(1000), {});
+  SchedulerCallbacks cb;
+  cb.pass_done = [&](const std::string&, const std::vector<Block>& blocks, std::vector<BlockResult>&& results, double) {
+    EXPECT_EQ(blocks.size(), results.size());
+    for (size_t i = 0; i < results.size(); ++i) EXPECT_EQ(results[i].block_index, blocks[i].index);
+    std::lock_guard lock(mu);
+    ++passes;
+    cv.notify_all();
+    return std::vector<Block>{};
+  };
+  Scheduler s(3, cb);
+  std::vector<Block> blocks;
+  for (uint64_t i = 0; i < 50; ++i) blocks.push_back(Block{i, i * 100, 100, 0});
+  s.add("a", job->kernel(), blocks);
+  s.add("b", job->kernel(), blocks);
+  std::unique_lock lock(mu);
+  ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(20), [&] { return passes == 2; }));
+  lock.unlock();
+  EXPECT_TRUE(wait_until([&] { return s.scheduled_jobs() == 0; }, 5));
+}
+
+TEST(Scheduler, PriorityWeights) {
+  EXPECT_EQ(clamp_priority(99), 5);
+  EXPECT_EQ(clamp_priority(-99), -5);
+  EXPECT_DOUBLE_EQ(priority_weight(0), 6.0);
+  EXPECT_DOUBLE_EQ(priority_weight(5), 11.0);
+  EXPECT_DOUBLE_EQ(priority_weight(-5), 1.0);
+}
+
+}  // namespace
+}  // namespace tally::test
