@@ -98,10 +98,22 @@ class LightingJob final : public JobDefinition {
       return fmt::format("image {}x{}, {} spp, mean relative error {:.3g}", image_->width(), image_->height(),
                          runner.state().samples, e.rel_error);
     }
-    const Estimate r = runner.estimate(0), g = runner.estimate(1), b = runner.estimate(2);
-    return fmt::format("L_o(point 0, {}) = ({:.6g}, {:.6g}, {:.6g}) ± ({:.3g}, {:.3g}, {:.3g})",
-                       name_of(points_->strategies()[0]), r.mean, g.mean, b.mean, r.std_error, g.std_error,
-                       b.std_error);
+    // One line per (point, estimator), estimators side by side on common random numbers.
+    const nlohmann::json res = result(runner);
+    std::string out;
+    const auto& pts = res["points"];
+    for (size_t p = 0; p < pts.size() && p < 8; ++p) {
+      for (const auto& [name, e] : pts[p]["estimators"].items()) {
+        const auto& m = e["mean"];
+        const auto& se = e["std_error"];
+        out += fmt::format("{}L_o(point {}, {:<18}) = ({:.6g}, {:.6g}, {:.6g}) ± ({:.3g}, {:.3g}, {:.3g})  efficiency 1/(σ²t) {:.3g}",
+                           out.empty() ? "" : "\n", p, name, m[0].get<double>(), m[1].get<double>(),
+                           m[2].get<double>(), se[0].get<double>(), se[1].get<double>(), se[2].get<double>(),
+                           e["efficiency"].is_number() ? e["efficiency"].get<double>() : 0.0);
+      }
+    }
+    if (pts.size() > 8) out += fmt::format("\n... {} more points (see --json)", pts.size() - 8);
+    return out;
   }
 
   std::shared_ptr<const Kernel> kernel_;
