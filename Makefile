@@ -28,6 +28,9 @@ demo: build
 bench: build
 	@scripts/bench.sh $(BUILD)
 
+study: deps
+	@scripts/study.sh
+
 format:
 	clang-format -i $$(git ls-files '*.hpp' '*.cpp')
 

@@ -51,8 +51,8 @@ void run_quadrature_study(const Options& o) {
   Csv csv(o.out / "quadrature.csv", {"family", "d", "method", "n_per_dim", "evaluations", "seconds", "estimate",
                                       "exact", "rel_error", "reported_rel_error", "seeds"});
   const std::vector<size_t> dims = {1, 2, 3, 4, 5, 6, 8};
-  const int seeds = o.quick ? 4 : 16;
-  const int mc_max_log2 = o.quick ? 14 : 20;
+  const int seeds = o.quick ? 4 : 32;
+  const int mc_max_log2 = o.quick ? 14 : 19;
   for (GenzFamily f : {GenzFamily::gaussian, GenzFamily::oscillatory}) {
     const std::string fam(genz_family_name(f));
     for (size_t d : dims) {
