@@ -22,7 +22,9 @@ build: configure
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS) --timeout 900
 
-demo: build
+# The demo needs only the server and the CLI.
+demo: configure
+	cmake --build $(BUILD) -j $(JOBS) --target tally-server tally
 	@scripts/demo.sh $(BUILD)
 
 bench: build
