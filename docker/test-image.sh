@@ -238,7 +238,7 @@ for _ in $(seq 1 60); do
   [ "${long_before:-0}" -gt 0 ] && [ "$(field "$work/long0.json" state)" = running ] && break
   sleep 0.5
 done
-sleep 2
+sleep 4
 status_json "$long" >"$work/long0.json"
 long_before=$(field "$work/long0.json" samples)
 log "long job $long: $(field "$work/long0.json" state), $long_before samples before the stop"
@@ -265,6 +265,9 @@ create "$name2"
 read -r startup2 podstart2 < <(wait_ready "$name2") || true
 [ -n "${startup2:-}" ] || die "second container did not become ready within 60 s"
 pass "restart on the same volume: ${startup2}s from podman start to /readyz 200 (podman start itself: ${podstart2}s)"
+t_ready2=$(now)
+status_json "$long" >"$work/long1.json" || die "long job $long is gone after the restart"
+since_start2=$(python3 -c 'import sys; print(f"{float(sys.argv[1]) + float(sys.argv[3]) - float(sys.argv[2]):.2f}")' "$startup2" "$t_ready2" "$(now)")
 status_json "$job" >"$work/job2.json" || die "job $job is gone after the restart"
 same=$(python3 - "$work/job1.json" "$work/job2.json" <<'EOF'
 import json, sys
@@ -279,14 +282,18 @@ if [ "$same" = yes ]; then
 else
   fail "job $job changed across the restart: $same"
 fi
-sleep 1
-status_json "$long" >"$work/long1.json" || die "long job $long is gone after the restart"
+# Resumed, not restarted: samples and compute time carry on from the checkpoint, and
+# the compute time is more than the new container has been up.
 long_state=$(field "$work/long1.json" state)
 long_after=$(field "$work/long1.json" samples)
-if [ "${long_after:-0}" -ge "${long_before:-1}" ] && [ "$long_state" != failed ]; then
-  pass "long job resumed from its checkpoint: $long_state, $long_after samples (>= $long_before before the stop)"
+cs_before=$(field "$work/long0.json" compute_seconds)
+cs_after=$(field "$work/long1.json" compute_seconds)
+if [ "$long_state" != failed ] && python3 -c 'import sys
+nb, na, cb, ca, up = map(float, sys.argv[1:6])
+sys.exit(0 if na >= nb and ca >= cb > up else 1)' "$long_before" "$long_after" "$cs_before" "$cs_after" "$since_start2"; then
+  pass "long job resumed from its checkpoint: $long_state, $long_after samples (>= $long_before before the stop), compute ${cs_after}s (>= ${cs_before}s before; container up ${since_start2}s)"
 else
-  fail "long job after restart: state=$long_state samples=$long_after (before: $long_before)"
+  fail "long job after restart: state=$long_state samples=$long_after compute=${cs_after}s (before: $long_before, ${cs_before}s; container up ${since_start2}s)"
 fi
 timeout 30 "$cli" cancel "$long" --server "$url" >/dev/null 2>&1 || true
 timeout 30 "$cli" list --server "$url" >"$work/list.out" 2>&1 || true
