@@ -240,7 +240,7 @@
       this.canvas = $('image');
       this.ctx = this.canvas.getContext('2d', { willReadFrequently: true });
       Object.assign(hook, { jobId: id, passesSeen: [], eventIds: [], tileFetches: 0, tileEvents: 0, flushes: 0,
-                            reconnects: 0, ended: false, settled: false, lastEventId: null });
+                            reconnects: 0, ended: false, settled: false, lastEventId: null, points: this.points });
     }
 
     async start() {
@@ -278,7 +278,9 @@
       }
       const s = this.status;
       this.setState(s.state, s.stop_reason);
-      $('plan').textContent = JSON.stringify(s.plan, null, 2);
+      // The effects (what is on, what is off, why) first, then the rest of the plan.
+      const plan = s.plan && typeof s.plan === 'object' && 'plan' in s.plan ? { plan: s.plan.plan, ...s.plan } : s.plan;
+      $('plan').textContent = JSON.stringify(plan, null, 2);
       const rule = s.stop_rule || {};
       const cur = s.samples || 0;
       $('extend-samples').value = rule.max_samples ? Math.max(rule.max_samples * 2, cur * 2) : Math.max(cur * 2, 1000);
@@ -313,6 +315,11 @@
       if ((s.passes || 0) > 0) for (let t = 0; t < count; ++t) this.dirty.set(t, s.passes);
     }
 
+    hasErrorTarget() {
+      const r = (this.status && this.status.stop_rule) || {};
+      return r.abs_error > 0 || r.rel_error > 0;
+    }
+
     setState(state, reason) {
       const e = $('job-state');
       e.textContent = state + (reason && reason !== 'none' && reason !== 'running' ? ` · ${reason}` : '');
@@ -334,6 +341,7 @@
       const on = (type, fn) => es.addEventListener(type, (ev) => {
         if (this.es !== es) return;
         if (ev.lastEventId) { this.lastEventId = ev.lastEventId; hook.lastEventId = ev.lastEventId; }
+        if (this.reconnecting) { this.reconnecting = false; this.message(null); }
         hook.eventIds.push(ev.lastEventId);
         let data = null;
         try { data = JSON.parse(ev.data); } catch (e) { return; }
@@ -358,6 +366,7 @@
         } else {
           // CONNECTING: the browser retries by itself and sends Last-Event-ID.
           hook.reconnects++;
+          this.reconnecting = true;
           this.message('connection lost; reconnecting…', true);
         }
       };
@@ -380,9 +389,22 @@
       const x = p.compute_seconds;
       const y = this.image ? (p.error && p.error.abs) : (p.estimate && p.estimate.std_error);
       if (x > 0 && y > 0 && Number.isFinite(y)) {
-        const last = this.points[this.points.length - 1];
-        if (!last || x > last[0]) this.points.push([x, y]);
+        // Keep about 500 points per decade of time: a long job's plot stays cheap.
+        const pts = this.points, last = pts[pts.length - 1], prev = pts[pts.length - 2];
+        if (!last || x > last[0]) {
+          if (prev && Math.log10(x) - Math.log10(prev[0]) < 0.002) pts[pts.length - 1] = [x, y];
+          else pts.push([x, y]);
+        }
       }
+      // Statistics and plot are drawn at most every 200 ms (tick), not per event:
+      // a resumed stream may replay thousands of passes at once.
+      this.renderDue = true;
+      if (fromStatus) this.render();
+    }
+
+    render() {
+      this.renderDue = false;
+      this.lastRender = performance.now();
       this.renderStats();
       this.renderPlot();
     }
@@ -402,8 +424,11 @@
       this.es = null;
       this.setState(d.state, d.stop_reason);
       if (d.error_message) this.message(d.error_message);
-      else if (d.target_met === false && d.state === 'succeeded') this.message(`stopped (${d.stop_reason}) before the error target was met`, true);
+      else if (d.target_met === false && d.state === 'succeeded' && this.hasErrorTarget()) {
+        this.message(`stopped (${d.stop_reason}) before the error target was met`, true);
+      }
       this.lastFlush = 0;  // draw the final tiles now
+      this.render();
       this.loadStatus();
       refreshJobs();
     }
@@ -417,8 +442,10 @@
     }
 
     tick() {
-      if (this.closed || !this.image) return;
+      if (this.closed) return;
       const now = performance.now();
+      if (this.renderDue && (this.ended || now - (this.lastRender || 0) >= 200)) this.render();
+      if (!this.image) return;
       if (this.dirty.size > 0 && this.inflight === 0 && now - this.lastFlush >= (this.ended ? 0 : this.interval())) {
         this.flush();
       }
@@ -522,7 +549,11 @@
       ctx.font = '11px system-ui, sans-serif';
       ctx.fillStyle = '#6b7482';
       const pts = this.points;
-      if (pts.length < 2) { ctx.fillText('waiting for two passes…', L, H / 2); return; }
+      if (pts.length < 2) {
+        ctx.fillText('the history starts when the page opens:', L, H / 2 - 8);
+        ctx.fillText('fewer than two passes seen so far', L, H / 2 + 8);
+        return;
+      }
       const lx = pts.map((p) => Math.log10(p[0])), ly = pts.map((p) => Math.log10(p[1]));
       let x0 = Math.floor(Math.min(...lx)), x1 = Math.ceil(Math.max(...lx));
       let y0 = Math.floor(Math.min(...ly)), y1 = Math.ceil(Math.max(...ly));

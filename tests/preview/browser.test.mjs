@@ -120,7 +120,7 @@ describe('preview page', { concurrency: 1 }, () => {
     });
     await page.waitForFunction(() => window.tallyPreview.tileFetches > 0, null, { timeout: 30000 });
     await page.waitForFunction(() => window.tallyPreview.settled, null, { timeout: 240000 });
-    await screenshot(page, 'mean');
+    await screenshot(page, 'finished');
 
     const status = await (await fetch(`${server.url}/v1/jobs/${id}`)).json();
     assert.equal(status.state, 'succeeded');
@@ -152,7 +152,6 @@ describe('preview page', { concurrency: 1 }, () => {
     // The standard-error heat map, and the plan is on the page.
     await page.check('input[name=view][value=stderr]');
     await page.waitForFunction(() => !document.getElementById('heat-legend').hidden);
-    await screenshot(page, 'stderr');
     assert.match(await page.textContent('#plan'), /"plan"|"direct"|"effects"|"shadow/);
     assert.deepEqual(errors, []);
     await page.close();
@@ -172,14 +171,16 @@ describe('preview page', { concurrency: 1 }, () => {
         spec.stop = { time_budget_s: 5 };
       });
       await page.waitForFunction(() => window.tallyPreview.passesSeen.length >= 3, null, { timeout: 30000 });
-      await screenshot(page, 'running');
 
       // 1. The network drops every connection: Chromium's EventSource reconnects by
       //    itself and sends Last-Event-ID.
-      const before = (await hook(page)).passesSeen.length;
       assert.ok(proxy.cut() > 0, 'the proxy had open connections to cut');
       await page.waitForFunction(() => window.tallyPreview.reconnects >= 1, null, { timeout: 10000 });
-      await page.waitForFunction((n) => window.tallyPreview.passesSeen.length > n + 2, before, { timeout: 60000 });
+      // Passes that arrive from now on came over the new connection.
+      const atError = (await hook(page)).passesSeen.length;
+      await page.waitForFunction((n) => window.tallyPreview.passesSeen.length > n + 2, atError, { timeout: 60000 });
+      assert.equal(await page.isHidden('#job-message'), true, 'the "reconnecting" note is gone');
+      await screenshot(page, 'running');
 
       // 2. The page loses its EventSource and opens a new one from the last id.
       const mid = await hook(page);
@@ -191,6 +192,9 @@ describe('preview page', { concurrency: 1 }, () => {
 
       const status = await (await fetch(`${server.url}/v1/jobs/${id}`)).json();
       assert.equal(status.state, 'succeeded');
+      await page.check('input[name=view][value=stderr]');
+      await sleep(400);  // the progress bar's transition
+      await screenshot(page, 'stderr');
       const h = await hook(page);
       assert.ok(h.reconnects >= (mid.ended ? 1 : 2), `reconnects: ${h.reconnects}`);
       assertConsecutive(h.passesSeen, status.passes);
