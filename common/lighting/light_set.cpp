@@ -25,13 +25,15 @@ double cone_cos_max(const Shape& s, const Vec3& x) {
   return safe_sqrt(1.0 - sin2);
 }
 
+// The same conversion and the same rejections as LightSample::sample's area branch.
 double area_to_solid_angle(double pdf_area, const Vec3& x, const Vec3& p, const Vec3& n) {
   const Vec3 d = p - x;
   const double d2 = dot(d, d);
-  if (!(d2 > 0)) return kInf;
+  if (!(d2 > 0)) return 0.0;
   const double cos_l = std::fabs(dot(n, d)) / std::sqrt(d2);
-  if (!(cos_l > 0)) return kInf;
-  return pdf_area * d2 / cos_l;
+  if (!(cos_l > kMinLightCos)) return 0.0;
+  const double pdf = pdf_area * d2 / cos_l;
+  return std::isfinite(pdf) ? pdf : 0.0;
 }
 }  // namespace
 
@@ -152,7 +154,7 @@ LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1,
     if (!(d2 > 0)) return out;
     out.wi = d / std::sqrt(d2);
     const double cos_l = std::fabs(dot(out.n, out.wi));
-    if (!(cos_l > 1e-12)) return out;  // edge-on: no sample rather than an Inf weight
+    if (!(cos_l > kMinLightCos)) return out;  // edge-on: no sample rather than an Inf weight
     pdf_solid = pdf_area * d2 / cos_l;
   }
   out.dist = length(out.p - x);
@@ -169,9 +171,50 @@ double LightSet::pdf_hit(const Vec3& x, const Hit& hit) const {
   const AreaLight& l = area_[static_cast<size_t>(li)];
   const Shape& s = scene_.shapes[l.shape];
   if (s.type == ShapeType::sphere && outside_sphere(s, x)) {
-    return uniform_cone_pdf(cone_cos_max(s, x)) * select;
+    const double pdf = uniform_cone_pdf(cone_cos_max(s, x));
+    return pdf > 0 && std::isfinite(pdf) ? pdf * select : 0.0;  // as sample(): no sample
   }
   return area_to_solid_angle(1.0 / l.area, x, hit.p, hit.n) * select;
+}
+
+double LightSet::pdf_dir(const Vec3& x, const Vec3& wi, const Hit& hit) const {
+  const int li = light_of_shape_[hit.shape];
+  if (li < 0) return 0.0;
+  const Shape& s = scene_.shapes[hit.shape];
+  // The cone density depends on the direction only.
+  if (s.type == ShapeType::sphere && outside_sphere(s, x)) return pdf_hit(x, hit);
+  Hit h = hit;
+  if (s.type == ShapeType::sphere) {
+    // Roots of |x + t wi - c| = r (stable form); take the one nearest the traced hit.
+    const Vec3 f = x - s.center;
+    const double b = -dot(f, wi);
+    const Vec3 perp = f + wi * b;
+    const double disc = s.radius * s.radius - dot(perp, perp);
+    if (disc >= 0) {
+      const double root = std::sqrt(disc);
+      const double c = dot(f, f) - s.radius * s.radius;
+      const double q = b >= 0 ? b + root : b - root;  // |q| >= |the other root|
+      const double t0 = q, t1 = q != 0 ? c / q : q;   // t0 t1 = c
+      const double t_ref = length(hit.p - x);
+      const double t = std::fabs(t0 - t_ref) <= std::fabs(t1 - t_ref) ? t0 : t1;
+      if (t > 0) {
+        const Vec3 q_hit = x + wi * t - s.center;
+        const double len = length(q_hit);
+        if (len > 0) {
+          h.n = q_hit / len;
+          h.p = s.center + h.n * s.radius;
+        }
+      }
+    }
+  } else {
+    // Planar (quad, disk, one triangle of a mesh): the plane of the hit, along wi from x.
+    const double denom = dot(wi, hit.n);
+    if (denom != 0) {
+      const double t = dot(hit.p - x, hit.n) / denom;
+      if (t > 0 && std::isfinite(t)) h.p = x + wi * t;
+    }
+  }
+  return pdf_hit(x, h);
 }
 
 double LightSet::pdf_sky(const Vec3& n, const Vec3& wi) const {

@@ -19,6 +19,10 @@
 
 namespace tally {
 
+// Light points seen this close to edge-on are "no sample" (sample) and have light pdf 0
+// (pdf_hit): the two must agree or MIS weights do not sum to 1 there.
+inline constexpr double kMinLightCos = 1e-12;
+
 struct LightSample {
   Vec3 wi{};        // unit direction from x towards the light
   double dist = 0;  // to the light point (inf for the sky)
@@ -39,9 +43,18 @@ class LightSet {
 
   // u0 picks the light (and a triangle), (u1, u2) the point / direction.
   LightSample sample(const Vec3& x, const Vec3& n, double u0, double u1, double u2) const;
-  // Solid-angle density (with the choice of light) of reaching `hit` on an emissive
-  // shape from x; inf when the hit is edge-on (so MIS gives the BSDF sample weight 0).
+  // Solid-angle density at x (with the choice of light) with which sample(x, ...)
+  // returns the point `hit` on an emissive shape; 0 where sample() gives no sample
+  // (edge-on, cos < kMinLightCos), so MIS then gives the BSDF sample all the weight.
   double pdf_hit(const Vec3& x, const Hit& hit) const;
+  // The same density for the *direction* wi from x, given that a ray leaving along wi
+  // from a point near x (the offset ray origin) found `hit`: the emitter is intersected
+  // again from x itself along wi and pdf_hit is taken there. This is what MIS must use
+  // for a BSDF-sampled emitter hit: the light strategy's density of the direction that
+  // the BSDF strategy actually sampled, both measured at x. pdf_hit(x, hit) is not that
+  // when the receiver lies on the emitter: a hit found from the offset origin lies, seen
+  // from x, in a different direction, and at grazing angles very much so.
+  double pdf_dir(const Vec3& x, const Vec3& wi, const Hit& hit) const;
   double pdf_sky(const Vec3& n, const Vec3& wi) const;
 
  private:

@@ -131,7 +131,12 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const SampleRng& rng,
       c.add(Counter::emission_lookups);
       const Rgb le = emitted(scene_, hit->shape, hit->n, -ds.wi);
       if (!is_black(le) && counts_emission) {
-        const double w = emission_weight(s.strategy == Strategy::mis && !ds.delta ? lights_.pdf_hit(v.p, *hit) : 0.0);
+        // The light pdf of the direction ds.wi at v.p, where light samples are drawn from,
+        // not pdf_hit(v.p, hit): the hit was found by a ray from the offset origin o, and
+        // seen from v.p it lies in another direction. On an emitter (the furnace sphere)
+        // grazing rays hit at |hit - v.p| ~ |o - v.p|, so that pdf was too high by
+        // (eps/2R) tan^2(theta), the BSDF weights too low, and MIS -1.5e-5 low.
+        const double w = emission_weight(s.strategy == Strategy::mis && !ds.delta ? lights_.pdf_dir(v.p, ds.wi, *hit) : 0.0);
         L += beta_next * le * w;
       }
     }
