@@ -168,9 +168,11 @@ describe('preview page', { concurrency: 1 }, () => {
         // Many short passes for a few seconds: the cuts below land mid-job whatever
         // the machine's speed.
         spec.query.max_pass_spp = 1;
-        spec.stop = { time_budget_s: 5 };
+        spec.stop = { time_budget_s: 10 };
       });
       await page.waitForFunction(() => window.tallyPreview.passesSeen.length >= 3, null, { timeout: 30000 });
+      await sleep(1500);  // some history for the plot
+      if (!(await hook(page)).ended) await screenshot(page, 'running');
 
       // 1. The network drops every connection: Chromium's EventSource reconnects by
       //    itself and sends Last-Event-ID.
@@ -180,7 +182,6 @@ describe('preview page', { concurrency: 1 }, () => {
       const atError = (await hook(page)).passesSeen.length;
       await page.waitForFunction((n) => window.tallyPreview.passesSeen.length > n + 2, atError, { timeout: 60000 });
       assert.equal(await page.isHidden('#job-message'), true, 'the "reconnecting" note is gone');
-      await screenshot(page, 'running');
 
       // 2. The page loses its EventSource and opens a new one from the last id.
       const mid = await hook(page);
