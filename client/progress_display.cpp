@@ -83,6 +83,12 @@ void ProgressDisplay::progress(const json& p) {
     std::fflush(out_);
     return;
   }
+  // The running error (CI half-width) and its history as a sparkline.
+  const json err = p.value("error", json::object());
+  const double abs_err = err.is_object() ? num(err, "abs") : std::nan("");
+  spark_.add(num(p, "compute_seconds", 0), abs_err);
+  const std::string spark = spark_.render(12, !terminal_is_utf8());
+  const std::string err_text = std::isfinite(abs_err) ? fmt::format("  err {:.3g} {}", abs_err, spark) : "";
   std::string bar;
   if (frac >= 0) {
     const int fill = static_cast<int>(std::round(frac * opt_.width));
@@ -90,9 +96,9 @@ void ProgressDisplay::progress(const json& p) {
           fmt::format("] {:3.0f}%  ", 100 * frac);
   }
   if (opt_.color) {
-    fmt::print(out_, "\r\x1b[2K\x1b[36m{}\x1b[0m\x1b[1m{}\x1b[0m  \x1b[2m{}\x1b[0m", bar, est, tail);
+    fmt::print(out_, "\r\x1b[2K\x1b[36m{}\x1b[0m\x1b[1m{}\x1b[0m  \x1b[2m{}\x1b[0m\x1b[33m{}\x1b[0m", bar, est, tail, err_text);
   } else {
-    fmt::print(out_, "\r\x1b[2K{}{}  {}", bar, est, tail);
+    fmt::print(out_, "\r\x1b[2K{}{}  {}{}", bar, est, tail, err_text);
   }
   std::fflush(out_);
   bar_open_ = true;

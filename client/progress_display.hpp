@@ -5,6 +5,8 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "client/sparkline.hpp"
+
 namespace tally {
 
 struct DisplayOptions {
@@ -35,6 +37,7 @@ class ProgressDisplay {
   DisplayOptions opt_;
   nlohmann::json rule_ = nlohmann::json::object();
   bool bar_open_ = false;
+  Sparkline spark_;  // error over compute time (terminal only)
 };
 
 }  // namespace tally
