@@ -22,15 +22,17 @@ std::vector<std::string_view> split_path(std::string_view path) {
   return out;
 }
 
+bool is_param(std::string_view seg) { return seg.size() >= 2 && seg.front() == '{' && seg.back() == '}'; }
+
 // Number of literal segments matched, or -1 if the pattern does not match.
-int match_pattern(std::string_view pattern, const std::vector<std::string_view>& segs, PathParams* params) {
-  const auto pat = split_path(pattern);
+int match_pattern(const Route& r, const std::vector<std::string_view>& segs, PathParams* params) {
+  const auto& pat = r.segments;
   if (pat.size() != segs.size()) return -1;
   int literals = 0;
   for (size_t i = 0; i < pat.size(); ++i) {
-    if (pat[i].size() >= 2 && pat[i].front() == '{' && pat[i].back() == '}') {
+    if (is_param(pat[i])) {
       if (segs[i].empty()) return -1;
-      if (params) params->emplace(std::string(pat[i].substr(1, pat[i].size() - 2)), url_decode(segs[i]));
+      if (params) params->emplace(pat[i].substr(1, pat[i].size() - 2), url_decode(segs[i]));
     } else if (pat[i] == segs[i]) {
       ++literals;
     } else {
@@ -43,7 +45,9 @@ int match_pattern(std::string_view pattern, const std::vector<std::string_view>&
 }  // namespace
 
 void Router::add(std::string method, std::string pattern, RouteHandler handler, bool may_block) {
-  routes_.push_back(Route{std::move(method), std::move(pattern), std::move(handler), may_block});
+  Route r{std::move(method), std::move(pattern), std::move(handler), may_block, {}};
+  for (std::string_view seg : split_path(r.pattern)) r.segments.emplace_back(seg);
+  routes_.push_back(std::move(r));
 }
 
 RouteMatch Router::match(std::string_view method, std::string_view path) const {
@@ -51,7 +55,7 @@ RouteMatch Router::match(std::string_view method, std::string_view path) const {
   RouteMatch m;
   int best = -1;
   for (const Route& r : routes_) {
-    const int score = match_pattern(r.pattern, segs, nullptr);
+    const int score = match_pattern(r, segs, nullptr);
     if (score < 0) continue;
     if (r.method == method) {
       if (score > best) {
@@ -63,7 +67,7 @@ RouteMatch Router::match(std::string_view method, std::string_view path) const {
     }
   }
   if (m.route) {
-    match_pattern(m.route->pattern, segs, &m.params);
+    match_pattern(*m.route, segs, &m.params);
     m.allow.clear();
   }
   return m;

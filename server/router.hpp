@@ -21,6 +21,7 @@ struct Route {
   std::string pattern;
   RouteHandler handler;
   bool may_block = false;  // runs off the I/O threads (e.g. the validate pilot)
+  std::vector<std::string> segments;  // the pattern split at '/', "{x}" = parameter
 };
 
 struct RouteMatch {
