@@ -1,5 +1,6 @@
 #include "common/lighting/light_set.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -44,26 +45,33 @@ Rgb emitted(const Scene& scene, uint32_t shape, const Vec3& n, const Vec3& w) {
   return {};
 }
 
+double light_power_radiance(const Rgb& radiance) {
+  const double peak = std::max({radiance.x, radiance.y, radiance.z});
+  return std::max(luminance(radiance), 1e-3 * peak);
+}
+
 LightSet::LightSet(const Scene& scene) : scene_(scene), light_of_shape_(scene.shapes.size(), -1) {
   sky_ = scene.sky.has_value() && !is_black(*scene.sky);
+  std::vector<double> weights;
   for (uint32_t i = 0; i < scene.shapes.size(); ++i) {
     const Shape& s = scene.shapes[i];
-    if (!scene.materials[s.material].emits()) continue;
+    const Material& m = scene.materials[s.material];
+    if (!m.emits()) continue;
     AreaLight l;
     l.shape = i;
+    std::vector<double> tri_area;
     switch (s.type) {
       case ShapeType::sphere: l.area = 4.0 * kPi * s.radius * s.radius; break;
       case ShapeType::disk: l.area = kPi * s.radius * s.radius; break;
       case ShapeType::quad: l.area = length(cross(s.edge_u, s.edge_v)); break;
       case ShapeType::mesh: {
-        std::vector<double> w(s.triangles.size());
-        for (size_t t = 0; t < w.size(); ++t) {
+        tri_area.resize(s.triangles.size());
+        for (size_t t = 0; t < tri_area.size(); ++t) {
           const auto& tri = s.triangles[t];
-          w[t] = triangle_area(s.vertices[tri[0]], s.vertices[tri[1]], s.vertices[tri[2]]);
-          if (!std::isfinite(w[t])) w[t] = 0;
-          l.area += w[t];
+          tri_area[t] = triangle_area(s.vertices[tri[0]], s.vertices[tri[1]], s.vertices[tri[2]]);
+          if (!std::isfinite(tri_area[t])) tri_area[t] = 0;
+          l.area += tri_area[t];
         }
-        if (l.area > 0) l.triangles.emplace(w);
         break;
       }
     }
@@ -71,20 +79,67 @@ LightSet::LightSet(const Scene& scene) : scene_(scene), light_of_shape_(scene.sh
       dropped_.push_back(s.pointer);
       continue;
     }
-    light_of_shape_[i] = static_cast<int>(area_.size());
-    area_.push_back(std::move(l));
+    const auto index = static_cast<uint32_t>(area_.size());
+    const double power = kPi * l.area * light_power_radiance(m.emission) * (m.two_sided ? 2.0 : 1.0);
+    if (s.type == ShapeType::mesh) {
+      for (uint32_t t = 0; t < tri_area.size(); ++t) {
+        if (!(tri_area[t] > 0)) continue;  // never sampled (zero weight)
+        entries_.push_back({index, t});
+        weights.push_back(power * (tri_area[t] / l.area));
+      }
+    } else {
+      entries_.push_back({index, 0});
+      weights.push_back(power);
+    }
+    light_of_shape_[i] = static_cast<int>(index);
+    area_.push_back(l);
   }
+  if (sky_) {
+    double r = 1.0;
+    {
+      constexpr double inf = std::numeric_limits<double>::infinity();
+      Vec3 lo{inf, inf, inf}, hi{-inf, -inf, -inf};
+      auto grow = [&](const Vec3& p, double rad) {
+        lo = {std::min(lo.x, p.x - rad), std::min(lo.y, p.y - rad), std::min(lo.z, p.z - rad)};
+        hi = {std::max(hi.x, p.x + rad), std::max(hi.y, p.y + rad), std::max(hi.z, p.z + rad)};
+      };
+      for (const Shape& s : scene.shapes) {
+        for (const Vec3& v : s.vertices) grow(v, 0.0);
+        if (s.type == ShapeType::sphere || s.type == ShapeType::disk) grow(s.center, s.radius);
+      }
+      const double half_diag = lo.x <= hi.x ? 0.5 * length(hi - lo) : 0.0;
+      if (half_diag > 0 && std::isfinite(half_diag)) r = half_diag;
+    }
+    entries_.push_back({static_cast<uint32_t>(area_.size()), 0});
+    weights.push_back(4.0 * kPi * kPi * r * r * light_power_radiance(*scene.sky));
+  }
+  for (double& w : weights) {
+    if (!std::isfinite(w)) w = std::numeric_limits<double>::max() / static_cast<double>(weights.size() + 1);
+  }
+  if (!weights.empty()) {
+    pick_.emplace(weights);
+    // The probability of a light = the sum over its entries, as the table samples them.
+    for (size_t e = 0; e < entries_.size(); ++e) {
+      if (entries_[e].light < area_.size()) {
+        area_[entries_[e].light].pick += pick_->pdf(e);
+      } else {
+        sky_pick_ += pick_->pdf(e);
+      }
+    }
+  }
+}
+
+double LightSet::pick_pmf(uint32_t shape) const {
+  const int li = shape < light_of_shape_.size() ? light_of_shape_[shape] : -1;
+  return li < 0 ? 0.0 : area_[static_cast<size_t>(li)].pick;
 }
 
 LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1, double u2) const {
   LightSample out;
-  const size_t count = sampled_count();
-  if (count == 0) return out;
-  const double scaled = u0 * static_cast<double>(count);
-  const size_t pick = std::min(count - 1, static_cast<size_t>(scaled));
-  const double u_rest = std::min(scaled - static_cast<double>(pick), kOneMinusEpsilon);
-  const double select = 1.0 / static_cast<double>(count);
-  if (pick == area_.size()) {  // the sky
+  if (!pick_) return out;
+  const Entry& entry = entries_[pick_->sample(u0)];
+  if (entry.light == area_.size()) {  // the sky
+    const double select = sky_pick_;
     const Frame f = Frame::from_normal(n);
     out.wi = f.to_world(sample_cosine_hemisphere({u1, u2}));
     const double pdf = cosine_hemisphere_pdf(dot(n, out.wi));
@@ -95,7 +150,8 @@ LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1,
     out.sky = true;
     return out;
   }
-  const AreaLight& l = area_[pick];
+  const AreaLight& l = area_[entry.light];
+  const double select = l.pick;
   const Shape& s = scene_.shapes[l.shape];
   double pdf_solid = 0;
   if (s.type == ShapeType::sphere && outside_sphere(s, x)) {
@@ -136,8 +192,7 @@ LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1,
         break;
       }
       case ShapeType::mesh: {
-        const size_t t = l.triangles->sample(u_rest);
-        const auto& tri = s.triangles[t];
+        const auto& tri = s.triangles[entry.triangle];
         const Vec3 &a = s.vertices[tri[0]], &b = s.vertices[tri[1]], &c = s.vertices[tri[2]];
         const TrianglePointSample ts = sample_triangle_point(a, b, c, {u1, u2});
         if (!(ts.pdf > 0)) return out;
@@ -167,8 +222,8 @@ LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1,
 double LightSet::pdf_hit(const Vec3& x, const Hit& hit) const {
   const int li = light_of_shape_[hit.shape];
   if (li < 0) return 0.0;
-  const double select = 1.0 / static_cast<double>(sampled_count());
   const AreaLight& l = area_[static_cast<size_t>(li)];
+  const double select = l.pick;
   const Shape& s = scene_.shapes[l.shape];
   if (s.type == ShapeType::sphere && outside_sphere(s, x)) {
     const double pdf = uniform_cone_pdf(cone_cos_max(s, x));
@@ -219,7 +274,7 @@ double LightSet::pdf_dir(const Vec3& x, const Vec3& wi, const Hit& hit) const {
 
 double LightSet::pdf_sky(const Vec3& n, const Vec3& wi) const {
   if (!sky_) return 0.0;
-  return cosine_hemisphere_pdf(dot(n, wi)) / static_cast<double>(sampled_count());
+  return cosine_hemisphere_pdf(dot(n, wi)) * sky_pick_;
 }
 
 }  // namespace tally

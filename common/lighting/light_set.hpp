@@ -1,8 +1,10 @@
 #pragma once
 // The lights that next-event estimation samples: emissive shapes ("area lights") and
-// the constant sky. One is chosen uniformly, then a point on it:
-//   - quads, disks, triangle meshes: uniformly by area (meshes: triangle by area via an
-//     alias table), pdf converted to solid angle with d^2 / |cos theta_l|;
+// the constant sky. One is chosen in proportion to its power (an alias table; see
+// light_power), then a point on it:
+//   - quads, disks, triangle meshes: uniformly by area (meshes: each triangle is its own
+//     entry of the alias table with its share of the mesh's power, so the mesh is
+//     sampled uniformly by area), pdf converted to solid angle with d^2 / |cos theta_l|;
 //   - spheres seen from outside: uniformly in the cone they subtend (exactly the
 //     visible cap, so no sample is wasted on the far side); from inside: by area;
 //   - the sky: cosine-weighted around the receiver's normal.
@@ -57,18 +59,37 @@ class LightSet {
   double pdf_dir(const Vec3& x, const Vec3& wi, const Hit& hit) const;
   double pdf_sky(const Vec3& n, const Vec3& wi) const;
 
+  // Probability that sample() picks the light of `shape` (0 if it is not a light) / the
+  // sky: what the pdfs above include as "the choice of light".
+  double pick_pmf(uint32_t shape) const;
+  double pick_pmf_sky() const { return sky_pick_; }
+
  private:
   struct AreaLight {
     uint32_t shape = 0;
     double area = 0;
-    std::optional<AliasTable> triangles;  // meshes
+    double pick = 0;  // probability of choosing this light
+  };
+  // One alias-table entry: an area light (meshes: one of its triangles) or the sky.
+  struct Entry {
+    uint32_t light = 0;     // index into area_, or area_.size() for the sky
+    uint32_t triangle = 0;  // meshes
   };
   const Scene& scene_;
   std::vector<AreaLight> area_;
   std::vector<int> light_of_shape_;
   bool sky_ = false;
+  double sky_pick_ = 0;
+  std::vector<Entry> entries_;
+  std::optional<AliasTable> pick_;
   std::vector<std::string> dropped_;
 };
+
+// The weights lights are chosen by (pbrt's Phi): an area light emits pi A L (x2 when
+// two-sided); the sky 4 pi * pi r^2 L with r the radius of the scene's bounding sphere
+// (1 without shapes). L is the luminance of the radiance (floored at 1e-3 of its largest
+// channel so that a pure-blue light keeps a fair share).
+double light_power_radiance(const Rgb& radiance);
 
 // Emitted radiance of `shape` at a point with normal n towards direction w (unit).
 Rgb emitted(const Scene& scene, uint32_t shape, const Vec3& n, const Vec3& w);
