@@ -112,7 +112,7 @@ TEST(LightChoice, ChiSquareOfChoicesAgainstPower) {
   const double p = boost::math::cdf(boost::math::complement(boost::math::chi_squared(6), chi2));
   for (size_t c = 0; c < 7; ++c) std::printf("  cell %zu: observed %.0f expected %.1f\n", c, obs[c], expct[c]);
   std::printf("  chi2 %.2f (6 dof), p %.3f\n", chi2, p);
-  EXPECT_GT(p, 0.01 / 3);  // Šidák-ish over this and the 2 chi-square tests in statistical_test
+  EXPECT_GT(p, 0.01 / 3);  // Šidák (Bonferroni bound) over this and the 2 in statistical_test
 }
 
 // Closed form with five lights of very different power: MIS's light pdf must carry the
