@@ -152,27 +152,27 @@ class IntegrationKernelBase : public Kernel {
   uint64_t key_;
 };
 
-class UniformKernel final : public IntegrationKernelBase {
+// Point-by-point estimators share one batch loop: draw a batch of points, evaluate
+// the integrand, turn values into samples (the subclass's weight), check them.
+class PointwiseKernelBase : public IntegrationKernelBase {
  public:
   using IntegrationKernelBase::IntegrationKernelBase;
 
  protected:
+  // Fill the coordinate rows (and pdf, for importance sampling) of n points.
+  virtual void draw(Scratch& s, uint64_t first, size_t n) const = 0;
+  // f values -> samples, in place.
+  virtual void weigh(const Scratch& s, double* v, size_t n, BlockResult& out) const = 0;
+
   size_t fill(uint64_t first, uint64_t count, double* values, BlockResult& out) const override {
     Scratch& s = scratch();
-    const Domain& D = *p_.domain;
-    s.ensure(D.uniforms(), D.dimensions());
-    const double measure = D.measure();
+    s.ensure(p_.domain->uniforms(), p_.domain->dimensions());
     for (uint64_t off = 0; off < count; off += kB) {
       const size_t n = static_cast<size_t>(std::min<uint64_t>(kB, count - off));
-      if (D.is_box()) {
-        draw_box_points(s, first + off, n, D);
-      } else {
-        draw_uniforms(s, first + off, n, D.uniforms());
-        D.map_uniform(s.u_ptr.data(), n, s.x_ptr.data());
-      }
+      draw(s, first + off, n);
       double* v = values + off;
       p_.integrand->evaluate_batch(s.x_cptr.data(), n, v);
-      for (size_t i = 0; i < n; ++i) v[i] *= measure;
+      weigh(s, v, n, out);
       out.counters.add(Counter::evaluations, n);
       const size_t ok = check(v, n, first + off, s, out);
       if (ok < n) return static_cast<size_t>(off) + ok;
@@ -181,35 +181,45 @@ class UniformKernel final : public IntegrationKernelBase {
   }
 };
 
-// Importance sampling on a box: subclasses map uniforms to x and fill pdf.
-class ImportanceKernelBase : public IntegrationKernelBase {
+class UniformKernel final : public PointwiseKernelBase {
  public:
-  using IntegrationKernelBase::IntegrationKernelBase;
+  using PointwiseKernelBase::PointwiseKernelBase;
+
+ protected:
+  void draw(Scratch& s, uint64_t first, size_t n) const override {
+    const Domain& D = *p_.domain;
+    if (D.is_box()) {
+      draw_box_points(s, first, n, D);
+    } else {
+      draw_uniforms(s, first, n, D.uniforms());
+      D.map_uniform(s.u_ptr.data(), n, s.x_ptr.data());
+    }
+  }
+  void weigh(const Scratch&, double* v, size_t n, BlockResult&) const override {
+    const double measure = p_.domain->measure();
+    for (size_t i = 0; i < n; ++i) v[i] *= measure;
+  }
+};
+
+// Importance sampling: subclasses map uniforms to x and fill pdf.
+class ImportanceKernelBase : public PointwiseKernelBase {
+ public:
+  using PointwiseKernelBase::PointwiseKernelBase;
 
  protected:
   virtual void map(Scratch& s, size_t n) const = 0;
-  size_t fill(uint64_t first, uint64_t count, double* values, BlockResult& out) const override {
-    Scratch& s = scratch();
-    const Domain& D = *p_.domain;
-    s.ensure(D.uniforms(), D.dimensions());
-    const double measure = D.measure();
-    for (uint64_t off = 0; off < count; off += kB) {
-      const size_t n = static_cast<size_t>(std::min<uint64_t>(kB, count - off));
-      draw_uniforms(s, first + off, n, D.uniforms());
-      map(s, n);
-      double* v = values + off;
-      p_.integrand->evaluate_batch(s.x_cptr.data(), n, v);
-      for (size_t i = 0; i < n; ++i) {
-        const double pdf = s.pdf[i];
-        // pdf -> 0 only where the density vanishes; weight 0 there, never Inf.
-        v[i] = pdf > 0.0 ? v[i] / pdf : 0.0;
-        out.weights.add(pdf > 0.0 ? 1.0 / (pdf * measure) : 0.0);
-      }
-      out.counters.add(Counter::evaluations, n);
-      const size_t ok = check(v, n, first + off, s, out);
-      if (ok < n) return static_cast<size_t>(off) + ok;
+  void draw(Scratch& s, uint64_t first, size_t n) const override {
+    draw_uniforms(s, first, n, p_.domain->uniforms());
+    map(s, n);
+  }
+  void weigh(const Scratch& s, double* v, size_t n, BlockResult& out) const override {
+    const double measure = p_.domain->measure();
+    for (size_t i = 0; i < n; ++i) {
+      const double pdf = s.pdf[i];
+      // pdf -> 0 only where the density vanishes; weight 0 there, never Inf.
+      v[i] = pdf > 0.0 ? v[i] / pdf : 0.0;
+      out.weights.add(pdf > 0.0 ? 1.0 / (pdf * measure) : 0.0);
     }
-    return static_cast<size_t>(count);
   }
 };
 
