@@ -111,21 +111,21 @@ double wrk_rps(const std::string& url, const std::string& duration) {
   return 0;
 }
 
-double samples_of(uint16_t port, const std::string& id) {
-  const std::string b = exchange(port, "GET", "/v1/jobs/" + id);
-  try {
-    return json::parse(b).at("samples").get<double>();
-  } catch (...) {
-    return -1;
-  }
+// Samples computed by the workers so far: the chunk-granular counter of /metrics
+// (a job's own count only moves at pass boundaries, too coarse for short windows).
+double samples_total(uint16_t port) {
+  const std::string b = exchange(port, "GET", "/metrics");
+  std::smatch m;
+  if (std::regex_search(b, m, std::regex(R"(\ntally_samples_total ([0-9.e+]+))"))) return std::stod(m[1]);
+  return -1;
 }
 
-// samples/s of a running job over `seconds` of wall time.
-double rate_over(uint16_t port, const std::string& id, double seconds) {
-  const double s0 = samples_of(port, id);
+// samples/s of the workers over `seconds` of wall time.
+double rate_over(uint16_t port, const std::string&, double seconds) {
+  const double s0 = samples_total(port);
   const auto t0 = std::chrono::steady_clock::now();
   std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
-  const double s1 = samples_of(port, id);
+  const double s1 = samples_total(port);
   return (s1 - s0) / std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
