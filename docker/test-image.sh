@@ -230,7 +230,8 @@ fi
 cat >"$work/long.json" <<'EOF'
 {"kind": "integrate", "integrand": {"builtin": "unit_disk"}, "seed": 11, "stop": {"max_samples": 50000000000}}
 EOF
-long=$(timeout 30 "$cli" submit "$work/long.json" --server "$url" | head -1)
+timeout 30 "$cli" submit "$work/long.json" --server "$url" >"$work/long.out" || die "submitting the long job failed"
+long=$(head -1 "$work/long.out")
 long_before=0
 for _ in $(seq 1 60); do
   status_json "$long" >"$work/long0.json"
