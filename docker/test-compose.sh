@@ -55,7 +55,7 @@ for _ in $(seq 1 100); do [ -S "$work/podman.sock" ] && break; sleep 0.1; done
 
 cid=$(podman create --no-healthcheck "$TALLY_IMAGE")
 podman cp "$cid:/usr/local/bin/tally" "$work/tally" >/dev/null
-podman rm "$cid" >/dev/null
+podman rm -v "$cid" >/dev/null
 cli=${TALLY_CLI:-$work/tally}
 
 wait_ready() {

@@ -55,7 +55,7 @@ elapsed() { python3 -c "import sys; print(f'{float(sys.argv[2]) - float(sys.argv
 cleanup() {
   local rc=$?
   if [ "$keep" -eq 0 ]; then
-    for c in "$name1" "$name2"; do timeout 60 podman rm -f -t 5 "$c" >/dev/null 2>&1 || true; done
+    for c in "$name1" "$name2"; do timeout 60 podman rm -f -v -t 5 "$c" >/dev/null 2>&1 || true; done
     timeout 60 podman volume rm -f "$volume" >/dev/null 2>&1 || true
   else
     log "kept: containers $name1 $name2, volume $volume"
@@ -132,7 +132,7 @@ if [ -z "$cli" ]; then
   # The CLI that was built with this image, copied out (the host has the libraries).
   cid=$(podman create --no-healthcheck "$image")
   podman cp "$cid:/usr/local/bin/tally" "$work/tally" >/dev/null
-  podman rm "$cid" >/dev/null
+  podman rm -v "$cid" >/dev/null
   cli=$work/tally
 fi
 "$cli" --help >/dev/null || die "host CLI $cli does not run"
