@@ -181,6 +181,23 @@ Estimate JobRunner::estimate(size_t channel) const {
   return e;
 }
 
+Estimate JobRunner::headline() const {
+  const auto h = kernel_->headline(state_);
+  if (!h) return estimate(0);
+  Estimate e;
+  e.n = state_.samples;
+  e.mean = h->mean;
+  e.std_error = h->std_error;
+  e.variance = h->std_error * h->std_error * static_cast<double>(std::max<uint64_t>(1, e.n));
+  e.rel_error = h->mean != 0.0 ? h->std_error / std::fabs(h->mean) : kInf;
+  e.confidence = rule_.confidence;
+  // Many independent channels: the normal limit.
+  const double z = critical_value(rule_.confidence, std::numeric_limits<uint64_t>::max());
+  e.ci_lo = h->mean - z * h->std_error;
+  e.ci_hi = h->mean + z * h->std_error;
+  return e;
+}
+
 double JobRunner::samples_per_second() const {
   return state_.compute_seconds > 0 ? static_cast<double>(state_.samples) / state_.compute_seconds
                                     : 0.0;

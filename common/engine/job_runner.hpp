@@ -70,6 +70,8 @@ class JobRunner {
   const std::optional<std::string>& error_message() const { return error_; }
 
   Estimate estimate(size_t channel = 0) const;
+  // What progress shows: the kernel's headline (e.g. an image's mean) or channel 0.
+  Estimate headline() const;
   ErrorSummary error() const { return kernel_->error_summary(state_, rule_.confidence); }
   double samples_per_second() const;
   bool target_met() const;

@@ -68,6 +68,13 @@ struct ErrorSummary {
   double mean = 0.0;
 };
 
+// The single number a job's progress shows (CLI list/watch, progress events) when
+// channel 0 alone would not mean much, e.g. an image's mean radiance.
+struct Headline {
+  double mean = 0.0;
+  double std_error = 0.0;  // of `mean`
+};
+
 struct PassSchedule {
   uint64_t first_pass_samples = 4096;  // pass k draws first * 2^k, up to the cap
   uint64_t max_pass_samples = 1u << 22;
@@ -87,6 +94,8 @@ class Kernel {
   virtual void run_block(const Block& block, BlockResult& out) const = 0;
   // The error the stopping rule looks at. Default: the worst channel.
   virtual ErrorSummary error_summary(const JobState& state, double confidence) const;
+  // Default: none, and progress shows channel 0.
+  virtual std::optional<Headline> headline(const JobState&) const { return std::nullopt; }
 };
 
 }  // namespace tally

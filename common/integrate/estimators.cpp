@@ -1,6 +1,7 @@
 #include "common/integrate/estimators.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <fmt/format.h>
 #include <numbers>
@@ -399,13 +400,17 @@ class QmcKernel final : public SweepKernelBase {
   void sweep_uniforms(Scratch& s, uint64_t sample, uint64_t j0, size_t n) const override {
     const uint32_t U = p_.domain->uniforms();
     const uint64_t scramble = mix64(key_ ^ mix64(sample + 0x51ed27));
-    for (uint32_t d = 0; d < U; ++d) {
-      double* row = s.urow(d);
-      for (size_t i = 0; i < n; ++i) {
-        // Keep inside the open interval like the MC estimators (1/x, log x stay finite).
-        row[i] = std::clamp(rqmc_point(scramble, j0 + i, d), 0x1.0p-54, 1.0 - 0x1.0p-53);
-      }
+    // One scrambled point set per randomization (= sample), built once per thread and
+    // reused for the batches of that set.
+    thread_local std::optional<ScrambledSobolSet> set;
+    thread_local uint64_t set_seed = 0;
+    if (!set || set_seed != scramble || set->dimensions() != U) {
+      set.emplace(scramble, U);
+      set_seed = scramble;
     }
+    std::array<double*, 1024> rows{};
+    for (uint32_t d = 0; d < U; ++d) rows[d] = s.urow(d);
+    set->fill(static_cast<uint32_t>(j0), n, rows.data());
   }
 };
 

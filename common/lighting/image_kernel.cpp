@@ -180,6 +180,18 @@ ErrorSummary ImageKernel::error_summary(const JobState& state, double confidence
   return e;
 }
 
+std::optional<Headline> ImageKernel::headline(const JobState& state) const {
+  // Pixels are estimated independently: the variance of the average is the sum of the
+  // channels' squared standard errors over count^2.
+  double sum = 0.0, var = 0.0;
+  for (const Tally& t : state.channels) {
+    sum += t.mean;
+    if (t.n > 1) var += t.variance() / static_cast<double>(t.n);
+  }
+  const double count = static_cast<double>(std::max<size_t>(1, state.channels.size()));
+  return Headline{sum / count, std::sqrt(var) / count};
+}
+
 ImageSnapshot ImageKernel::snapshot(const JobState& state, const TileRect& rect) const {
   ImageSnapshot s;
   s.x0 = std::clamp(rect.x, 0, width_);

@@ -42,6 +42,8 @@ class ImageKernel final : public Kernel, public ImageSource {
   std::vector<uint32_t> active_partitions(const JobState& state) const override;
   void run_block(const Block& block, BlockResult& out) const override;
   ErrorSummary error_summary(const JobState& state, double confidence) const override;
+  // The image's mean radiance over all pixels and channels, with its standard error.
+  std::optional<Headline> headline(const JobState& state) const override;
 
   // ImageSource
   int width() const override { return width_; }

@@ -15,7 +15,7 @@ json finite_or_null(double v) { return std::isfinite(v) ? json(v) : json(nullptr
 
 json progress_json(const JobRunner& runner) {
   const JobState& s = runner.state();
-  const Estimate e = runner.estimate(0);
+  const Estimate e = runner.headline();
   const ErrorSummary err = runner.error();
   json j;
   j["passes"] = s.passes;

@@ -87,4 +87,55 @@ double rqmc_point(std::uint64_t scramble_seed, std::uint64_t index, std::uint32_
   return static_cast<double>((static_cast<std::uint64_t>(y) << 21) | low) * 0x1.0p-53;
 }
 
+const std::array<std::uint32_t, 32>& sobol_directions(std::uint32_t dim) {
+  check_dim(dim);
+  return directions()[dim];
+}
+
+ScrambledSobolSet::ScrambledSobolSet(std::uint64_t scramble_seed, std::uint32_t dims)
+    : dims_(dims), v_(dims), shift_(dims), low_(dims) {
+  if (dims > 0) check_dim(dims - 1);
+  for (std::uint32_t d = 0; d < dims; ++d) {
+    const SampleRng rng(stream_key(scramble_seed, 0x4c4d53), d);  // "LMS"
+    // Lower-triangular matrix with unit diagonal in digit order: output bit p depends
+    // on input bits q >= p. col[q] = bit q plus random bits below it.
+    std::array<std::uint32_t, 32> col{};
+    for (std::uint32_t q = 0; q < 32; ++q) {
+      const auto r = static_cast<std::uint32_t>(rng.bits(q) >> 32);
+      const std::uint32_t below = q == 0 ? 0u : (r & ((1u << q) - 1u));
+      col[q] = (1u << q) | below;
+    }
+    const std::array<std::uint32_t, 32>& v = directions()[d];
+    for (std::uint32_t j = 0; j < 32; ++j) {
+      std::uint32_t y = 0;
+      for (std::uint32_t q = 0; q < 32; ++q) {
+        if ((v[j] >> q) & 1u) y ^= col[q];
+      }
+      v_[d][j] = y;
+    }
+    shift_[d] = static_cast<std::uint32_t>(rng.bits(32) >> 32);
+    low_[d] = to_open_unit_double(rng.bits(33)) * 0x1.0p-32;
+  }
+}
+
+void ScrambledSobolSet::fill(std::uint32_t first, std::size_t n, double* const* rows) const {
+  for (std::uint32_t d = 0; d < dims_; ++d) {
+    const std::array<std::uint32_t, 32>& v = v_[d];
+    // Point `first` directly: y = shift ^ XOR of v[k] over the bits of gray(first).
+    const std::uint32_t g = first ^ (first >> 1);
+    std::uint32_t y = shift_[d];
+    for (std::uint32_t k = 0; k < 32; ++k) {
+      if ((g >> k) & 1u) y ^= v[k];
+    }
+    double* row = rows[d];
+    const double low = low_[d];
+    for (std::size_t i = 0; i < n; ++i) {
+      row[i] = static_cast<double>(y) * 0x1.0p-32 + low;
+      // Gray code: the next point flips the direction of the lowest set bit of j + 1.
+      const auto next = static_cast<std::uint32_t>(first + i + 1);
+      y ^= v[static_cast<std::uint32_t>(__builtin_ctz(next | 0x80000000u))];
+    }
+  }
+}
+
 }  // namespace tally
