@@ -129,8 +129,9 @@ json JobManager::engine_json_locked(const Job& job) const {
   return j;
 }
 
-json JobManager::status_json(Job& job) const {
+json JobManager::status_json(Job& job, uint64_t* version) const {
   std::lock_guard lock(job.mu);
+  if (version) *version = job.version;
   json j = engine_json_locked(job);
   j["id"] = job.id;
   j["state"] = std::string(job_status_name(job.status));
@@ -167,12 +168,16 @@ std::string JobManager::status_body(Job& job) const {
       return job.cached_status;
     }
   }
-  std::string body = dump(status_json(job));
+  uint64_t built_from = 0;
+  std::string body = dump(status_json(job, &built_from));
   body.push_back('\n');
   std::lock_guard lock(job.mu);
-  job.cached_status = body;
-  job.cached_version = job.version;
-  job.cached_at = std::chrono::steady_clock::now();
+  // Cache it only if the job did not change meanwhile (else the next GET rebuilds).
+  if (built_from == job.version) {
+    job.cached_status = body;
+    job.cached_version = built_from;
+    job.cached_at = std::chrono::steady_clock::now();
+  }
   return body;
 }
 

@@ -72,7 +72,8 @@ class JobManager {
 
   // The GET /v1/jobs/{id} document (cached until the job changes).
   std::string status_body(Job& job) const;
-  nlohmann::json status_json(Job& job) const;
+  // `version`, if given, receives the job version the document was built from.
+  nlohmann::json status_json(Job& job, uint64_t* version = nullptr) const;
   nlohmann::json summary_json(Job& job) const;  // the short form GET /v1/jobs lists
   // Events a new or resuming watcher starts with: state + progress (+ end).
   std::vector<Event> snapshot_events(Job& job) const;
