@@ -225,7 +225,7 @@ Rq = rows("rqmc.csv")
 if Rq:
     out.append("## 5. Randomized QMC against plain Monte Carlo\n")
     out.append(
-        "The product's `qmc` estimator (Owen-scrambled Sobol) with P points per randomization, RMSE of one "
+        "The product's `qmc` estimator with `scramble: owen` (nested uniform scramble of Sobol) with P points per randomization, RMSE of one "
         "randomization over 32 independent scrambles (one job with max_samples = 32); plain MC with N = P "
         "evaluations, RMSE over 32 seeds. Instances: a_i = 1 (oscillatory), 1.5 (gaussian), 2 (product "
         "peak), 0.5 (corner peak); u_i as in section 1. Fit range N = 2^8 … 2^16. Theory for smooth f: "
@@ -263,6 +263,33 @@ if Rq:
     out.append("")
     out.append(save(fig, "rqmc.png"))
     out.append("")
+    # The default scramble of the product (affine: random linear scramble + digital shift).
+    aff = []
+    for d in ["2", "4"]:
+        for fam in ["oscillatory", "gaussian", "product_peak", "corner_peak"]:
+            R = [r for r in Rq if r["family"] == fam and r["d"] == d and r["method"] == "rqmc_affine"]
+            O = [r for r in Rq if r["family"] == fam and r["d"] == d and r["method"] == "rqmc"]
+            if not R or not O:
+                continue
+            N = np.array([float(r["N"]) for r in R])
+            e = np.array([float(r["rel_rmse"]) for r in R])
+            sel = N >= 256
+            s_aff, _ = fit(N[sel], e[sel])
+            t_aff = float(R[-1]["seconds_per_estimate"])
+            t_owen = float(O[-1]["seconds_per_estimate"])
+            aff.append(f"| {fam} | {d} | {s_aff:.3f} | {float(O[-1]['rel_rmse']) / e[-1]:.2g} | {t_owen / t_aff:.1f} |")
+    if aff:
+        out.append(
+            "The product's default scramble (`scramble: affine`: a random lower-triangular binary matrix and a "
+            "digital shift applied once to the direction numbers, then one XOR per coordinate in Gray-code "
+            "order) is unbiased by construction and its error bars cover (tests/statistical/coverage_test.cpp). "
+            "Measured on the same instances it converges at least as fast as the nested scramble, in 2-D "
+            "markedly faster than the N^−3/2 theory for nested scrambling predicts (the slopes are not a "
+            "check against that theory), and costs far less per point:\n")
+        out.append("| family | d | affine RMSE slope | RMSE owen / affine at N = 2^16 | time per set owen / affine |")
+        out.append("|---|---|---|---|---|")
+        out.extend(aff)
+        out.append("")
 
 # ---------------------------------------------------------------- (d) lighting
 L = rows("lighting_convergence.csv")

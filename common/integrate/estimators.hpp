@@ -40,7 +40,8 @@ std::shared_ptr<const Kernel> make_tabulated_importance_kernel(IntegrationProble
 std::shared_ptr<const Kernel> make_cosine_importance_kernel(IntegrationProblem p);
 std::shared_ptr<const Kernel> make_stratified_kernel(IntegrationProblem p, uint32_t strata_per_dim,
                                                      uint32_t stratified_dims);
-std::shared_ptr<const Kernel> make_qmc_kernel(IntegrationProblem p, uint32_t points);
+// owen = false: affine matrix scramble (fast, default); true: nested uniform scramble.
+std::shared_ptr<const Kernel> make_qmc_kernel(IntegrationProblem p, uint32_t points, bool owen = false);
 std::shared_ptr<const Kernel> make_rejection_kernel(IntegrationProblem p, uint32_t max_attempts);
 // Tensor-product trapezoid rule with n points per dimension (deterministic; one
 // "sample"). Channel 0: T(n); channel 1: T(m), m = (n + 1) / 2, for an error estimate.

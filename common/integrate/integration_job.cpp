@@ -218,9 +218,13 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
   } else if (type == "qmc") {
     const uint32_t points = static_cast<uint32_t>(r.integer_or("points", 1024, 1, 1u << 20));
     if (D.uniforms() > 1024) throw SpecError(pointer, "qmc supports at most 1024 dimensions");
-    c.plan["sequence"] = "sobol (random linear scramble + digital shift, Joe-Kuo directions)";
+    const std::string scramble = r.enumeration_or("scramble", "affine", {"affine", "owen"});
+    c.plan["sequence"] = scramble == "owen"
+                             ? "sobol (nested uniform Owen scramble, Joe-Kuo directions)"
+                             : "sobol (random linear scramble + digital shift, Joe-Kuo directions)";
+    c.plan["scramble"] = scramble;
     c.plan["points_per_sample"] = points;
-    c.kernel = make_qmc_kernel(prob, points);
+    c.kernel = make_qmc_kernel(prob, points, scramble == "owen");
     c.sweep = true;
   } else if (type == "rejection") {
     if (D.is_box() || !D.is_solid()) {

@@ -169,8 +169,10 @@ TEST(IntegrationJob, StratifiedAndQmcBeatUniformOnSmoothIntegrands) {
   const double mc = se_per_eval({{"type", "uniform"}}, 1 << 18);
   const double strat = se_per_eval({{"type", "stratified"}, {"strata_per_dim", 8}}, 512);
   const double qmc = se_per_eval({{"type", "qmc"}, {"points", 1024}}, 256);
+  const double owen = se_per_eval({{"type", "qmc"}, {"points", 1024}, {"scramble", "owen"}}, 64);
   EXPECT_LT(strat, mc / 4);
   EXPECT_LT(qmc, mc / 30);
+  EXPECT_LT(owen, mc / 30);
 }
 
 TEST(IntegrationJob, TrapezoidIsSecondOrder) {
