@@ -243,7 +243,8 @@ TEST(ServerE2E, SlowClientsAreCutOff) {
 
 TEST(ServerE2E, SigtermEndsStreamsAndJobsResumeBitIdentical) {
   TempDir tmp;
-  const json spec = disk_spec(200'000'000, 11);
+  // Long enough (~5 s on two idle cores) that SIGTERM always lands mid-job.
+  const json spec = disk_spec(2'000'000'000, 11);
   std::string expected;
   {
     ServerProcess ref(tmp.path / "ref");
@@ -259,7 +260,13 @@ TEST(ServerE2E, SigtermEndsStreamsAndJobsResumeBitIdentical) {
     HttpClient wc = server.client();
     ev = read_events(wc, id);
   });
-  std::this_thread::sleep_for(std::chrono::milliseconds(800));
+  // Terminate once the job is really running (bounded wait), not after a fixed delay.
+  for (int i = 0; i < 1500; ++i) {
+    const json st = get_json(c, "/v1/jobs/" + id);
+    if (st.at("state") == "running" && st.value("samples", 0ULL) > 0) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ASSERT_EQ(get_json(c, "/v1/jobs/" + id).at("state"), "running");
   EXPECT_EQ(server.terminate(), 0) << server.log();
   watcher.join();
   ASSERT_FALSE(ev.empty());
@@ -273,7 +280,8 @@ TEST(ServerE2E, SigtermEndsStreamsAndJobsResumeBitIdentical) {
 
 TEST(ServerE2E, KillDashNineAtSeveralPointsResumesBitIdentical) {
   TempDir tmp;
-  const json spec = disk_spec(300'000'000, 3);
+  // ~4 s on two idle cores, so every kill below lands mid-job.
+  const json spec = disk_spec(1'500'000'000, 3);
   std::string expected;
   {
     ServerProcess ref(tmp.path / "ref");
@@ -297,7 +305,7 @@ TEST(ServerE2E, KillDashNineAtSeveralPointsResumesBitIdentical) {
   HttpClient fc = server.client();
   const json s = wait_state(fc, id, "succeeded");
   EXPECT_EQ(s.at("bits").dump(), expected);
-  EXPECT_EQ(s.at("samples"), 300'000'000);
+  EXPECT_EQ(s.at("samples"), 1'500'000'000);
 }
 
 TEST(ServerE2E, CorruptCheckpointIsReported) {
