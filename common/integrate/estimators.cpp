@@ -86,7 +86,9 @@ class IntegrationKernelBase : public Kernel {
     PassSchedule s;
     s.block_samples = std::max<uint64_t>(1, 4096 / per);
     s.first_pass_samples = std::max<uint64_t>(4 * s.block_samples, 16384 / per);
-    s.max_pass_samples = std::max<uint64_t>(s.first_pass_samples, (uint64_t{1} << 22) / per);
+    // 2^24 evaluations: ~40-80 ms for fast integrands, so progress events, checkpoints and
+    // scheduler commits stay a small fraction of the work.
+    s.max_pass_samples = std::max<uint64_t>(s.first_pass_samples, (uint64_t{1} << 24) / per);
     return s;
   }
   void run_block(const Block& b, BlockResult& out) const override {

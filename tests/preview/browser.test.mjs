@@ -62,7 +62,9 @@ describe('preview page', { concurrency: 1 }, () => {
   before(async () => {
     assert.ok(serverBinary, 'set TALLY_SERVER to the tally-server binary');
     // A big replay buffer: the cut in the resume test may last Chromium's 3 s retry.
-    server = await startServer(serverBinary, ['--event-buffer', '50000']);
+    // The resume test's job makes up to ~15k passes of ~13 events each in its 10 s budget on an
+    // idle machine; the buffer must hold all of them so a cut never falls outside it.
+    server = await startServer(serverBinary, ['--event-buffer', '400000']);
     browser = await launchBrowser(chromium);
   });
 
