@@ -1,5 +1,7 @@
 #include "common/lighting/light_set.hpp"
 
+#include "common/lighting/scene_json.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -96,20 +98,9 @@ LightSet::LightSet(const Scene& scene) : scene_(scene), light_of_shape_(scene.sh
   }
   if (sky_) {
     double r = 1.0;
-    {
-      constexpr double inf = std::numeric_limits<double>::infinity();
-      Vec3 lo{inf, inf, inf}, hi{-inf, -inf, -inf};
-      auto grow = [&](const Vec3& p, double rad) {
-        lo = {std::min(lo.x, p.x - rad), std::min(lo.y, p.y - rad), std::min(lo.z, p.z - rad)};
-        hi = {std::max(hi.x, p.x + rad), std::max(hi.y, p.y + rad), std::max(hi.z, p.z + rad)};
-      };
-      for (const Shape& s : scene.shapes) {
-        for (const Vec3& v : s.vertices) grow(v, 0.0);
-        if (s.type == ShapeType::sphere || s.type == ShapeType::disk) grow(s.center, s.radius);
-      }
-      const double half_diag = lo.x <= hi.x ? 0.5 * length(hi - lo) : 0.0;
-      if (half_diag > 0 && std::isfinite(half_diag)) r = half_diag;
-    }
+    const SceneBounds b = scene_bounds(scene);
+    const double half_diag = b.empty() ? 0.0 : 0.5 * length(b.hi - b.lo);
+    if (half_diag > 0 && std::isfinite(half_diag)) r = half_diag;
     entries_.push_back({static_cast<uint32_t>(area_.size()), 0});
     weights.push_back(4.0 * kPi * kPi * r * r * light_power_radiance(*scene.sky));
   }

@@ -28,4 +28,12 @@ std::filesystem::path resolve_asset(const std::string& asset_dir, const std::str
 // Moves the scene into its local frame (see scene.hpp) and returns the translation.
 void localize_scene(Scene& scene);
 
+// Axis-aligned bounds of every shape (vertices, sphere and disk extents); empty when
+// lo.x > hi.x (a scene without shapes).
+struct SceneBounds {
+  Vec3 lo, hi;
+  bool empty() const { return lo.x > hi.x; }
+};
+SceneBounds scene_bounds(const Scene& scene);
+
 }  // namespace tally
