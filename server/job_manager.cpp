@@ -194,7 +194,7 @@ json JobManager::summary_json(Job& job) const {
     j["samples"] = s.samples;
     j["passes"] = s.passes;
     if (!s.channels.empty() && s.channels[0].n > 0) {
-      const Estimate e = job.runner->estimate(0);
+      const Estimate e = job.runner->headline();  // an image job's mean radiance, else channel 0
       j["mean"] = std::isfinite(e.mean) ? json(e.mean) : json(nullptr);
       j["std_error"] = std::isfinite(e.std_error) ? json(e.std_error) : json(nullptr);
     }
