@@ -241,17 +241,21 @@ TEST(ServerE2E, SlowClientsAreCutOff) {
   EXPECT_NE(metrics.find("tally_http_timeouts_total"), std::string::npos);
 }
 
+// The exact result bits of `spec` run to completion on a fresh server (the reference
+// an interrupted-and-resumed run must reproduce).
+std::string uninterrupted_bits(const std::filesystem::path& dir, const json& spec) {
+  ServerProcess ref(dir);
+  HttpClient c = ref.client();
+  std::string bits = wait_state(c, submit(c, spec), "succeeded").at("bits").dump();
+  EXPECT_EQ(ref.terminate(), 0);
+  return bits;
+}
+
 TEST(ServerE2E, SigtermEndsStreamsAndJobsResumeBitIdentical) {
   TempDir tmp;
   // Long enough (~5 s on two idle cores) that SIGTERM always lands mid-job.
   const json spec = disk_spec(2'000'000'000, 11);
-  std::string expected;
-  {
-    ServerProcess ref(tmp.path / "ref");
-    HttpClient c = ref.client();
-    expected = wait_state(c, submit(c, spec), "succeeded").at("bits").dump();
-    EXPECT_EQ(ref.terminate(), 0);
-  }
+  const std::string expected = uninterrupted_bits(tmp.path / "ref", spec);
   ServerProcess server(tmp.path / "data", {"--checkpoint-interval", "0"});
   HttpClient c = server.client();
   const std::string id = submit(c, spec);
@@ -282,12 +286,7 @@ TEST(ServerE2E, KillDashNineAtSeveralPointsResumesBitIdentical) {
   TempDir tmp;
   // ~4 s on two idle cores, so every kill below lands mid-job.
   const json spec = disk_spec(1'500'000'000, 3);
-  std::string expected;
-  {
-    ServerProcess ref(tmp.path / "ref");
-    HttpClient c = ref.client();
-    expected = wait_state(c, submit(c, spec), "succeeded").at("bits").dump();
-  }
+  const std::string expected = uninterrupted_bits(tmp.path / "ref", spec);
   ServerProcess server(tmp.path / "data", {"--checkpoint-interval", "0"});
   HttpClient c = server.client();
   const std::string id = submit(c, spec);
