@@ -1,5 +1,7 @@
 #include "server/job_manager.hpp"
 
+#include "server/executor/in_process_executor.hpp"
+
 #include <fmt/format.h>
 
 #include <algorithm>
@@ -108,14 +110,15 @@ json progress_event_json(const JobRunner& r) {
 
 JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compiler)
     : config_(std::move(config)), store_(store), compiler_(std::move(compiler)) {
-  SchedulerCallbacks cb;
-  cb.pass_done = [this](const std::string& id, const std::vector<Block>& blocks, std::vector<BlockResult>&& results,
-                        double wall) { return on_pass_done(id, blocks, std::move(results), wall); };
+  ExecutorCallbacks cb;
+  cb.pass_done = [this](const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
+                        double wall) { return on_pass_done(id, done, std::move(results), wall); };
   cb.cancelled = [this](const std::string& id) { on_cancelled(id); };
-  scheduler_ = std::make_unique<Scheduler>(config_.workers, std::move(cb), config_.chunk_target_s);
+  cb.failed = [this](const std::string& id, const std::string& error) { on_failed(id, error); };
+  executor_ = std::make_unique<InProcessExecutor>(config_.workers, std::move(cb), config_.chunk_target_s);
 }
 
-JobManager::~JobManager() { scheduler_->stop(); }
+JobManager::~JobManager() { executor_->stop(); }
 
 // ---------------------------------------------------------------- status JSON
 
@@ -317,8 +320,8 @@ void JobManager::start_queued_locked() {
     });
     std::shared_ptr<Job> job = *it;
     queue_.erase(it);
-    std::vector<Block> blocks;
-    std::shared_ptr<const Kernel> kernel;
+    PassWork pass;
+    ExecutorJob ej;
     {
       std::lock_guard jl(job->mu);
       if (job->status != JobStatus::queued || !job->runner) continue;
@@ -326,20 +329,26 @@ void JobManager::start_queued_locked() {
       if (job->started_at <= 0) job->started_at = unix_now();
       job->version++;
       publish_state_locked(*job);
-      blocks = job->runner->plan_pass();
-      if (blocks.empty()) {
+      pass.pass = job->runner->state().passes;
+      pass.blocks = job->runner->plan_pass();
+      pass.pass_input = job->runner->pass_input();
+      if (pass.empty()) {
         finish_locked(*job, unix_now());
       } else {
-        kernel = job->def->kernel();
+        ej.id = job->id;
+        ej.kernel = job->def->kernel();
+        ej.spec_json = job->spec.dump();
+        ej.epoch = epoch_;
+        ej.priority = job->priority;
       }
     }
-    if (blocks.empty()) {
+    if (pass.empty()) {
       // Nothing to run (restored already complete): store the final state.
       persist(*job, true);
       continue;
     }
     ++running_;
-    scheduler_->add(job->id, std::move(kernel), std::move(blocks), job->priority);
+    executor_->add(std::move(ej), std::move(pass));
   }
 }
 
@@ -349,11 +358,12 @@ void JobManager::job_left_scheduler() {
   start_queued_locked();
 }
 
-std::vector<Block> JobManager::on_pass_done(const std::string& id, const std::vector<Block>& blocks,
-                                            std::vector<BlockResult>&& results, double wall) {
+PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
+                                  double wall) {
   const std::shared_ptr<Job> job = find(id);
   if (!job) return {};
-  std::vector<Block> next;
+  const std::vector<Block>& blocks = done.blocks;
+  PassWork next;
   bool finished = false, checkpoint = false;
   {
     std::lock_guard lock(job->mu);
@@ -375,11 +385,15 @@ std::vector<Block> JobManager::on_pass_done(const std::string& id, const std::ve
       }
     }
     if (job->cancel_requested && !r.finished()) r.cancel();  // takes effect at this boundary
-    if (!r.finished()) next = r.plan_pass();
+    if (!r.finished()) {
+      next.pass = r.state().passes;
+      next.blocks = r.plan_pass();
+      next.pass_input = r.pass_input();
+    }
     if (r.finished() || next.empty()) {
       finish_locked(*job, unix_now());
       finished = true;
-      next.clear();
+      next = PassWork{};
     }
     const auto now = std::chrono::steady_clock::now();
     if (finished || now - job->last_checkpoint >= std::chrono::duration<double>(config_.checkpoint_interval_s)) {
@@ -390,6 +404,20 @@ std::vector<Block> JobManager::on_pass_done(const std::string& id, const std::ve
   if (checkpoint) persist(*job, true);
   if (finished) job_left_scheduler();
   return next;
+}
+
+void JobManager::on_failed(const std::string& id, const std::string& error) {
+  const std::shared_ptr<Job> job = find(id);
+  if (!job) return;
+  {
+    std::lock_guard lock(job->mu);
+    if (is_terminal(job->status)) return;
+    // The partial pass was dropped; the runner is at its last pass boundary.
+    job->runner->fail(error);
+    finish_locked(*job, unix_now());
+  }
+  persist(*job, true);
+  job_left_scheduler();
 }
 
 void JobManager::on_cancelled(const std::string& id) {
@@ -442,7 +470,7 @@ std::shared_ptr<Job> JobManager::cancel(const std::string& id) {
     persist(*job, false);
     return job;
   }
-  scheduler_->cancel(id);  // may run on_cancelled right here
+  executor_->cancel(id);  // may run on_cancelled right here
   return job;
 }
 
@@ -565,7 +593,7 @@ void JobManager::shutdown() {
     if (shutting_down_) return;
     shutting_down_ = true;
   }
-  scheduler_->stop();  // chunks in flight finish; partial passes are dropped
+  executor_->stop();  // chunks in flight finish; partial passes are dropped
   for (const auto& job : list()) {
     bool unfinished;
     {
@@ -602,9 +630,10 @@ ManagerStats JobManager::stats() const {
     s.jobs_by_state[std::string(job_status_name(j->status))]++;
     if (j->status == JobStatus::running && j->runner) s.samples_per_second += j->runner->samples_per_second();
   }
-  s.samples_total = scheduler_->samples_done();
-  s.workers = scheduler_->workers();
-  s.busy_workers = scheduler_->busy_workers();
+  const ExecutorStats es = executor_->stats();
+  s.samples_total = es.samples_done;
+  s.workers = es.workers;
+  s.busy_workers = es.busy_workers;
   return s;
 }
 

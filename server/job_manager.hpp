@@ -15,7 +15,7 @@
 #include "common/engine/job_definition.hpp"
 #include "server/job.hpp"
 #include "server/job_store.hpp"
-#include "server/scheduler.hpp"
+#include "server/executor/executor.hpp"
 
 namespace tally {
 
@@ -87,8 +87,9 @@ class JobManager {
   uint64_t epoch() const { return epoch_; }
 
  private:
-  std::vector<Block> on_pass_done(const std::string& id, const std::vector<Block>& blocks,
-                                  std::vector<BlockResult>&& results, double wall);
+  PassWork on_pass_done(const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
+                        double wall);
+  void on_failed(const std::string& id, const std::string& error);
   void on_cancelled(const std::string& id);
   void start_queued_locked();
   void job_left_scheduler();
@@ -111,7 +112,7 @@ class JobManager {
   int64_t next_seq_ = 1;
   bool shutting_down_ = false;
 
-  std::unique_ptr<Scheduler> scheduler_;  // last: its workers call back into us
+  std::unique_ptr<Executor> executor_;  // last: its workers call back into us
 };
 
 // RFC 3339 UTC timestamp with milliseconds, or null for 0.

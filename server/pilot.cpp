@@ -41,7 +41,7 @@ json run_pilot(const JobDefinition& job, const PilotOptions& options) {
     const std::vector<Block> blocks = runner.plan_pass();
     if (blocks.empty()) break;
     const auto p0 = clock::now();
-    if (!run_blocks(runner.kernel(), blocks, options.threads, results, &cancel)) {
+    if (!run_blocks(runner.kernel(), blocks, options.threads, results, &cancel, runner.pass_input())) {
       cut = true;
       break;
     }

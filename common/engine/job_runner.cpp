@@ -70,6 +70,7 @@ std::vector<Block> JobRunner::plan_pass() {
   if (!pending_.empty()) throw std::logic_error("plan_pass called twice without commit_pass");
   const uint64_t n = next_pass_samples();
   const uint64_t block = std::max<uint64_t>(1, kernel_->schedule().block_samples);
+  pass_input_ = kernel_->pass_input(state_);
   uint64_t index = 0;
   for (uint32_t p : kernel_->active_partitions(state_)) {
     const uint64_t first = state_.partition_samples.at(p);

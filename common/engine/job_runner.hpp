@@ -53,6 +53,9 @@ class JobRunner {
 
   // Blocks of the next pass; empty once finished. Call commit_pass before planning again.
   std::vector<Block> plan_pass();
+  // The kernel's input for the pass just planned (Kernel::pass_input); pass it to
+  // Kernel::run_block_with for each of its blocks. Empty for non-adaptive kernels.
+  const std::string& pass_input() const { return pass_input_; }
   // `results[i]` belongs to the i-th planned block. `wall_seconds`: the pass's duration.
   void commit_pass(std::vector<BlockResult>&& results, double wall_seconds);
 
@@ -93,6 +96,7 @@ class JobRunner {
   StopReason reason_ = StopReason::none;
   std::optional<std::string> error_;
   std::vector<Block> pending_;
+  std::string pass_input_;
   uint64_t pending_samples_ = 0;
 };
 

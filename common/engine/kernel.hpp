@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "common/engine/counters.hpp"
@@ -92,6 +93,15 @@ class Kernel {
   virtual std::vector<uint32_t> active_partitions(const JobState& state) const;
   // Thread-safe and pure: the result depends on the block alone.
   virtual void run_block(const Block& block, BlockResult& out) const = 0;
+  // Adaptive kernels (e.g. VEGAS) change between passes. `pass_input` is what the next
+  // pass needs besides its blocks, as bytes, computed deterministically from the merged
+  // state (JobRunner::plan_pass calls it); every executor hands those bytes back to
+  // `run_block_with` for each block of that pass (remote workers receive them with the
+  // blocks). Default: no input, and run_block_with is run_block.
+  virtual std::string pass_input(const JobState&) const { return {}; }
+  virtual void run_block_with(const Block& block, std::string_view /*pass_input*/, BlockResult& out) const {
+    run_block(block, out);
+  }
   // The error the stopping rule looks at. Default: the worst channel.
   virtual ErrorSummary error_summary(const JobState& state, double confidence) const;
   // Default: none, and progress shows channel 0.

@@ -8,7 +8,8 @@
 namespace tally {
 
 bool run_blocks(const Kernel& kernel, const std::vector<Block>& blocks, unsigned threads,
-                std::vector<BlockResult>& results, const std::atomic<bool>* cancel) {
+                std::vector<BlockResult>& results, const std::atomic<bool>* cancel,
+                std::string_view pass_input) {
   results.clear();
   results.resize(blocks.size());
   std::atomic<size_t> next{0};
@@ -18,7 +19,7 @@ bool run_blocks(const Kernel& kernel, const std::vector<Block>& blocks, unsigned
       const size_t i = next.fetch_add(1, std::memory_order_relaxed);
       if (i >= blocks.size()) return;
       results[i].block_index = blocks[i].index;
-      kernel.run_block(blocks[i], results[i]);
+      kernel.run_block_with(blocks[i], pass_input, results[i]);
     }
   };
   threads = std::max(1u, std::min<unsigned>(threads, static_cast<unsigned>(blocks.size())));
@@ -39,7 +40,7 @@ void run_local(JobRunner& runner, const LocalRunOptions& options) {
     const std::vector<Block> blocks = runner.plan_pass();
     if (blocks.empty()) break;
     const auto t0 = std::chrono::steady_clock::now();
-    if (!run_blocks(runner.kernel(), blocks, options.threads, results, options.cancel)) {
+    if (!run_blocks(runner.kernel(), blocks, options.threads, results, options.cancel, runner.pass_input())) {
       runner.cancel();
       break;
     }

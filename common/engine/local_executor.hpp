@@ -3,6 +3,7 @@
 // The server has its own fair scheduler over the same JobRunner interface.
 #include <atomic>
 #include <functional>
+#include <string_view>
 #include <vector>
 
 #include "common/engine/job_runner.hpp"
@@ -11,8 +12,10 @@ namespace tally {
 
 // Runs `blocks` on `threads` threads; result i belongs to block i. Returns false if
 // `cancel` was raised before all blocks ran (the results are then incomplete).
+// `pass_input`: JobRunner::pass_input() of the pass the blocks belong to.
 bool run_blocks(const Kernel& kernel, const std::vector<Block>& blocks, unsigned threads,
-                std::vector<BlockResult>& results, const std::atomic<bool>* cancel = nullptr);
+                std::vector<BlockResult>& results, const std::atomic<bool>* cancel = nullptr,
+                std::string_view pass_input = {});
 
 struct LocalRunOptions {
   unsigned threads = 1;

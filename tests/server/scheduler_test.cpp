@@ -5,7 +5,7 @@
 
 #include <bit>
 
-#include "server/scheduler.hpp"
+#include "server/executor/in_process_executor.hpp"
 #include "server_test_support.hpp"
 
 namespace tally::test {
@@ -95,20 +95,20 @@ TEST(Scheduler, DirectUseCommitsInBlockOrder) {
   std::condition_variable cv;
   int passes = 0;
   auto job = compile_fake_job(fake_spec(1000), {});
-  SchedulerCallbacks cb;
-  cb.pass_done = [&](const std::string&, const std::vector<Block>& blocks, std::vector<BlockResult>&& results, double) {
-    EXPECT_EQ(blocks.size(), results.size());
-    for (size_t i = 0; i < results.size(); ++i) EXPECT_EQ(results[i].block_index, blocks[i].index);
+  ExecutorCallbacks cb;
+  cb.pass_done = [&](const std::string&, const PassWork& done, std::vector<BlockResult>&& results, double) {
+    EXPECT_EQ(done.blocks.size(), results.size());
+    for (size_t i = 0; i < results.size(); ++i) EXPECT_EQ(results[i].block_index, done.blocks[i].index);
     std::lock_guard lock(mu);
     ++passes;
     cv.notify_all();
-    return std::vector<Block>{};
+    return PassWork{};
   };
-  Scheduler s(3, cb);
-  std::vector<Block> blocks;
-  for (uint64_t i = 0; i < 50; ++i) blocks.push_back(Block{i, i * 100, 100, 0});
-  s.add("a", job->kernel(), blocks);
-  s.add("b", job->kernel(), blocks);
+  InProcessExecutor s(3, cb);
+  PassWork pass;
+  for (uint64_t i = 0; i < 50; ++i) pass.blocks.push_back(Block{i, i * 100, 100, 0});
+  s.add(ExecutorJob{"a", job->kernel(), "", 1, 0, ""}, pass);
+  s.add(ExecutorJob{"b", job->kernel(), "", 1, 0, ""}, pass);
   std::unique_lock lock(mu);
   ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(20), [&] { return passes == 2; }));
   lock.unlock();

@@ -1,4 +1,4 @@
-#include "server/scheduler.hpp"
+#include "server/executor/in_process_executor.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -10,16 +10,16 @@ namespace tally {
 int clamp_priority(int priority) { return std::clamp(priority, -5, 5); }
 double priority_weight(int priority) { return static_cast<double>(clamp_priority(priority) + 6); }
 
-Scheduler::Scheduler(unsigned workers, SchedulerCallbacks callbacks, double chunk_target_seconds)
+InProcessExecutor::InProcessExecutor(unsigned workers, ExecutorCallbacks callbacks, double chunk_target_seconds)
     : cb_(std::move(callbacks)), chunk_target_(chunk_target_seconds) {
   workers = std::max(1u, workers);
   threads_.reserve(workers);
   for (unsigned i = 0; i < workers; ++i) threads_.emplace_back([this] { worker_loop(); });
 }
 
-Scheduler::~Scheduler() { stop(); }
+InProcessExecutor::~InProcessExecutor() { stop(); }
 
-void Scheduler::stop() {
+void InProcessExecutor::stop() {
   {
     std::lock_guard lock(mu_);
     stopping_ = true;
@@ -32,44 +32,52 @@ void Scheduler::stop() {
   active_.clear();
 }
 
-size_t Scheduler::scheduled_jobs() const {
+ExecutorStats InProcessExecutor::stats() const {
+  ExecutorStats s;
+  s.workers = workers();
+  s.busy_workers = busy_workers();
+  s.samples_done = samples_done();
+  s.scheduled_jobs = scheduled_jobs();
+  return s;
+}
+
+size_t InProcessExecutor::scheduled_jobs() const {
   std::lock_guard lock(mu_);
   return active_.size();
 }
 
-double Scheduler::min_vtime_locked() const {
+double InProcessExecutor::min_vtime_locked() const {
   double v = std::numeric_limits<double>::infinity();
   for (const auto& [id, a] : active_) v = std::min(v, a->vtime);
   return std::isfinite(v) ? v : 0.0;
 }
 
-void Scheduler::start_pass_locked(Active& a, std::vector<Block> blocks) {
-  a.blocks = std::move(blocks);
+void InProcessExecutor::start_pass_locked(Active& a, PassWork pass) {
+  a.pass = std::move(pass);
   a.results.clear();
-  a.results.resize(a.blocks.size());
+  a.results.resize(a.pass.blocks.size());
   a.next = a.done = 0;
   a.pass_started = false;
 }
 
-void Scheduler::add(const std::string& id, std::shared_ptr<const Kernel> kernel, std::vector<Block> first_pass,
-                    int priority) {
+void InProcessExecutor::add(ExecutorJob job, PassWork first_pass) {
   if (first_pass.empty()) return;
   {
     std::lock_guard lock(mu_);
     if (stopping_) return;
     auto a = std::make_unique<Active>();
-    a->id = id;
-    a->kernel = std::move(kernel);
-    a->weight = priority_weight(priority);
+    a->id = job.id;
+    a->kernel = std::move(job.kernel);
+    a->weight = priority_weight(job.priority);
     // Join at the current virtual time: a newcomer neither starves nor is starved.
     a->vtime = min_vtime_locked();
     start_pass_locked(*a, std::move(first_pass));
-    active_[id] = std::move(a);
+    active_[job.id] = std::move(a);
   }
   cv_.notify_all();
 }
 
-bool Scheduler::cancel(const std::string& id) {
+bool InProcessExecutor::cancel(const std::string& id) {
   bool call_now = false;
   {
     std::lock_guard lock(mu_);
@@ -87,19 +95,19 @@ bool Scheduler::cancel(const std::string& id) {
   return true;
 }
 
-Scheduler::Active* Scheduler::pick_locked() {
+InProcessExecutor::Active* InProcessExecutor::pick_locked() {
   Active* best = nullptr;
   for (auto& [id, a] : active_) {
-    if (a->cancel_requested || a->committing || a->next >= a->blocks.size()) continue;
+    if (a->cancel_requested || a->committing || a->next >= a->pass.blocks.size()) continue;
     if (!best || a->vtime < best->vtime) best = a.get();
   }
   return best;
 }
 
-size_t Scheduler::chunk_size_locked(const Active& a) const {
-  const size_t left = a.blocks.size() - a.next;
+size_t InProcessExecutor::chunk_size_locked(const Active& a) const {
+  const size_t left = a.pass.blocks.size() - a.next;
   // Spread a pass over the workers even when its blocks are cheap.
-  const size_t spread = std::max<size_t>(1, (a.blocks.size() + 2 * threads_.size() - 1) / (2 * threads_.size()));
+  const size_t spread = std::max<size_t>(1, (a.pass.blocks.size() + 2 * threads_.size() - 1) / (2 * threads_.size()));
   size_t n = 1;
   if (a.block_seconds > 0) {
     n = static_cast<size_t>(std::clamp(chunk_target_ / a.block_seconds, 1.0, 4096.0));
@@ -107,7 +115,7 @@ size_t Scheduler::chunk_size_locked(const Active& a) const {
   return std::max<size_t>(1, std::min({n, spread, left}));
 }
 
-void Scheduler::worker_loop() {
+void InProcessExecutor::worker_loop() {
   std::unique_lock lock(mu_);
   for (;;) {
     Active* a = nullptr;
@@ -124,7 +132,8 @@ void Scheduler::worker_loop() {
     const double estimate = a->block_seconds * static_cast<double>(end - begin);
     a->vtime += estimate / a->weight;
     const Kernel* kernel = a->kernel.get();
-    const Block* blocks = a->blocks.data();
+    const Block* blocks = a->pass.blocks.data();
+    const std::string_view pass_input = a->pass.pass_input;
     BlockResult* results = a->results.data();
     lock.unlock();
 
@@ -133,7 +142,7 @@ void Scheduler::worker_loop() {
     uint64_t samples = 0;
     for (size_t i = begin; i < end; ++i) {
       results[i].block_index = blocks[i].index;
-      kernel->run_block(blocks[i], results[i]);
+      kernel->run_block_with(blocks[i], pass_input, results[i]);
       samples += blocks[i].sample_count;
     }
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -157,16 +166,16 @@ void Scheduler::worker_loop() {
       }
       continue;
     }
-    if (a->done < a->blocks.size()) continue;
+    if (a->done < a->pass.blocks.size()) continue;
 
     // Last chunk of the pass: commit it (without the lock: other jobs keep running).
     a->committing = true;
     const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - a->pass_start).count();
-    std::vector<Block> blocks_done = std::move(a->blocks);
+    PassWork pass_done = std::move(a->pass);
     std::vector<BlockResult> results_done = std::move(a->results);
     const std::string id = a->id;
     lock.unlock();
-    std::vector<Block> next = cb_.pass_done(id, blocks_done, std::move(results_done), wall);
+    PassWork next = cb_.pass_done(id, pass_done, std::move(results_done), wall);
     lock.lock();
     auto it = active_.find(id);
     if (it == active_.end()) continue;  // stop() cleared it

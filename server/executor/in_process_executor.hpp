@@ -1,5 +1,5 @@
 #pragma once
-// The worker pool. Each running job contributes the blocks of its current pass,
+// The in-process executor: a worker pool. Each running job contributes the blocks of its current pass,
 // handed out in chunks; workers take the next chunk from the job with the least
 // virtual time (stride scheduling: a chunk charges its measured run time divided
 // by the job's weight), so running jobs share the CPUs fairly and a short job
@@ -16,38 +16,26 @@
 #include <thread>
 #include <vector>
 
-#include "common/engine/kernel.hpp"
+#include "server/executor/executor.hpp"
 
 namespace tally {
-
-struct SchedulerCallbacks {
-  // All blocks of the job's pass have run: commit them and return the next pass's
-  // blocks (empty: the job leaves the scheduler). Runs on a worker thread.
-  std::function<std::vector<Block>(const std::string& id, const std::vector<Block>& blocks,
-                                   std::vector<BlockResult>&& results, double wall_seconds)>
-      pass_done;
-  // A cancelled job has no chunk in flight any more; its partial pass is dropped.
-  std::function<void(const std::string& id)> cancelled;
-};
 
 // CPU share is proportional to priority_weight(priority).
 int clamp_priority(int priority);
 double priority_weight(int priority);
 
-class Scheduler {
+class InProcessExecutor final : public Executor {
  public:
-  Scheduler(unsigned workers, SchedulerCallbacks callbacks, double chunk_target_seconds = 0.004);
-  ~Scheduler();
-  Scheduler(const Scheduler&) = delete;
-  Scheduler& operator=(const Scheduler&) = delete;
+  InProcessExecutor(unsigned workers, ExecutorCallbacks callbacks, double chunk_target_seconds = 0.004);
+  ~InProcessExecutor() override;
+  InProcessExecutor(const InProcessExecutor&) = delete;
+  InProcessExecutor& operator=(const InProcessExecutor&) = delete;
 
-  void add(const std::string& id, std::shared_ptr<const Kernel> kernel, std::vector<Block> first_pass,
-           int priority = 0);
-  // Stops handing out the job's chunks. Returns false if the job is not scheduled.
-  // The `cancelled` callback runs once no chunk is in flight (maybe on this thread).
-  bool cancel(const std::string& id);
+  void add(ExecutorJob job, PassWork first_pass) override;
+  bool cancel(const std::string& id) override;
   // Finishes the chunks in flight, drops partial passes, joins the workers.
-  void stop();
+  void stop() override;
+  ExecutorStats stats() const override;
 
   unsigned workers() const { return static_cast<unsigned>(threads_.size()); }
   size_t scheduled_jobs() const;
@@ -60,7 +48,7 @@ class Scheduler {
     std::shared_ptr<const Kernel> kernel;
     double weight = 1.0;
     double vtime = 0.0;
-    std::vector<Block> blocks;
+    PassWork pass;  // blocks being computed, with their pass input
     std::vector<BlockResult> results;
     size_t next = 0;       // next block to hand out
     size_t done = 0;       // blocks finished
@@ -75,10 +63,10 @@ class Scheduler {
   void worker_loop();
   Active* pick_locked();
   size_t chunk_size_locked(const Active& a) const;
-  void start_pass_locked(Active& a, std::vector<Block> blocks);
+  void start_pass_locked(Active& a, PassWork pass);
   double min_vtime_locked() const;
 
-  SchedulerCallbacks cb_;
+  ExecutorCallbacks cb_;
   double chunk_target_;
   mutable std::mutex mu_;
   std::condition_variable cv_;

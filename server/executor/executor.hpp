@@ -1,0 +1,87 @@
+#pragma once
+// The seam between job management and computation. The manager hands an executor the
+// blocks of one pass of a job; the executor computes them wherever it likes (threads in
+// this process, workers behind Redis) and hands the whole pass back, results in block
+// order, through ExecutorCallbacks::pass_done. Merge order, checkpoints, events and the
+// stop rule live above this seam and never know which executor ran.
+//
+// Implementations: InProcessExecutor (server/executor/in_process_executor.hpp, the
+// stride-scheduled worker pool). Thread-safety: every member function may be called from
+// any thread; callbacks run on executor threads, never under an executor lock, and may
+// call back into the executor (add, cancel).
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "common/engine/kernel.hpp"
+
+namespace tally {
+
+// What an executor needs to compute a job's blocks.
+struct ExecutorJob {
+  std::string id;
+  std::shared_ptr<const Kernel> kernel;  // the compiled spec: in-process executors run this
+  std::string spec_json;  // the spec as submitted (canonical JSON text): remote workers compile it
+  uint64_t epoch = 0;     // bumped when the job is reopened (extend) or the server restarts;
+                          // results tagged with an older epoch are never merged
+  int priority = 0;       // CPU share within an owner, see priority_weight()
+  std::string owner;      // the principal that submitted the job ("" without access control)
+};
+
+// One pass of a job: blocks planned by JobRunner::plan_pass, plus the kernel's input for
+// that pass (JobRunner::pass_input(), empty unless the kernel adapts between passes).
+struct PassWork {
+  uint64_t pass = 0;  // JobState::passes when the pass was planned: with (job, epoch) it keys results
+  std::vector<Block> blocks;
+  std::string pass_input;
+  bool empty() const { return blocks.empty(); }
+};
+
+struct ExecutorCallbacks {
+  // Every block of `done` has a result (results[i] belongs to done.blocks[i]): commit
+  // them and return the job's next pass (empty: the job leaves the executor).
+  std::function<PassWork(const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
+                         double wall_seconds)>
+      pass_done;
+  // A cancelled job has no block in flight any more; its partial pass is dropped.
+  std::function<void(const std::string& id)> cancelled;
+  // The executor gave up on the job (e.g. a block failed on every delivery); the job
+  // has left the executor. Not called for cancelled jobs.
+  std::function<void(const std::string& id, const std::string& error)> failed;
+};
+
+struct ExecutorStats {
+  unsigned workers = 0;        // threads (in process) or live worker threads (cluster)
+  unsigned busy_workers = 0;
+  uint64_t samples_done = 0;   // computed since start
+  size_t scheduled_jobs = 0;
+  // Cluster executors: blocks per job not yet handed out / handed out and not back /
+  // handed out more than once.
+  struct JobBlocks {
+    uint64_t pending = 0, in_flight = 0, redelivered = 0;
+  };
+  std::map<std::string, JobBlocks> blocks_by_job;
+};
+
+class Executor {
+ public:
+  virtual ~Executor() = default;
+  // Starts computing `first_pass` of a job not yet in the executor (ignored if empty or
+  // after stop()).
+  virtual void add(ExecutorJob job, PassWork first_pass) = 0;
+  // Stops handing out the job's blocks. Returns false if the job is not in the executor.
+  // The `cancelled` callback runs once no block is in flight (maybe on this thread).
+  virtual bool cancel(const std::string& id) = 0;
+  // Finishes or abandons what is in flight, drops partial passes, joins threads. No
+  // callback runs after stop() returns.
+  virtual void stop() = 0;
+  virtual ExecutorStats stats() const = 0;
+  // Empty when the executor can compute; otherwise why not (e.g. "redis unreachable").
+  virtual std::optional<std::string> not_ready_reason() const { return std::nullopt; }
+};
+
+}  // namespace tally
