@@ -18,10 +18,12 @@
 #include <atomic>
 #include <chrono>
 #include <optional>
+#include <sstream>
 #include <thread>
 #include <vector>
 
 #include "server/event_stream.hpp"
+#include "server/http_framing.hpp"
 #include "server/metrics.hpp"
 #include "server/problem.hpp"
 #include "server/request_handler.hpp"
@@ -39,6 +41,52 @@ std::chrono::steady_clock::duration secs(double s) {
   return std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(s));
 }
 
+using BeastRequest = http::request<http::string_body>;
+
+HttpRequest to_http_request(BeastRequest& req) {
+  HttpRequest r;
+  r.method = std::string(req.method_string());
+  r.target = std::string(req.target());
+  for (const auto& f : req) {
+    std::string name(f.name_string());
+    for (char& c : name) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    r.headers.emplace_back(std::move(name), std::string(f.value()));
+  }
+  r.body = std::move(req.body());
+  return r;
+}
+
+// The problem response for a request the parser rejected, or nullopt when the
+// error means the peer went away (no answer possible).
+std::optional<HttpResponse> parse_error_response(beast::error_code ec, const HttpServerConfig& config) {
+  if (ec == http::error::body_limit) {
+    return problem_response(413, fmt::format("the request body exceeds {} bytes", config.max_body_bytes));
+  }
+  if (ec == http::error::header_limit) {
+    return problem_response(431, fmt::format("the request header exceeds {} bytes", config.max_header_bytes));
+  }
+  if (ec != http::error::end_of_stream && ec != http::error::partial_message &&
+      ec.category() == beast::error_code(http::error::bad_target).category()) {
+    return problem_response(400, fmt::format("malformed HTTP request: {}", ec.message()));
+  }
+  return std::nullopt;
+}
+
+// Framing the parser accepted but we must not (RFC 9112 §6.3).
+std::optional<HttpResponse> framing_response(const HttpRequest& r) {
+  std::string te;
+  for (const auto& [k, v] : r.headers) {
+    if (k == "transfer-encoding") te += (te.empty() ? "" : ", ") + v;
+  }
+  if (auto p = transfer_encoding_problem(te)) return problem_response(p->status, p->detail);
+  return std::nullopt;
+}
+
+void configure_parser(http::request_parser<http::string_body>& p, const HttpServerConfig& config) {
+  p.body_limit(config.max_body_bytes);
+  p.header_limit(static_cast<uint32_t>(config.max_header_bytes));
+}
+
 struct Shared {
   HttpServerConfig config;
   RequestHandler& handler;
@@ -50,7 +98,11 @@ struct Shared {
 class Session : public std::enable_shared_from_this<Session> {
  public:
   Session(tcp::socket&& socket, Shared& shared, bool reject)
-      : stream_(std::move(socket)), shared_(shared), reject_(reject), heartbeat_(stream_.get_executor()) {
+      : stream_(std::move(socket)),
+        shared_(shared),
+        reject_(reject),
+        heartbeat_(stream_.get_executor()),
+        read_timer_(stream_.get_executor()) {
     shared_.connections++;
     shared_.metrics.connections++;
   }
@@ -83,12 +135,20 @@ class Session : public std::enable_shared_from_this<Session> {
     });
   }
 
-  // Read phase: the whole request within the read timeout.
+  // Read phase: the whole request within the read timeout. The timeout is our own
+  // timer (not the stream's, which would close the socket) so the client gets a 408.
   void read_request() {
     parser_.emplace();
-    parser_->body_limit(shared_.config.max_body_bytes);
-    parser_->header_limit(static_cast<uint32_t>(shared_.config.max_header_bytes));
-    stream_.expires_after(secs(shared_.config.read_timeout_s));
+    configure_parser(*parser_, shared_.config);
+    stream_.expires_never();
+    read_timed_out_ = false;
+    read_timer_.expires_after(secs(shared_.config.read_timeout_s));
+    read_timer_.async_wait([self = shared_from_this()](beast::error_code ec) {
+      if (ec) return;  // cancelled: the request arrived in time
+      self->read_timed_out_ = true;
+      beast::error_code ignored;
+      self->stream_.socket().cancel(ignored);
+    });
     http::async_read(stream_, buffer_, *parser_,
                      [self = shared_from_this()](beast::error_code ec, size_t) { self->on_read(ec); });
   }
@@ -96,40 +156,43 @@ class Session : public std::enable_shared_from_this<Session> {
   void on_error(beast::error_code ec) {
     if (ec == beast::error::timeout) shared_.metrics.timeouts++;
     beast::error_code ignored;
+    read_timer_.cancel();
     stream_.socket().shutdown(tcp::socket::shutdown_both, ignored);
     stream_.socket().close(ignored);
   }
 
+  // After an error response that ends the connection: stop sending, then discard
+  // what the client still sends for a moment, so closing with unread input (which
+  // resets the connection) cannot destroy the response before the client reads it.
+  void linger_close() {
+    beast::error_code ignored;
+    stream_.socket().shutdown(tcp::socket::shutdown_send, ignored);
+    stream_.expires_after(std::chrono::seconds(1));
+    drain_.resize(4096);
+    stream_.async_read_some(net::buffer(drain_), [self = shared_from_this()](beast::error_code ec, size_t) {
+      if (ec) return self->on_error({});
+      self->linger_close();
+    });
+  }
+
   void on_read(beast::error_code ec) {
-    if (ec == http::error::end_of_stream) return on_error(ec);
-    if (ec == http::error::body_limit) {
-      return send(problem_response(413, fmt::format("the request body exceeds {} bytes", shared_.config.max_body_bytes)), false);
-    }
-    if (ec == http::error::header_limit) {
-      return send(problem_response(431, fmt::format("the request header exceeds {} bytes", shared_.config.max_header_bytes)),
+    read_timer_.cancel();
+    if (read_timed_out_) {
+      shared_.metrics.timeouts++;
+      return send(problem_response(408, fmt::format("the request was not received within {} s",
+                                                    shared_.config.read_timeout_s)),
                   false);
     }
-    if (ec == beast::error::timeout) return on_error(ec);
     if (ec) {
-      if (ec.category() == beast::error_code(http::error::bad_target).category()) {
-        return send(problem_response(400, fmt::format("malformed HTTP request: {}", ec.message())), false);
-      }
+      if (auto res = parse_error_response(ec, shared_.config)) return send(std::move(*res), false);
       return on_error(ec);
     }
-    http::request<http::string_body> req = parser_->release();
+    BeastRequest req = parser_->release();
     parser_.reset();
     keep_alive_ = req.keep_alive();
     version_ = req.version();
-    HttpRequest r;
-    r.method = std::string(req.method_string());
-    r.target = std::string(req.target());
-    for (const auto& f : req) {
-      std::string name(f.name_string());
-      for (char& c : name) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-      r.headers.emplace_back(std::move(name), std::string(f.value()));
-    }
-    r.body = std::move(req.body());
-    stream_.expires_never();
+    HttpRequest r = to_http_request(req);
+    if (auto res = framing_response(r)) return send(std::move(*res), false);
     if (shared_.handler.may_block(r)) {
       net::post(shared_.blocking, [self = shared_from_this(), r = std::move(r)]() mutable {
         HttpResponse res = self->shared_.handler.handle(r);
@@ -152,7 +215,7 @@ class Session : public std::enable_shared_from_this<Session> {
     stream_.expires_after(secs(shared_.config.write_timeout_s));
     http::async_write(stream_, *msg, [self = shared_from_this(), msg](beast::error_code ec, size_t) {
       if (ec) return self->on_error(ec);
-      if (msg->need_eof()) return self->on_error({});
+      if (msg->need_eof()) return self->linger_close();
       self->wait_for_request();
     });
   }
@@ -256,6 +319,9 @@ class Session : public std::enable_shared_from_this<Session> {
   std::optional<http::response_serializer<http::empty_body>> serializer_;
   std::string chunk_;
   net::steady_timer heartbeat_;
+  net::steady_timer read_timer_;
+  bool read_timed_out_ = false;
+  std::string drain_;
   bool streaming_ = false;
   bool parked_ = false;
   bool waiting_ = false;
@@ -265,7 +331,11 @@ class Session : public std::enable_shared_from_this<Session> {
 
 struct HttpServer::Impl {
   Impl(HttpServerConfig cfg, RequestHandler& handler, Metrics& metrics)
-      : blocking(2), shared{std::move(cfg), handler, metrics, blocking, {}}, acceptor(ioc), signals(ioc, SIGINT, SIGTERM) {}
+      : blocking(2),
+        shared{std::move(cfg), handler, metrics, blocking, {}},
+        acceptor(ioc),
+        accept_backoff(ioc),
+        signals(ioc, SIGINT, SIGTERM) {}
 
   // Declaration order matters: the io_context is destroyed before `shared`, so
   // sessions still queued in it when it dies can update the shared counters.
@@ -274,10 +344,17 @@ struct HttpServer::Impl {
     acceptor.async_accept(net::make_strand(ioc), [this](beast::error_code ec, tcp::socket socket) {
       if (ec) {
         if (ec == net::error::operation_aborted || !acceptor.is_open()) return;
-      } else {
-        const bool reject = shared.connections.load() >= shared.config.max_connections;
-        std::make_shared<Session>(std::move(socket), shared, reject)->run();
+        // Out of descriptors (EMFILE/ENFILE) or memory: the pending connection stays
+        // in the backlog, so accepting again at once would spin. Wait, then retry.
+        shared.metrics.accept_errors++;
+        accept_backoff.expires_after(std::chrono::milliseconds(100));
+        accept_backoff.async_wait([this](beast::error_code tec) {
+          if (!tec && acceptor.is_open()) accept();
+        });
+        return;
       }
+      const bool reject = shared.connections.load() >= shared.config.max_connections;
+      std::make_shared<Session>(std::move(socket), shared, reject)->run();
       if (acceptor.is_open()) accept();
     });
   }
@@ -286,6 +363,7 @@ struct HttpServer::Impl {
   Shared shared;
   net::io_context ioc;
   tcp::acceptor acceptor;
+  net::steady_timer accept_backoff;
   net::signal_set signals;
   std::vector<std::thread> threads;
   uint16_t port = 0;
@@ -324,6 +402,7 @@ void HttpServer::stop_accepting() {
   net::post(impl_->ioc, [this] {
     beast::error_code ignored;
     impl_->acceptor.close(ignored);
+    impl_->accept_backoff.cancel();
   });
 }
 
@@ -342,6 +421,60 @@ void HttpServer::stop(double grace_seconds) {
   for (auto& t : s.threads) t.join();
   s.threads.clear();
   s.blocking.join();
+}
+
+std::string respond_to_bytes(std::string_view raw, const HttpServerConfig& config, RequestHandler& handler) {
+  std::string out;
+  beast::flat_buffer buffer;
+  net::buffer_copy(buffer.prepare(raw.size()), net::buffer(raw.data(), raw.size()));
+  buffer.commit(raw.size());
+  auto emit = [&out](HttpResponse res, bool keep_alive, unsigned version) {
+    http::response<http::string_body> msg(static_cast<http::status>(res.status), version);
+    for (auto& [k, v] : res.headers) msg.set(k, v);
+    msg.body() = std::move(res.body);
+    msg.keep_alive(keep_alive);
+    msg.prepare_payload();
+    std::ostringstream os;
+    os << msg;
+    out += os.str();
+  };
+  while (buffer.size() > 0) {
+    http::request_parser<http::string_body> parser;
+    configure_parser(parser, config);
+    parser.eager(true);
+    beast::error_code ec;
+    while (!parser.is_done()) {
+      const size_t used = parser.put(buffer.data(), ec);
+      buffer.consume(used);
+      if (ec || used == 0) break;
+    }
+    if (ec == http::error::need_more || (!ec && !parser.is_done())) {
+      // Incomplete at the end of the input: the server would wait, then answer 408.
+      emit(problem_response(408, "the request was not received in time"), false, 11);
+      break;
+    }
+    if (ec) {
+      if (auto res = parse_error_response(ec, config)) emit(std::move(*res), false, 11);
+      break;
+    }
+    BeastRequest req = parser.release();
+    const bool keep_alive = req.keep_alive();
+    const unsigned version = req.version();
+    HttpRequest r = to_http_request(req);
+    if (auto res = framing_response(r)) {
+      emit(std::move(*res), false, version);
+      break;
+    }
+    HttpResponse res = handler.handle(r);
+    if (res.stream) {
+      res.stream.reset();  // an event stream ends the connection
+      emit(std::move(res), false, version);
+      break;
+    }
+    emit(std::move(res), keep_alive, version);
+    if (!keep_alive) break;
+  }
+  return out;
 }
 
 }  // namespace tally

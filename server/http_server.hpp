@@ -8,6 +8,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <string_view>
 
 namespace tally {
 
@@ -48,5 +49,12 @@ class HttpServer {
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
+
+// The session's parsing, limits and framing rules without a socket (for tests and
+// fuzzers): answers every request in `raw` in order through `handler`, as the
+// server would on one connection, and returns the response bytes. Input that ends
+// mid-request gets the 408 a read timeout would give; event streams are answered
+// with their header only.
+std::string respond_to_bytes(std::string_view raw, const HttpServerConfig& config, RequestHandler& handler);
 
 }  // namespace tally

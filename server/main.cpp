@@ -9,6 +9,7 @@
 
 #include "common/jobs/job_factory.hpp"
 #include "server/cpu_quota.hpp"
+#include "server/fd_limit.hpp"
 #include "server/http_server.hpp"
 #include "server/job_manager.hpp"
 #include "server/job_store.hpp"
@@ -65,6 +66,15 @@ int main(int argc, char** argv) {
   if (!addr) {
     fmt::print(stderr, "tally-server: --listen must be host:port, got \"{}\"\n", listen);
     return 2;
+  }
+  // Descriptors: raise the soft limit to the hard one, and keep --max-connections
+  // below it so the connection limit (a clean 503) is reached before EMFILE.
+  const size_t fd_limit = raise_fd_soft_limit();
+  const size_t max_conn = connections_for_fd_limit(http.max_connections, fd_limit);
+  if (max_conn < http.max_connections) {
+    fmt::print(stderr, "tally-server: --max-connections {} lowered to {} (descriptor limit {})\n",
+               http.max_connections, max_conn, fd_limit);
+    http.max_connections = max_conn;
   }
   http.address = addr->host;
   http.port = addr->port;

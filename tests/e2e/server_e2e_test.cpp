@@ -228,6 +228,7 @@ TEST(ServerE2E, SlowClientsAreCutOff) {
   const std::string answer = c.raw_exchange(req, 0.25);
   EXPECT_LT(since(t0), 8.0);
   EXPECT_EQ(answer.find("200 OK"), std::string::npos) << answer;
+  EXPECT_EQ(answer.rfind("HTTP/1.1 408 Request Timeout", 0), 0u) << answer;  // told, not just cut off
   // A connection that never sends anything is closed after the idle timeout.
   t0 = clk::now();
   const std::string nothing = c.raw_exchange("");
