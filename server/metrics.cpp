@@ -4,7 +4,17 @@
 
 namespace tally {
 
-void Metrics::observe(const std::string& route, const std::string& method, int status, double seconds) {
+std::string_view Metrics::method_label(std::string_view method) {
+  static constexpr std::array<std::string_view, 9> known = {"GET",     "HEAD",    "POST",  "PUT",  "DELETE",
+                                                            "CONNECT", "OPTIONS", "TRACE", "PATCH"};
+  for (std::string_view k : known) {
+    if (method == k) return k;
+  }
+  return "other";
+}
+
+void Metrics::observe(const std::string& route, std::string_view raw_method, int status, double seconds) {
+  const std::string method(method_label(raw_method));
   std::lock_guard lock(mu_);
   requests_[{route, method, status}]++;
   Histogram& h = latency_[{route, method}];
@@ -39,6 +49,9 @@ std::string Metrics::render(const ManagerStats& jobs) const {
   o += "# HELP tally_http_timeouts_total Connections closed by a read/idle/write timeout.\n"
        "# TYPE tally_http_timeouts_total counter\n";
   o += fmt::format("tally_http_timeouts_total {}\n", timeouts.load());
+  o += "# HELP tally_http_accept_errors_total Failed accepts (out of descriptors or memory), each followed by a "
+       "100 ms back-off.\n# TYPE tally_http_accept_errors_total counter\n";
+  o += fmt::format("tally_http_accept_errors_total {}\n", accept_errors.load());
 
   std::lock_guard lock(mu_);
   o += "# HELP tally_http_requests_total Requests by route, method and status.\n# TYPE tally_http_requests_total counter\n";

@@ -6,6 +6,7 @@
 #include <map>
 #include <mutex>
 #include <string>
+#include <string_view>
 #include <tuple>
 
 #include "server/job_manager.hpp"
@@ -17,11 +18,16 @@ class Metrics {
   static constexpr std::array<double, 12> kBuckets = {0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025,
                                                       0.05,   0.1,   0.25,   0.5,   1.0,  2.5};
 
-  void observe(const std::string& route, const std::string& method, int status, double seconds);
+  // `route` must come from a closed set (a route pattern or "unmatched"); the
+  // method is reduced to one (method_label), so no client can add label values.
+  void observe(const std::string& route, std::string_view method, int status, double seconds);
+  // The method itself when HTTP defines it (RFC 9110 §9), else "other".
+  static std::string_view method_label(std::string_view method);
   std::atomic<int64_t> connections{0};
   std::atomic<int64_t> streams{0};
   std::atomic<uint64_t> rejected_connections{0};
   std::atomic<uint64_t> timeouts{0};
+  std::atomic<uint64_t> accept_errors{0};
 
   std::string render(const ManagerStats& jobs) const;
 
