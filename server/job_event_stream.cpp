@@ -1,10 +1,22 @@
 #include "server/job_event_stream.hpp"
 
+#include <charconv>
+
 #include <fmt/format.h>
 
 #include "server/job_manager.hpp"
 
 namespace tally {
+
+std::optional<uint64_t> parse_last_event_id(std::string_view s) {
+  while (!s.empty() && s.front() == ' ') s.remove_prefix(1);
+  while (!s.empty() && s.back() == ' ') s.remove_suffix(1);
+  uint64_t v = 0;
+  auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
+  if (ec != std::errc() || p != s.data() + s.size() || s.empty()) return std::nullopt;
+  return v;
+}
+
 
 std::string format_event(const Event& e, StreamFormat format) {
   if (format == StreamFormat::ndjson) {

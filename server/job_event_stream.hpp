@@ -3,8 +3,10 @@
 // with a snapshot (state + progress); a resuming one (Last-Event-ID) gets the
 // events it missed from the job's replay buffer, or a fresh snapshot when they
 // are gone. The stream ends after `end` (job finished) or `shutdown`.
+#include <cstdint>
 #include <memory>
 #include <optional>
+#include <string_view>
 #include <vector>
 
 #include "server/event_log.hpp"
@@ -16,6 +18,10 @@ class Job;
 class JobManager;
 
 enum class StreamFormat { sse, ndjson };
+
+// The event id a client resumes after (Last-Event-ID header or last_event_id query
+// parameter): a decimal uint64, surrounding spaces allowed; nullopt otherwise.
+std::optional<uint64_t> parse_last_event_id(std::string_view text);
 
 std::string format_event(const Event& e, StreamFormat format);
 

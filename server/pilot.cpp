@@ -65,12 +65,15 @@ json run_pilot(const JobDefinition& job, const PilotOptions& options) {
                 {"heavy_tail", runner.heavy_tail()},
                 {"warnings", runner.warnings()}};
   if (cut && s.passes == 0) pilot["note"] = "the pilot could not finish one pass in time; no prediction";
+  // The real job would fail the same way (same seed, same first samples): say so.
+  const bool failed = runner.stop_reason() == StopReason::failed;
+  if (failed) pilot["error"] = runner.error_message().value_or("the pilot failed");
 
   json pred = nullptr;
   // The job will run on `parallelism` workers; the pilot ran on `threads`.
   const double job_rate = rate * std::max(1u, options.parallelism) / std::max(1u, options.threads);
   pilot["job_samples_per_second"] = job_rate;
-  if (s.passes > 0 && rate > 0) {
+  if (!failed && s.passes > 0 && rate > 0) {
     const double inf = std::numeric_limits<double>::infinity();
     double best_s = inf;
     std::string fires;

@@ -14,7 +14,9 @@ struct PilotOptions {
   JobCaps caps;
 };
 
-// {"pilot": {...}, "prediction": {...}}; never throws for a compiled job.
+// {"pilot": {...}, "prediction": {...}}; never throws for a compiled job. When
+// the pilot run fails (a non-finite sample, ...) pilot.error holds the message the
+// real job would fail with, and the prediction is null.
 nlohmann::json run_pilot(const JobDefinition& job, const PilotOptions& options);
 
 }  // namespace tally

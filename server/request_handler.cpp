@@ -40,8 +40,6 @@ bool is_json_media_type(std::string_view ct) {
 }
 
 std::optional<uint64_t> parse_u64(std::string_view s) {
-  while (!s.empty() && s.front() == ' ') s.remove_prefix(1);
-  while (!s.empty() && s.back() == ' ') s.remove_suffix(1);
   uint64_t v = 0;
   auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
   if (ec != std::errc() || p != s.data() + s.size() || s.empty()) return std::nullopt;
@@ -171,6 +169,9 @@ json RequestHandler::parse_json_body(const HttpRequest& request) const {
     return json::parse(request.body);
   } catch (const json::parse_error& e) {
     throw HttpError(400, fmt::format("malformed JSON: {}", e.what()));
+  } catch (const json::out_of_range& e) {  // a number beyond double range, e.g. 1e400
+    const std::string at = json_pointer_at_error(request.body);
+    throw HttpError(400, fmt::format("number out of range at \"{}\": {}", at, e.what()), at);
   }
 }
 
@@ -276,6 +277,10 @@ HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathPara
     throw;
   }
   pilots_.fetch_sub(1);
+  if (pilot["pilot"].contains("error")) {
+    throw SpecError("", fmt::format("the pilot run failed, as the job would: {}",
+                                    pilot["pilot"]["error"].get<std::string>()));
+  }
   out["pilot"] = pilot["pilot"];
   out["prediction"] = pilot["prediction"];
   return json_response(200, out);
@@ -286,8 +291,8 @@ HttpResponse RequestHandler::job_events(const HttpRequest& req, const PathParams
   const std::string_view accept = req.header("accept");
   const StreamFormat fmt = accept.find("application/x-ndjson") != std::string_view::npos ? StreamFormat::ndjson
                                                                                           : StreamFormat::sse;
-  std::optional<uint64_t> last = parse_u64(req.header("last-event-id"));
-  if (!last && req.has_query_param("last_event_id")) last = parse_u64(req.query_param("last_event_id"));
+  std::optional<uint64_t> last = parse_last_event_id(req.header("last-event-id"));
+  if (!last && req.has_query_param("last_event_id")) last = parse_last_event_id(req.query_param("last_event_id"));
   HttpResponse r;
   r.set_header("Content-Type", fmt == StreamFormat::ndjson ? "application/x-ndjson" : "text/event-stream");
   r.set_header("Cache-Control", "no-cache");
