@@ -1,4 +1,5 @@
 #include <SQLiteCpp/SQLiteCpp.h>
+#include <fmt/format.h>
 
 #include <algorithm>
 #include <filesystem>
@@ -137,7 +138,16 @@ class MemoryJobStore final : public JobStore {
 
 std::unique_ptr<JobStore> open_sqlite_store(const std::string& data_dir) {
   std::filesystem::create_directories(data_dir);
-  return std::make_unique<SqliteJobStore>((std::filesystem::path(data_dir) / "tally.db").string());
+  const std::string path = (std::filesystem::path(data_dir) / "tally.db").string();
+  try {
+    return std::make_unique<SqliteJobStore>(path);
+  } catch (const std::exception& e) {
+    // SQLite's messages ("attempt to write a readonly database", "unable to open
+    // database file") name no file: the operator needs the path.
+    throw std::runtime_error(fmt::format("cannot open the job database {}: {} (the data dir must be a writable "
+                                         "directory)",
+                                         std::filesystem::absolute(path).string(), e.what()));
+  }
 }
 
 std::unique_ptr<JobStore> make_memory_store() { return std::make_unique<MemoryJobStore>(); }

@@ -61,6 +61,20 @@ TEST(JobStore, SqliteRoundTripKeepsCheckpointOnStateOnlySaves) {
   EXPECT_DOUBLE_EQ(rows[0].finished_at, 2.5);
 }
 
+// A data dir SQLite cannot write (read-only, or tally.db not a file) failed with
+// "unable to open database file" and no path. (As root a chmod does not stop us, so
+// the database path is made a directory.)
+TEST(JobStore, UnopenableDatabaseErrorNamesThePath) {
+  TempDir dir;
+  std::filesystem::create_directories(dir.path / "tally.db");
+  try {
+    open_sqlite_store(dir.path.string());
+    FAIL() << "opened a database that is a directory";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find((dir.path / "tally.db").string()), std::string::npos) << e.what();
+  }
+}
+
 TEST(JobStore, MemoryStoreBehavesLikeSqlite) {
   auto store = make_memory_store();
   StoredJob j;
