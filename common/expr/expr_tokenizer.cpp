@@ -113,8 +113,9 @@ std::vector<Token> tokenize(std::string_view text) {
       } else if (static_cast<unsigned char>(c) >= 0x21 && static_cast<unsigned char>(c) < 0x7f) {
         fail(std::string("unexpected character '") + c + "'", i);
       } else {
-        fail("unexpected byte 0x" + std::to_string(static_cast<unsigned char>(c)) + " (only ASCII)",
-             i);
+        static constexpr char kHex[] = "0123456789abcdef";
+        const auto b = static_cast<unsigned char>(c);
+        fail(std::string("unexpected byte 0x") + kHex[b >> 4] + kHex[b & 15] + " (only ASCII)", i);
       }
       t.kind = TokenKind::op;
       t.text = text.substr(i, len);

@@ -76,6 +76,10 @@ TEST(ExprErrors, MalformedSyntax) {
   expect_syntax("sum()", 4, "at least one argument");
   expect_syntax("min(x0,)", 7, "unexpected ')'");
   expect_syntax("x0 + \xc3\xa9", 5, "ASCII");
+  // The byte in hex (it printed as decimal after "0x": "0x195").
+  expect_syntax("x0 + \xc3\xa9", 5, "unexpected byte 0xc3 ");
+  expect_syntax("\x7f", 0, "unexpected byte 0x7f ");
+  expect_syntax("\x01", 0, "unexpected byte 0x01 ");
 }
 
 TEST(ExprErrors, TenThousandNestedParenthesesAreALimitNotACrash) {
