@@ -25,6 +25,12 @@ Vec3 read_direction(SpecReader& r, std::string_view key);  // normalised, non-ze
 std::filesystem::path resolve_asset(const std::string& asset_dir, const std::string& relative,
                                     const std::string& pointer);
 
+// The bytes of a file resolve_asset returned: opened without following a symlink
+// and without blocking, and only if it is a regular file of at most `max_bytes`.
+// Every file a scene causes to be read goes through resolve_asset and this.
+std::string read_asset_file(const std::filesystem::path& path, const std::string& pointer,
+                            size_t max_bytes = size_t{1} << 30);
+
 // Moves the scene into its local frame (see scene.hpp) and returns the translation.
 void localize_scene(Scene& scene);
 

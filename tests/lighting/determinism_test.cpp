@@ -1,11 +1,17 @@
 // Bit-identical results whatever the thread count; a scene far from the origin gives
 // the same estimate; spec errors name their field.
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <future>
 
 #include <filesystem>
 #include <fstream>
 
 #include "common/json/spec_reader.hpp"
+#include "common/lighting/scene_json.hpp"
 #include "lighting/lighting_test_support.hpp"
 
 namespace tally::test {
@@ -162,6 +168,47 @@ TEST(Spec, AssetPathsCannotEscape) {
     EXPECT_EQ(spec_error_pointer(spec_for(bad), limits), "/scene/shapes/0/obj") << bad;
   }
   EXPECT_EQ(spec_error_pointer(spec_for("x.obj"), JobLimits{}), "/scene/shapes/0/obj");  // no asset dir
+  fs::remove_all(root);
+}
+
+// The path checks covered the OBJ only: `mtllib ../outside/x.mtl` opened a file
+// outside --asset-dir, and a FIFO there blocked the thread forever. Now an OBJ's
+// mtllib opens nothing, and the OBJ itself is opened without blocking.
+TEST(Spec, ObjMaterialLibrariesOpenNothingAndFifosDoNotBlock) {
+  namespace fs = std::filesystem;
+  const fs::path root = fs::temp_directory_path() / "tally_asset_mtllib";
+  fs::remove_all(root);
+  fs::create_directories(root / "assets");
+  fs::create_directories(root / "outside");
+  const fs::path fifo = root / "outside" / "x.mtl";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  { std::ofstream(root / "assets" / "m.obj") << "mtllib ../outside/x.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n"; }
+  ASSERT_EQ(::mkfifo((root / "assets" / "pipe.obj").c_str(), 0600), 0);
+  JobLimits limits;
+  limits.asset_dir = (root / "assets").string();
+  auto spec_for = [&](const std::string& path) {
+    json scene = {{"materials", {{"w", diffuse(0.5)}}},
+                  {"shapes", json::array({{{"type", "mesh"}, {"obj", path}, {"material", "w"}}})}};
+    return point_spec(scene, {"mis"}, 10);
+  };
+  // Bounded: if the compile blocks on a FIFO, open its other end to free the thread.
+  auto bounded = [&](const std::string& obj, const fs::path& unblock) {
+    auto f = std::async(std::launch::async, [&] { return spec_error_pointer(spec_for(obj), limits); });
+    if (f.wait_for(std::chrono::seconds(10)) == std::future_status::timeout) {
+      const int fd = ::open(unblock.c_str(), O_WRONLY | O_NONBLOCK);
+      if (fd >= 0) ::close(fd);
+      f.get();
+      return std::string("blocked");
+    }
+    return f.get();
+  };
+  const std::string m = bounded("m.obj", fifo);  // the mtllib is not opened
+  EXPECT_NE(m, "blocked");
+  EXPECT_NE(m, "/scene/shapes/0/obj") << "the OBJ itself should load";
+  EXPECT_EQ(bounded("pipe.obj", root / "assets" / "pipe.obj"), "/scene/shapes/0/obj");
+  EXPECT_THROW(read_asset_file(root / "assets" / "pipe.obj", "/p"), SpecError);
+  EXPECT_EQ(read_asset_file(root / "assets" / "m.obj", "/p").substr(0, 6), "mtllib");
+  EXPECT_THROW(read_asset_file(root / "assets" / "m.obj", "/p", 10), SpecError);  // size cap
   fs::remove_all(root);
 }
 
