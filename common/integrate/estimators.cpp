@@ -239,10 +239,19 @@ class PowerImportanceKernel final : public ImportanceKernelBase {
       const double lo = D.lower()[k], w = D.upper()[k] - D.lower()[k];
       const double e = d_.exponents[k];
       const double inv = 1.0 / (e + 1.0);
+      const double hi = D.upper()[k];
       for (size_t i = 0; i < n; ++i) {
         // Inverse CDF of (e+1) t^e on (0,1): t = u^(1/(e+1)).
-        const double t = std::pow(s.urow(k)[i], inv);
-        s.x_ptr[k][i] = lo + t * w;
+        double t = std::pow(s.urow(k)[i], inv);
+        double x = lo + t * w;
+        // For e near -1 the draw can lie below the first double after lo (t
+        // underflows to 0 when e <= -0.99), for large e it can round up to hi: keep x
+        // in the open interval, on the nearest double inside, with the density there.
+        if (!(x > lo) || !(x < hi)) {
+          x = x > lo ? std::nextafter(hi, lo) : std::nextafter(lo, hi);
+          t = (x - lo) / w;
+        }
+        s.x_ptr[k][i] = x;
         s.pdf[i] *= (e + 1.0) * std::pow(t, e) / w;
       }
     }
@@ -488,55 +497,96 @@ class RejectionKernel final : public IntegrationKernelBase {
   uint32_t max_attempts_;
 };
 
+// The rule's grid is cut into chunks of at most kChunk points, one partition each
+// (fine grid first, then the coarse one), so no block runs for long: cancel and
+// shutdown act between blocks, and chunks run in parallel. Channel p holds chunk p's
+// partial sum; T(n) and T(m) are the partial sums added in chunk order. A grid of
+// one chunk per rule has exactly the old layout (channel 0 = T(n), channel 1 = T(m)).
 class TrapezoidKernel final : public Kernel {
  public:
-  TrapezoidKernel(IntegrationProblem p, uint32_t n) : p_(std::move(p)), n_(n) {}
-  size_t channel_count() const override { return 2; }
+  static constexpr uint64_t kChunk = uint64_t{1} << 17;
+
+  TrapezoidKernel(IntegrationProblem p, uint32_t n) : p_(std::move(p)), n_(n), m_((n + 1) / 2) {
+    fine_points_ = grid_points(n_);
+    fine_chunks_ = chunks(fine_points_);
+    coarse_chunks_ = chunks(grid_points(m_));
+  }
+  size_t channel_count() const override { return fine_chunks_ + coarse_chunks_; }
+  uint32_t partition_count() const override { return static_cast<uint32_t>(fine_chunks_ + coarse_chunks_); }
   PassSchedule schedule() const override { return {1, 1, 1}; }
 
   void run_block(const Block& b, BlockResult& out) const override {
-    out.first_channel = 0;
-    out.tallies.assign(2, Tally{});
+    out.first_channel = b.partition;
+    out.tallies.assign(1, Tally{});
     if (b.first_sample > 0) {
       // The rule is deterministic: further samples would repeat the same value.
       return;
     }
-    const uint32_t m = (n_ + 1) / 2;
+    const bool fine = b.partition < fine_chunks_;
+    const uint32_t n = fine ? n_ : m_;
+    const uint64_t chunk = fine ? b.partition : b.partition - fine_chunks_;
+    const uint64_t total = grid_points(n);
+    const uint64_t begin = chunk * kChunk;
+    double sum = 0.0;
+    if (!rule(n, begin, std::min(total, begin + kChunk), sum, out)) return;
+    out.tallies[0].add(sum);
+  }
+
+  // T(n), T(m) as the sums of their chunks (nullopt until every chunk is in).
+  std::optional<std::pair<double, double>> totals(const JobState& st) const {
+    if (st.channels.size() != channel_count()) return std::nullopt;
     double fine = 0.0, coarse = 0.0;
-    const bool ok = rule(n_, fine, out) && rule(m, coarse, out);
-    if (!ok) return;
-    out.tallies[0].add(fine);
-    out.tallies[1].add(coarse);
+    for (size_t c = 0; c < st.channels.size(); ++c) {
+      if (st.channels[c].n == 0) return std::nullopt;
+      (c < fine_chunks_ ? fine : coarse) += st.channels[c].mean;
+    }
+    return std::make_pair(fine, coarse);
+  }
+
+  std::optional<Headline> headline(const JobState& st) const override {
+    if (channel_count() == 2) return std::nullopt;  // channel 0 is T(n)
+    Headline h;
+    const auto t = totals(st);
+    h.mean = t ? t->first : std::numeric_limits<double>::quiet_NaN();
+    h.std_error = std::numeric_limits<double>::quiet_NaN();
+    return h;
   }
 
   // Error: |T(n) - T(m)| / 3, Richardson's estimate for an O(h^2) rule when m ~ n/2.
   ErrorSummary error_summary(const JobState& st, double) const override {
     ErrorSummary e;
-    if (st.channels.size() < 2 || st.channels[0].n == 0) {
+    const auto t = totals(st);
+    if (!t) {
       e.abs_error = e.rel_error = std::numeric_limits<double>::infinity();
       return e;
     }
-    e.mean = st.channels[0].mean;
-    e.abs_error = std::fabs(st.channels[0].mean - st.channels[1].mean) / 3.0;
+    e.mean = t->first;
+    e.abs_error = std::fabs(t->first - t->second) / 3.0;
     e.rel_error = e.mean != 0.0 ? e.abs_error / std::fabs(e.mean) : std::numeric_limits<double>::infinity();
     e.sigma = std::numeric_limits<double>::quiet_NaN();
     return e;
   }
 
  private:
-  bool rule(uint32_t n, double& result, BlockResult& out) const {
+  uint64_t grid_points(uint32_t n) const {
+    uint64_t total = 1;
+    for (size_t k = 0; k < p_.domain->dimensions(); ++k) total *= n;
+    return total;
+  }
+  static size_t chunks(uint64_t points) { return static_cast<size_t>((points + kChunk - 1) / kChunk); }
+
+  // Adds the weighted values of grid points [begin, end) of the n-point rule.
+  bool rule(uint32_t n, uint64_t begin, uint64_t end, double& result, BlockResult& out) const {
     const Domain& D = *p_.domain;
     const size_t d = D.dimensions();
     Scratch& s = scratch();
     s.ensure(0, d);
-    uint64_t total = 1;
-    for (size_t k = 0; k < d; ++k) total *= n;
     std::vector<double> h(d);
     for (size_t k = 0; k < d; ++k) h[k] = (D.upper()[k] - D.lower()[k]) / (n - 1);
     double sum = 0.0;
     std::vector<double> w(kB);
-    for (uint64_t j0 = 0; j0 < total; j0 += kB) {
-      const size_t cnt = static_cast<size_t>(std::min<uint64_t>(kB, total - j0));
+    for (uint64_t j0 = begin; j0 < end; j0 += kB) {
+      const size_t cnt = static_cast<size_t>(std::min<uint64_t>(kB, end - j0));
       for (size_t i = 0; i < cnt; ++i) {
         uint64_t idx = j0 + i;
         double weight = 1.0;
@@ -564,7 +614,9 @@ class TrapezoidKernel final : public Kernel {
   }
 
   IntegrationProblem p_;
-  uint32_t n_;
+  uint32_t n_, m_;
+  uint64_t fine_points_ = 0;
+  size_t fine_chunks_ = 0, coarse_chunks_ = 0;
 };
 
 }  // namespace

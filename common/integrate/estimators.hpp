@@ -44,7 +44,10 @@ std::shared_ptr<const Kernel> make_stratified_kernel(IntegrationProblem p, uint3
 std::shared_ptr<const Kernel> make_qmc_kernel(IntegrationProblem p, uint32_t points, bool owen = false);
 std::shared_ptr<const Kernel> make_rejection_kernel(IntegrationProblem p, uint32_t max_attempts);
 // Tensor-product trapezoid rule with n points per dimension (deterministic; one
-// "sample"). Channel 0: T(n); channel 1: T(m), m = (n + 1) / 2, for an error estimate.
+// "sample"), T(n) and T(m), m = (n + 1) / 2, for an error estimate. The grids are
+// cut into partitions of at most 2^17 points (bounded blocks); a grid that fits in
+// one has channel 0: T(n), channel 1: T(m), else headline() and error_summary()
+// give the sums (see estimators.cpp).
 std::shared_ptr<const Kernel> make_trapezoid_kernel(IntegrationProblem p, uint32_t points_per_dim);
 
 }  // namespace tally

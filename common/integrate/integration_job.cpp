@@ -19,6 +19,9 @@ using nlohmann::json;
 
 namespace {
 
+constexpr uint64_t kMaxSweepCoordinates = uint64_t{1} << 24;
+
+
 struct ParsedIntegrand {
   std::shared_ptr<const Integrand> f;
   std::optional<GenzParams> genz;
@@ -218,6 +221,13 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
   } else if (type == "qmc") {
     const uint32_t points = static_cast<uint32_t>(r.integer_or("points", 1024, 1, 1u << 20));
     if (D.uniforms() > 1024) throw SpecError(pointer, "qmc supports at most 1024 dimensions");
+    // One sample is one whole point set, computed by one block: bound its work so
+    // cancel and shutdown (which act between blocks) stay prompt.
+    if (static_cast<uint64_t>(points) * D.uniforms() > kMaxSweepCoordinates) {
+      throw SpecError(r.pointer_of("points"),
+                      fmt::format("points x dimensions = {} x {} exceeds {} coordinates per point set", points,
+                                  D.uniforms(), kMaxSweepCoordinates));
+    }
     const std::string scramble = r.enumeration_or("scramble", "affine", {"affine", "owen"});
     c.plan["sequence"] = scramble == "owen"
                              ? "sobol (nested uniform Owen scramble, Joe-Kuo directions)"
@@ -295,7 +305,7 @@ class IntegrationJob final : public JobDefinition {
     }
     if (reference_) {
       j["reference"] = *reference_;
-      const Estimate e = runner.estimate(0);
+      const Estimate e = runner.headline();
       j["error_vs_reference"] = e.mean - *reference_;
       if (e.std_error > 0 && std::isfinite(e.std_error)) {
         j["z_score"] = (e.mean - *reference_) / e.std_error;
@@ -306,7 +316,7 @@ class IntegrationJob final : public JobDefinition {
 
   std::string summary_line(const JobRunner& runner) const override {
     if (deterministic_) {
-      const Estimate e = runner.estimate(0);
+      const Estimate e = runner.headline();
       return fmt::format("{:.12g} (trapezoid, error estimate {:.3g})", e.mean, runner.error().abs_error);
     }
     return JobDefinition::summary_line(runner);

@@ -186,6 +186,56 @@ TEST(IntegrationJob, TrapezoidIsSecondOrder) {
   EXPECT_NEAR(e1 / e2, 4.0, 0.3);  // h halves -> error / 4
 }
 
+// A quadrature job was one block: 3000^2 points held a worker (and cancel, and
+// SIGTERM) for seconds. Its grid is now cut into blocks of at most 2^17 points; the
+// sum is the same rule's, deterministic for any thread count, and still O(h^2).
+TEST(IntegrationJob, LargeQuadratureRunsInBoundedBlocks) {
+  const GenzParams p{GenzFamily::gaussian, {1.3, 2.1}, {0.3, 0.6}};
+  const double exact = 0.593597766948;
+  const json spec = genz_spec(p, {{"type", "quadrature"}, {"points_per_dim", 1025}}, {{"max_samples", 1}}, 1);
+  const auto def = compile_job(spec, JobLimits{});
+  // 1025^2 fine points -> 9 chunks; 513^2 coarse points -> 3 chunks.
+  EXPECT_EQ(def->kernel()->partition_count(), 12u);
+  JobRunner planner(def->kernel(), def->stop_rule(), JobCaps{});
+  const auto blocks = planner.plan_pass();
+  ASSERT_EQ(blocks.size(), 12u);
+  for (const Block& b : blocks) EXPECT_EQ(b.sample_count, 1u);
+
+  const auto one = run_spec(spec, 1);
+  const auto four = run_spec(spec, 4);
+  EXPECT_EQ(one->stop_reason(), StopReason::max_samples);
+  EXPECT_EQ(one->headline().mean, four->headline().mean);  // bit-identical
+  EXPECT_EQ(one->error().abs_error, four->error().abs_error);
+  EXPECT_EQ(one->state().counters[Counter::evaluations], 1025u * 1025u + 513u * 513u);
+  const auto small = run_spec(genz_spec(p, {{"type", "quadrature"}, {"points_per_dim", 257}}, {{"max_samples", 1}}, 1));
+  const double e_small = std::fabs(small->estimate(0).mean - exact);  // one chunk: channel 0 is T(n)
+  const double e_big = std::fabs(one->headline().mean - exact);
+  EXPECT_NEAR(e_small / e_big, 16.0, 1.2);  // h / 4 -> error / 16
+  // Richardson: |T(n) - T(m)| / 3 is T(n)'s error to leading order (m - 1 = (n - 1) / 2).
+  EXPECT_NEAR(one->error().abs_error / e_big, 1.0, 0.1);
+}
+
+// One QMC sample is a whole point set in one block: its size is bounded.
+TEST(IntegrationJob, QmcPointSetSizeIsBounded) {
+  json j = {{"kind", "integrate"},
+            {"integrand", {{"expression", "x0"}}},
+            {"domain", {{"type", "box"}, {"lower", json::array()}, {"upper", json::array()}}},
+            {"estimator", {{"type", "qmc"}, {"points", 1 << 20}}},
+            {"stop", {{"max_samples", 16}}}};
+  for (int k = 0; k < 32; ++k) {
+    j["domain"]["lower"].push_back(0);
+    j["domain"]["upper"].push_back(1);
+  }
+  try {
+    compile_job(j, JobLimits{});
+    FAIL() << "a 2^20 x 32 point set was accepted";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.pointer(), "/estimator/points");
+  }
+  j["estimator"]["points"] = 1 << 19;
+  EXPECT_NO_THROW(compile_job(j, JobLimits{}));
+}
+
 TEST(IntegrationJob, NanIsReportedWithThePoint) {
   const auto r = run_spec({{"kind", "integrate"}, {"integrand", {{"expression", "sqrt(x0 - 0.5)"}}},
                            {"domain", {{"type", "interval"}, {"lower", 0}, {"upper", 1}}},
@@ -284,6 +334,29 @@ TEST(IntegrationJob, ResultReportsCostCurveAndPrediction) {
   const double s2 = res["cost_curve"][0]["samples"].get<double>();
   const double s3 = res["cost_curve"][1]["samples"].get<double>();
   EXPECT_NEAR(s3 / s2, 100.0, 1e-6);  // 10x less error costs 100x the samples
+}
+
+// numerics.md promises points in the open interval. With exponent -0.999 the
+// inverse CDF t = u^1000 underflowed to 0 for half the draws: x0 = 0 exactly, log(x0)
+// infinite, and the job failed at its first such sample.
+TEST(IntegrationJob, PowerDensityNearMinusOneStaysInsideTheInterval) {
+  for (const double e : {-0.99, -0.999}) {
+    const auto r = run_spec({{"kind", "integrate"},
+                             {"integrand", {{"expression", "log(x0) + log(1 - x0)"}}},
+                             {"domain", {{"type", "interval"}, {"lower", 0}, {"upper", 1}}},
+                             {"estimator", {{"type", "importance"}, {"density", {{"type", "power"}, {"exponent", e}}}}},
+                             {"stop", {{"max_samples", 200000}}}});
+    EXPECT_EQ(r->stop_reason(), StopReason::max_samples) << e;
+    EXPECT_EQ(r->state().counters[Counter::nonfinite], 0u) << e;
+    EXPECT_TRUE(std::isfinite(r->estimate(0).mean)) << e;
+  }
+  // Large exponents round t up to 1: x0 must stay below the upper bound too.
+  const auto r = run_spec({{"kind", "integrate"},
+                           {"integrand", {{"expression", "log(1 - x0)"}}},
+                           {"domain", {{"type", "interval"}, {"lower", 0}, {"upper", 1}}},
+                           {"estimator", {{"type", "importance"}, {"density", {{"type", "power"}, {"exponent", 1000}}}}},
+                           {"stop", {{"max_samples", 100000}}}});
+  EXPECT_EQ(r->state().counters[Counter::nonfinite], 0u);
 }
 
 }  // namespace
