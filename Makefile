@@ -3,8 +3,17 @@
 BUILD ?= build
 JOBS ?= 2
 CMAKE_FLAGS ?=
+# The sanitizer tree: clang-14 with AddressSanitizer + UndefinedBehaviorSanitizer and
+# libFuzzer coverage, one build for both the sanitized unit tests and the fuzzers.
+SAN_BUILD ?= build-sanitize
+SAN_CXX ?= clang++-14
+SAN_TESTS = tally_stats_tests tally_engine_tests tally_expr_tests tally_sampling_tests tally_integrate_tests \
+  tally_server_tests
+SAN_LABELS = ^(stats|engine|expr|sampling|integrate|server)$$
+FUZZ_TARGETS = fuzz_expr fuzz_job_spec fuzz_http fuzz_checkpoint fuzz_sse
+FUZZ_SECONDS ?= 25
 
-.PHONY: all deps configure build test demo bench study clean format
+.PHONY: all deps configure build test test-fast sanitize fuzz configure-sanitize demo bench study clean format
 
 all: build
 
@@ -19,8 +28,30 @@ configure: deps $(BUILD)/build.ninja
 build: configure
 	cmake --build $(BUILD) -j $(JOBS)
 
-test: build
+# Everything CI runs: the suite, then the sanitized unit tests, then each fuzzer
+# for FUZZ_SECONDS.
+test: test-fast sanitize fuzz
+
+test-fast: build
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS) --timeout 900
+
+$(SAN_BUILD)/build.ninja:
+	cmake -S . -B $(SAN_BUILD) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=$(SAN_CXX) \
+	  -DTALLY_SANITIZE=ON -DTALLY_FUZZ=ON -DTALLY_BUILD_BENCH=OFF $(CMAKE_FLAGS)
+
+configure-sanitize: deps $(SAN_BUILD)/build.ninja
+
+# Unit tests (no e2e, lighting or statistical suites) under ASan + UBSan.
+sanitize: configure-sanitize
+	cmake --build $(SAN_BUILD) -j $(JOBS) --target $(SAN_TESTS)
+	cd $(SAN_BUILD) && ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+	  ctest --output-on-failure -j $(JOBS) --timeout 900 -L '$(SAN_LABELS)'
+
+# Each libFuzzer target for FUZZ_SECONDS from the seed corpus in tests/fuzz/corpus
+# (new inputs go to $(SAN_BUILD)/fuzz/corpus, crashes to $(SAN_BUILD)/fuzz/).
+fuzz: configure-sanitize
+	cmake --build $(SAN_BUILD) -j $(JOBS) --target $(FUZZ_TARGETS)
+	@scripts/fuzz.sh $(SAN_BUILD) $(FUZZ_SECONDS) $(FUZZ_TARGETS)
 
 # The demo needs only the server and the CLI.
 demo: configure
@@ -37,4 +68,4 @@ format:
 	clang-format -i $$(git ls-files '*.hpp' '*.cpp')
 
 clean:
-	rm -rf $(BUILD)
+	rm -rf $(BUILD) $(SAN_BUILD)
