@@ -1,4 +1,4 @@
-#include "server/listen_address.hpp"
+#include "server/http/listen_address.hpp"
 
 #include <charconv>
 

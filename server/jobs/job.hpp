@@ -12,7 +12,7 @@
 
 #include "common/engine/job_definition.hpp"
 #include "common/engine/job_runner.hpp"
-#include "server/event_log.hpp"
+#include "server/jobs/event_log.hpp"
 
 namespace tally {
 

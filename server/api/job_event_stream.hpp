@@ -7,8 +7,8 @@
 #include <optional>
 #include <vector>
 
-#include "server/event_log.hpp"
-#include "server/event_stream.hpp"
+#include "server/jobs/event_log.hpp"
+#include "server/http/event_stream.hpp"
 
 namespace tally {
 

@@ -13,7 +13,7 @@
 #include <optional>
 #include <string_view>
 
-#include "server/http_types.hpp"
+#include "server/http/http_types.hpp"
 
 namespace tally {
 

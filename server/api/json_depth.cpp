@@ -1,4 +1,4 @@
-#include "server/json_depth.hpp"
+#include "server/api/json_depth.hpp"
 
 namespace tally {
 

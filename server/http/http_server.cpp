@@ -1,7 +1,7 @@
 // The only server translation unit that includes Beast.
 #include <utility>  // before Asio: Boost 1.74's awaitable.hpp misses it under GCC 12
 
-#include "server/http_server.hpp"
+#include "server/http/http_server.hpp"
 
 #include <boost/asio/dispatch.hpp>
 #include <boost/asio/io_context.hpp>
@@ -21,10 +21,10 @@
 #include <thread>
 #include <vector>
 
-#include "server/event_stream.hpp"
-#include "server/metrics.hpp"
-#include "server/problem.hpp"
-#include "server/request_handler.hpp"
+#include "server/http/event_stream.hpp"
+#include "server/api/metrics.hpp"
+#include "server/api/problem.hpp"
+#include "server/api/request_handler.hpp"
 
 namespace tally {
 

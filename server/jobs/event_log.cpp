@@ -1,4 +1,4 @@
-#include "server/event_log.hpp"
+#include "server/jobs/event_log.hpp"
 
 namespace tally {
 

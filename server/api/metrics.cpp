@@ -1,4 +1,4 @@
-#include "server/metrics.hpp"
+#include "server/api/metrics.hpp"
 
 #include <fmt/format.h>
 

@@ -1,4 +1,4 @@
-#include "server/router.hpp"
+#include "server/api/router.hpp"
 
 #include <algorithm>
 

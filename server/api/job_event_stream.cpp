@@ -1,8 +1,8 @@
-#include "server/job_event_stream.hpp"
+#include "server/api/job_event_stream.hpp"
 
 #include <fmt/format.h>
 
-#include "server/job_manager.hpp"
+#include "server/jobs/job_manager.hpp"
 
 namespace tally {
 

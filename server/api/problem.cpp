@@ -1,4 +1,4 @@
-#include "server/problem.hpp"
+#include "server/api/problem.hpp"
 
 #include <nlohmann/json.hpp>
 

@@ -1,4 +1,4 @@
-#include "server/cpu_quota.hpp"
+#include "server/executor/cpu_quota.hpp"
 
 #include <algorithm>
 #include <charconv>

@@ -8,7 +8,7 @@
 #include <string>
 #include <tuple>
 
-#include "server/job_manager.hpp"
+#include "server/jobs/job_manager.hpp"
 
 namespace tally {
 

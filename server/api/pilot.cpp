@@ -1,4 +1,4 @@
-#include "server/pilot.hpp"
+#include "server/api/pilot.hpp"
 
 #include <chrono>
 #include <cmath>

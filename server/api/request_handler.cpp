@@ -1,4 +1,4 @@
-#include "server/request_handler.hpp"
+#include "server/api/request_handler.hpp"
 
 #include <fmt/format.h>
 
@@ -8,11 +8,11 @@
 
 #include "common/json/spec_reader.hpp"
 #include "common/protocol/stop_rule_json.hpp"
-#include "server/job_event_stream.hpp"
-#include "server/json_depth.hpp"
-#include "server/pilot.hpp"
-#include "server/problem.hpp"
-#include "server/static_files.hpp"
+#include "server/api/job_event_stream.hpp"
+#include "server/api/json_depth.hpp"
+#include "server/api/pilot.hpp"
+#include "server/api/problem.hpp"
+#include "server/api/static_files.hpp"
 
 namespace tally {
 

@@ -8,10 +8,10 @@
 #include <string>
 
 #include "common/engine/image_source.hpp"
-#include "server/http_types.hpp"
-#include "server/job_manager.hpp"
-#include "server/metrics.hpp"
-#include "server/router.hpp"
+#include "server/http/http_types.hpp"
+#include "server/jobs/job_manager.hpp"
+#include "server/api/metrics.hpp"
+#include "server/api/router.hpp"
 
 namespace tally {
 

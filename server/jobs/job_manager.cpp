@@ -1,4 +1,4 @@
-#include "server/job_manager.hpp"
+#include "server/jobs/job_manager.hpp"
 
 #include "server/executor/in_process_executor.hpp"
 

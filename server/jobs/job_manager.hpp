@@ -13,8 +13,8 @@
 #include <vector>
 
 #include "common/engine/job_definition.hpp"
-#include "server/job.hpp"
-#include "server/job_store.hpp"
+#include "server/jobs/job.hpp"
+#include "server/jobs/job_store.hpp"
 #include "server/executor/executor.hpp"
 
 namespace tally {

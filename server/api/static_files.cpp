@@ -1,4 +1,4 @@
-#include "server/static_files.hpp"
+#include "server/api/static_files.hpp"
 
 #include <fmt/format.h>
 

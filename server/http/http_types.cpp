@@ -1,4 +1,4 @@
-#include "server/http_types.hpp"
+#include "server/http/http_types.hpp"
 
 #include <cctype>
 
