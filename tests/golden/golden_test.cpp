@@ -21,11 +21,11 @@
 #include <thread>
 
 #include "common/jobs/job_factory.hpp"
-#include "server/job_manager.hpp"
-#include "server/event_stream.hpp"
-#include "server/job_store.hpp"
-#include "server/metrics.hpp"
-#include "server/request_handler.hpp"
+#include "server/jobs/job_manager.hpp"
+#include "server/http/event_stream.hpp"
+#include "server/jobs/job_store.hpp"
+#include "server/api/metrics.hpp"
+#include "server/api/request_handler.hpp"
 
 #if __has_include("common/image/image_io.hpp")
 #include "common/image/image_io.hpp"
