@@ -37,6 +37,7 @@ test-fast: build
 
 $(SAN_BUILD)/build.ninja:
 	cmake -S . -B $(SAN_BUILD) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=$(SAN_CXX) \
+	  "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O1 -g1" \
 	  -DTALLY_SANITIZE=ON -DTALLY_FUZZ=ON -DTALLY_BUILD_BENCH=OFF $(CMAKE_FLAGS)
 
 configure-sanitize: deps $(SAN_BUILD)/build.ninja

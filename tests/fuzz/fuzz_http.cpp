@@ -10,11 +10,11 @@
 #include "common/jobs/job_factory.hpp"
 #include "common/json/spec_reader.hpp"
 #include "fuzz_support.hpp"
-#include "server/http_server.hpp"
-#include "server/job_manager.hpp"
-#include "server/job_store.hpp"
-#include "server/metrics.hpp"
-#include "server/request_handler.hpp"
+#include "server/http/http_server.hpp"
+#include "server/jobs/job_manager.hpp"
+#include "server/jobs/job_store.hpp"
+#include "server/api/metrics.hpp"
+#include "server/api/request_handler.hpp"
 
 namespace {
 

@@ -7,7 +7,7 @@
 
 #include "client/sse_parser.hpp"
 #include "fuzz_support.hpp"
-#include "server/job_event_stream.hpp"
+#include "server/api/job_event_stream.hpp"
 
 namespace {
 

@@ -4,7 +4,7 @@
 
 #include "common/engine/local_executor.hpp"
 #include "common/jobs/job_factory.hpp"
-#include "server/pilot.hpp"
+#include "server/api/pilot.hpp"
 #include "server_test_support.hpp"
 
 namespace tally::test {

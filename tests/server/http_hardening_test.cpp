@@ -14,9 +14,9 @@
 #include <filesystem>
 
 #include "client/http_client.hpp"
-#include "server/fd_limit.hpp"
-#include "server/http_framing.hpp"
-#include "server/http_server.hpp"
+#include "server/http/fd_limit.hpp"
+#include "server/http/http_framing.hpp"
+#include "server/http/http_server.hpp"
 #include "server_test_support.hpp"
 
 namespace tally::test {
