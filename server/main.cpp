@@ -36,7 +36,7 @@ int main(int argc, char** argv) {
   app.add_option("--workers", workers, "worker threads (default: usable CPUs, honouring a cgroup CPU quota)");
   app.add_option("--data-dir", data_dir, "directory of the job database")->capture_default_str();
   app.add_option("--asset-dir", mc.limits.asset_dir, "directory scenes may load OBJ files from");
-  app.add_option("--port-file", port_file, "write the bound port to this file once listening");
+  app.add_option("--port-file", port_file, "write the bound port to this file once ready (jobs recovered)");
   app.add_option("--io-threads", http.io_threads, "threads serving connections")->capture_default_str();
   app.add_option("--max-body", http.max_body_bytes, "request body limit in bytes")->capture_default_str();
   app.add_option("--max-header", http.max_header_bytes, "request header limit in bytes")->capture_default_str();
@@ -92,13 +92,17 @@ int main(int argc, char** argv) {
     JobManager manager(mc, *store, [](const nlohmann::json& spec, const JobLimits& limits) {
       return compile_job(spec, limits);
     });
-    manager.recover();
     RequestHandler handler(manager, metrics, hc);
     HttpServer server(http, handler, metrics);
     std::promise<int> signalled;
     server.on_signal([&signalled](int sig) { signalled.set_value(sig); });
+    // Serve /livez, /readyz (503 until recovered) and /metrics while recovering; the
+    // job routes answer 503 until then.
+    handler.set_ready(false);
     const uint16_t port = server.start();
-    if (!port_file.empty()) {
+    manager.recover();
+    handler.set_ready(true);
+    if (!port_file.empty()) {  // written once ready
       const std::string tmp = port_file + ".tmp";
       std::ofstream(tmp) << port << "\n";
       std::filesystem::rename(tmp, port_file);

@@ -39,6 +39,12 @@ std::string Metrics::render(const ManagerStats& jobs) const {
   o += fmt::format("tally_workers {}\n", jobs.workers);
   o += "# HELP tally_workers_busy Workers running a chunk right now.\n# TYPE tally_workers_busy gauge\n";
   o += fmt::format("tally_workers_busy {}\n", jobs.busy_workers);
+  o += "# HELP tally_store_failures_total Failed saves to the job store (each is retried).\n"
+       "# TYPE tally_store_failures_total counter\n";
+  o += fmt::format("tally_store_failures_total {}\n", jobs.store_failures);
+  o += "# HELP tally_store_ok 1 while the job store takes writes, 0 while its last save failed.\n"
+       "# TYPE tally_store_ok gauge\n";
+  o += fmt::format("tally_store_ok {}\n", jobs.store_ok ? 1 : 0);
   o += "# HELP tally_http_connections Open connections.\n# TYPE tally_http_connections gauge\n";
   o += fmt::format("tally_http_connections {}\n", connections.load());
   o += "# HELP tally_http_event_streams Open event streams.\n# TYPE tally_http_event_streams gauge\n";

@@ -77,6 +77,7 @@ void RequestHandler::add_routes() {
   });
   router_.add("GET", "/readyz", [this](const HttpRequest&, const PathParams&) {
     if (!ready_ || manager_.shutting_down()) throw HttpError(503, "the server is not ready (starting or shutting down)");
+    if (auto why = manager_.not_ready_reason()) throw HttpError(503, "the server is not ready: " + *why);
     HttpResponse r;
     r.set_header("Content-Type", "text/plain; charset=utf-8");
     r.body = "ready\n";
@@ -128,6 +129,13 @@ HttpResponse RequestHandler::handle(const HttpRequest& request) {
         throw e;
       }
       throw HttpError(404, fmt::format("no route for {}", request.path()));
+    }
+    // Until recovery is done the job routes would show a partial list: refuse them.
+    if (!ready_ && !manager_.shutting_down() && request.path().substr(0, 4) == "/v1/" &&
+        m.route->pattern != "/v1/openapi.json") {
+      HttpError e(503, "the server is starting: jobs are being recovered; retry shortly");
+      e.headers.emplace_back("Retry-After", "1");
+      throw e;
     }
     res = m.route->handler(request, m.params);
   } catch (const HttpError& e) {

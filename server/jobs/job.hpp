@@ -22,7 +22,7 @@ std::string_view job_status_name(JobStatus s);
 std::optional<JobStatus> parse_job_status(std::string_view s);
 inline bool is_terminal(JobStatus s) { return s != JobStatus::queued && s != JobStatus::running; }
 
-class Job {
+class Job : public std::enable_shared_from_this<Job> {
  public:
   Job(std::string id_, int64_t seq_, nlohmann::json spec_, int priority_, double created_at_, uint64_t epoch,
       size_t event_buffer)

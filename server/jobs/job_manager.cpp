@@ -110,6 +110,7 @@ json progress_event_json(const JobRunner& r) {
 
 JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compiler)
     : config_(std::move(config)), store_(store), compiler_(std::move(compiler)) {
+  retrier_ = std::jthread([this](std::stop_token st) { retry_saves(st); });
   ExecutorCallbacks cb;
   cb.pass_done = [this](const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
                         double wall) { return on_pass_done(id, done, std::move(results), wall); };
@@ -118,7 +119,16 @@ JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compil
   executor_ = std::make_unique<InProcessExecutor>(config_.workers, std::move(cb), config_.chunk_target_s);
 }
 
-JobManager::~JobManager() { executor_->stop(); }
+JobManager::~JobManager() {
+  executor_->stop();
+  retrier_.request_stop();
+  if (retrier_.joinable()) retrier_.join();
+}
+
+std::optional<std::string> JobManager::not_ready_reason() const {
+  if (auto p = store_health_.problem()) return fmt::format("the job store is failing: {}", *p);
+  return std::nullopt;
+}
 
 // ---------------------------------------------------------------- status JSON
 
@@ -228,7 +238,7 @@ std::vector<Event> JobManager::snapshot_events(Job& job) const {
 
 // ---------------------------------------------------------------- persistence
 
-void JobManager::persist(Job& job, bool with_checkpoint) {
+bool JobManager::persist(Job& job, bool with_checkpoint, bool retry) {
   StoredJob s;
   uint64_t version;
   {
@@ -248,13 +258,48 @@ void JobManager::persist(Job& job, bool with_checkpoint) {
     s.finished_at = job.finished_at;
   }
   std::lock_guard save_lock(job.save_mu);
-  if (version < job.saved_version) return;  // a newer state is already stored
-  job.saved_version = version;
+  if (version < job.saved_version) return true;  // a newer state is already stored
   try {
     store_.save(s);
   } catch (const std::exception& e) {
-    // The job keeps running; the store's health shows on /readyz and in the log.
-    fmt::print(stderr, "tally-server: saving job {} failed: {}\n", job.id, e.what());
+    // The job keeps running; the save is retried until it is stored, and until then
+    // the server refuses new jobs and /readyz says why.
+    store_health_.failed(e.what());
+    fmt::print(stderr, "tally-server: saving job {} failed (will retry): {}\n", job.id, e.what());
+    if (retry) {
+      std::lock_guard lock(retry_mu_);
+      retry_[job.id] = job.weak_from_this();
+      retry_cv_.notify_all();
+    }
+    return false;
+  }
+  job.saved_version = version;
+  store_health_.succeeded();
+  return true;
+}
+
+void JobManager::retry_saves(std::stop_token st) {
+  std::unique_lock lock(retry_mu_);
+  while (!st.stop_requested()) {
+    retry_cv_.wait_for(lock, st, std::chrono::milliseconds(200), [] { return false; });
+    if (st.stop_requested() || retry_.empty()) continue;
+    auto pending = std::move(retry_);
+    retry_.clear();
+    lock.unlock();
+    for (auto& [id, weak] : pending) {
+      auto job = weak.lock();
+      if (!job) continue;
+      bool unfinished;
+      {
+        std::lock_guard jl(job->mu);
+        unfinished = !is_terminal(job->status);
+      }
+      if (!persist(*job, unfinished, false)) {
+        std::lock_guard again(retry_mu_);
+        retry_.emplace(id, weak);
+      }
+    }
+    lock.lock();
   }
 }
 
@@ -300,12 +345,17 @@ std::shared_ptr<Job> JobManager::submit(const json& spec, int priority) {
                                 config_.event_buffer);
     job->def = std::move(def);
     job->runner = std::move(runner);
-    jobs_[job->id] = job;
-    order_.push_back(job);
   }
-  persist(*job, false);
+  // Acknowledged only once stored: a job the store did not take is not kept.
+  if (!persist(*job, false, false)) {
+    throw JobError(JobError::Kind::unavailable,
+                   fmt::format("the job store is failing ({}); the job was not accepted, retry later",
+                               store_health_.problem().value_or("unknown error")));
+  }
   {
     std::lock_guard lock(mu_);
+    jobs_[job->id] = job;
+    order_.push_back(job);
     queue_.push_back(job);
     start_queued_locked();
   }
@@ -634,6 +684,8 @@ ManagerStats JobManager::stats() const {
   s.samples_total = es.samples_done;
   s.workers = es.workers;
   s.busy_workers = es.busy_workers;
+  s.store_failures = store_health_.failures();
+  s.store_ok = !store_health_.problem().has_value();
   return s;
 }
 

@@ -6,7 +6,11 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <condition_variable>
 #include <mutex>
+#include <optional>
+#include <stop_token>
+#include <thread>
 #include <nlohmann/json.hpp>
 #include <stdexcept>
 #include <string>
@@ -15,6 +19,7 @@
 #include "common/engine/job_definition.hpp"
 #include "server/jobs/job.hpp"
 #include "server/jobs/job_store.hpp"
+#include "server/jobs/store_health.hpp"
 #include "server/executor/executor.hpp"
 
 namespace tally {
@@ -49,6 +54,8 @@ struct ManagerStats {
   uint64_t samples_total = 0;     // computed by the workers since start
   unsigned workers = 0;
   unsigned busy_workers = 0;
+  uint64_t store_failures = 0;  // failed saves since start
+  bool store_ok = true;         // the last save succeeded
 };
 
 class JobManager {
@@ -81,6 +88,8 @@ class JobManager {
   // Stop computing, checkpoint every unfinished job, end every event stream.
   void shutdown();
   bool shutting_down() const;
+  // Why the server should not be called ready (the store is failing), else nullopt.
+  std::optional<std::string> not_ready_reason() const;
   ManagerStats stats() const;
   const ManagerConfig& config() const { return config_; }
   const JobCompiler& compiler() const { return compiler_; }
@@ -96,7 +105,10 @@ class JobManager {
   // Under job.mu: marks the job finished from its runner, publishes state + end.
   void finish_locked(Job& job, double now);
   void publish_state_locked(Job& job);
-  void persist(Job& job, bool with_checkpoint);
+  // Saves the job; false if the store failed (then, if `retry`, it is saved again
+  // by the retry thread until it succeeds).
+  bool persist(Job& job, bool with_checkpoint, bool retry = true);
+  void retry_saves(std::stop_token st);
   nlohmann::json engine_json_locked(const Job& job) const;
 
   ManagerConfig config_;
@@ -111,6 +123,12 @@ class JobManager {
   size_t running_ = 0;
   int64_t next_seq_ = 1;
   bool shutting_down_ = false;
+
+  StoreHealth store_health_;
+  std::mutex retry_mu_;
+  std::condition_variable_any retry_cv_;
+  std::map<std::string, std::weak_ptr<Job>> retry_;  // saves that failed, by job id
+  std::jthread retrier_;
 
   std::unique_ptr<Executor> executor_;  // last: its workers call back into us
 };
