@@ -8,7 +8,7 @@
 #include <string>
 
 #include "common/jobs/job_factory.hpp"
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "fuzz_support.hpp"
 #include "server/http/http_server.hpp"
 #include "server/jobs/job_manager.hpp"

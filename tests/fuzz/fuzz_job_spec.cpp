@@ -5,7 +5,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common/jobs/job_factory.hpp"
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "fuzz_support.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
