@@ -167,11 +167,14 @@ class Session : public std::enable_shared_from_this<Session> {
   void linger_close() {
     beast::error_code ignored;
     stream_.socket().shutdown(tcp::socket::shutdown_send, ignored);
-    stream_.expires_after(std::chrono::seconds(1));
+    stream_.expires_after(std::chrono::seconds(1));  // one second in all, however much arrives
     drain_.resize(4096);
+    linger_read();
+  }
+  void linger_read() {
     stream_.async_read_some(net::buffer(drain_), [self = shared_from_this()](beast::error_code ec, size_t) {
       if (ec) return self->on_error({});
-      self->linger_close();
+      self->linger_read();
     });
   }
 
