@@ -199,6 +199,7 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
     vo.bins = 2;
     vo.alpha = 0.0;
     vo.warmup_passes = 0;
+    vo.weighted = false;  // one fixed grid: every sample has the same distribution
     c.kernel = make_vegas_kernel(prob, vo);
     c.plan = {{"type", "uniform"}, {"components", prob.integrand->components()}};
   };
@@ -309,11 +310,17 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
     vo.bins = static_cast<uint32_t>(r.integer_or("bins", vo.bins, 2, 4096));
     vo.alpha = r.number_or("alpha", vo.alpha, 0.0, 10.0);
     vo.warmup_passes = static_cast<uint32_t>(r.integer_or("warmup_passes", vo.warmup_passes, 0, 64));
+    vo.max_pass_samples = r.integer_or("max_pass_samples", vo.max_pass_samples, 4096, uint64_t{1} << 26);
+    vo.weighted = r.enumeration_or("combine", "weighted", {"weighted", "pooled"}) == "weighted";
     c.plan["bins"] = vo.bins;
     c.plan["alpha"] = vo.alpha;
     c.plan["warmup_passes"] = vo.warmup_passes;
-    c.plan["combination"] =
-        "samples of the passes after the warm-up pooled with equal weight; chi^2/dof across passes checked";
+    c.plan["max_pass_samples"] = vo.max_pass_samples;
+    c.plan["combine"] = vo.weighted ? "weighted" : "pooled";
+    c.plan["combination"] = vo.weighted ? "inverse-variance weighted mean of the passes after the warm-up; "
+                                          "chi^2/dof across them checked"
+                                        : "samples of the passes after the warm-up pooled with equal weight; "
+                                          "chi^2/dof across passes checked";
     if (vector) {
       c.plan["components"] = prob.integrand->components();
       c.plan["steering"] = "sum over components of each one's per-bin (f/p)^2, normalized to 1 per component";
@@ -388,8 +395,17 @@ class IntegrationJob final : public JobDefinition {
     }
     if (const size_t m = integrand_->components(); m > 1) {
       json comps = json::array();
+      const auto rep = vegas_report(runner.state());
+      const bool combined = rep && plan_["estimator"].value("combine", "") == "weighted";
       for (size_t c = 0; c < m; ++c) {
-        const Estimate e = runner.estimate(c);
+        Estimate e = runner.estimate(c);  // the pooled samples of component c
+        if (combined) {  // VEGAS's weighted passes, as the stop rule sees them
+          const double z = (e.ci_hi - e.ci_lo) / (2.0 * e.std_error);
+          e.mean = rep->combined_mean[c];
+          e.std_error = rep->combined_std_error[c] * rep->error_scale;
+          e.ci_lo = e.mean - z * e.std_error;
+          e.ci_hi = e.mean + z * e.std_error;
+        }
         comps.push_back({{"mean", e.mean},
                          {"std_error", std::isfinite(e.std_error) ? json(e.std_error) : json(nullptr)},
                          {"ci", {e.ci_lo, e.ci_hi}}});
@@ -416,7 +432,7 @@ class IntegrationJob final : public JobDefinition {
     }
     if (reference_) {
       j["reference"] = *reference_;
-      const Estimate e = runner.estimate(0);
+      const Estimate e = runner.headline();  // channel 0, or VEGAS's combined passes
       j["error_vs_reference"] = e.mean - *reference_;
       if (e.std_error > 0 && std::isfinite(e.std_error)) {
         j["z_score"] = (e.mean - *reference_) / e.std_error;
@@ -430,7 +446,9 @@ class IntegrationJob final : public JobDefinition {
       const Estimate e = runner.estimate(0);
       return fmt::format("{:.12g} (trapezoid, error estimate {:.3g})", e.mean, runner.error().abs_error);
     }
-    return JobDefinition::summary_line(runner);
+    const Estimate e = runner.headline();  // channel 0, or VEGAS's combined passes
+    return fmt::format("{:.10g} ± {:.3g} ({:g}% CI [{:.10g}, {:.10g}])", e.mean, e.std_error, 100.0 * e.confidence,
+                       e.ci_lo, e.ci_hi);
   }
 
   std::shared_ptr<const Kernel> kernel_;

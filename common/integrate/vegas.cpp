@@ -151,6 +151,17 @@ void refine_axis(double* edges, uint32_t nb, std::vector<double> d, double alpha
     wsum += w[j];
   }
   if (!(wsum > 0.0)) return;
+  // Defensive floor: no bin's weight below kFloor of the mean, so no bin grows past
+  // ~1/kFloor times the mean width. Without it a bin holding a jump (half of its
+  // samples 0, the other half near the integrand's largest values) keeps widening,
+  // its density falls where f is largest, and rare huge f/p spikes follow.
+  constexpr double kFloor = 0.2;
+  const double floor = kFloor * wsum / nb;
+  wsum = 0.0;
+  for (double& v : w) {
+    v = std::max(v, floor);
+    wsum += v;
+  }
   const double per = wsum / nb;
   std::vector<double> out(nb + 1);
   out[0] = 0.0;
@@ -209,9 +220,11 @@ class VegasKernel final : public Kernel {
 
   PassSchedule schedule() const override {
     PassSchedule s;
+    // The grid adapts once per pass, so passes stay short (at most 2^17 samples,
+    // ~10 ms for a cheap integrand): a long run keeps refining its grid.
     s.block_samples = 2048;
     s.first_pass_samples = 4096;
-    s.max_pass_samples = uint64_t{1} << 22;
+    s.max_pass_samples = o_.max_pass_samples;
     return s;
   }
 
@@ -386,20 +399,31 @@ class VegasKernel final : public Kernel {
     worst.sigma = std::numeric_limits<double>::quiet_NaN();
     if (st.channels.empty()) return worst;
     worst.mean = st.channels[0].mean;
-    const double scale = error_scale(st);
+    const std::optional<VegasReport> rep = vegas_report(st);
+    if (!rep) return worst;
+    const double scale = rep->error_scale;
     bool any = false;
     for (size_t c = 0; c < m_ && c < st.channels.size(); ++c) {
-      const Tally& t = st.channels[c];
+      const Tally& t = st.channels[c];  // the pooled post-warm-up samples
       if (t.n < 2) return worst;
+      double mean = t.mean, se = t.std_error();
+      if (o_.weighted) {
+        mean = rep->combined_mean[c];
+        se = rep->combined_std_error[c];
+      }
+      if (!std::isfinite(se)) return worst;
+      se *= scale;
       const double z = critical_value(confidence, t.n);
-      const double sigma = std::sqrt(t.variance()) * scale;
-      const double half = z * sigma / std::sqrt(static_cast<double>(t.n));
-      const double rel = t.mean != 0.0 ? half / std::fabs(t.mean)
-                                       : (half == 0.0 ? 0.0 : std::numeric_limits<double>::infinity());
+      const double half = z * se;
+      const double rel = mean != 0.0 ? half / std::fabs(mean)
+                                     : (half == 0.0 ? 0.0 : std::numeric_limits<double>::infinity());
       if (!any || half > worst.abs_error) {
         worst.abs_error = half;
-        worst.sigma = sigma;
-        worst.mean = t.mean;
+        // Per sample of the whole job (warm-up included): the runner predicts the
+        // samples a target needs from sigma and JobState::samples, so this keeps
+        // half = z * sigma / sqrt(samples) and the prediction counts the warm-up.
+        worst.sigma = se * std::sqrt(static_cast<double>(std::max<uint64_t>(st.samples, t.n)));
+        worst.mean = mean;
       }
       if (!any || rel > worst.rel_error) worst.rel_error = rel;
       any = true;
@@ -409,7 +433,10 @@ class VegasKernel final : public Kernel {
 
   std::optional<Headline> headline(const JobState& st) const override {
     if (st.channels.empty() || st.channels[0].n < 2) return std::nullopt;
-    return Headline{st.channels[0].mean, st.channels[0].std_error() * error_scale(st)};
+    const std::optional<VegasReport> rep = vegas_report(st);
+    if (!rep) return std::nullopt;
+    if (o_.weighted) return Headline{rep->combined_mean[0], rep->combined_std_error[0] * rep->error_scale};
+    return Headline{st.channels[0].mean, st.channels[0].std_error() * rep->error_scale};
   }
 
   std::vector<std::string> warnings(const JobState& st) const override {
@@ -426,11 +453,6 @@ class VegasKernel final : public Kernel {
   }
 
  private:
-  double error_scale(const JobState& st) const {
-    const auto r = vegas_report(st);
-    return r ? r->error_scale : 1.0;
-  }
-
   // The batch rows (xs[k * kB + i]) still hold the point.
   void record_fault(BlockResult& out, uint64_t sample, double value, uint32_t channel, const double* xs,
                     size_t i) const {
@@ -478,18 +500,37 @@ std::optional<VegasReport> vegas_report(const JobState& st) {
   r.chi2 = std::numeric_limits<double>::quiet_NaN();
   r.chi2_per_dof = std::numeric_limits<double>::quiet_NaN();
   for (size_t k = 0; k < s->iterations.size(); ++k) r.used += s->iterations[k].warmup ? 0 : 1;
+  r.combined_mean.assign(s->m, std::numeric_limits<double>::quiet_NaN());
+  r.combined_std_error.assign(s->m, std::numeric_limits<double>::infinity());
   for (uint32_t c = 0; c < s->m; ++c) {
     double sw = 0.0, swm = 0.0;
-    std::vector<std::pair<double, double>> pts;  // mean, variance of the mean
+    std::vector<std::pair<double, double>> pts;  // mean, variance of the mean (chi^2)
+    // The estimate: pass k weighted by n_k / s_{k-1}^2, the previous pass's variance
+    // per sample, which is known before pass k draws a sample. Weights fixed in
+    // advance keep the weighted mean unbiased (unlike 1/se_k^2 from the pass's own
+    // samples), and its variance sum w_k^2 se_k^2 / (sum w_k)^2 is estimated without bias.
+    double cw = 0.0, cwm = 0.0, cw2v = 0.0;
+    double prev_var = std::numeric_limits<double>::quiet_NaN();
     for (size_t k = 0; k < s->iterations.size(); ++k) {
-      if (s->iterations[k].warmup) continue;
       const Tally& t = s->components[k][c];
-      if (t.n < 2) continue;
-      const double v = t.variance() / static_cast<double>(t.n);
-      if (!(v > 0.0) || !std::isfinite(v)) continue;
-      pts.emplace_back(t.mean, v);
-      sw += 1.0 / v;
-      swm += t.mean / v;
+      const double var = t.n > 1 ? t.variance() : std::numeric_limits<double>::quiet_NaN();
+      if (!s->iterations[k].warmup && t.n >= 2) {
+        const double w = static_cast<double>(t.n) / (prev_var > 0.0 && std::isfinite(prev_var) ? prev_var : 1.0);
+        cw += w;
+        cwm += w * t.mean;
+        cw2v += w * w * var / static_cast<double>(t.n);
+        const double v = var / static_cast<double>(t.n);
+        if (v > 0.0 && std::isfinite(v)) {
+          pts.emplace_back(t.mean, v);
+          sw += 1.0 / v;
+          swm += t.mean / v;
+        }
+      }
+      if (t.n > 1 && var > 0.0 && std::isfinite(var)) prev_var = var;
+    }
+    if (cw > 0.0) {
+      r.combined_mean[c] = cwm / cw;
+      r.combined_std_error[c] = std::sqrt(cw2v) / cw;
     }
     if (pts.size() < 2) continue;
     const double mw = swm / sw;
