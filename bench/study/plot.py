@@ -360,9 +360,9 @@ if Pr:
         "(promised: 95%).\n")
     out.append(
         "Methods: tally's `qmc` estimator (scrambled Sobol; 1024 points per randomization for d ≤ 3, 4096 "
-        "above) on the five smooth families and its `vegas` estimator (adaptive separable grid, 3 warm-up "
-        "passes, later passes pooled) on the discontinuous one; chosen from `tally-study peers-tune` on "
-        "instance seeds 101–105, disjoint from the seeds "
+        "above) on the five smooth families and its `vegas` estimator (adaptive separable grid, 200 bins, "
+        "3 warm-up passes, later passes weighted by n / previous pass's variance) on the discontinuous one; "
+        "chosen from `tally-study peers-tune` and `vegas-tune` on instance seeds 101–105, disjoint from the seeds "
         "1–10 evaluated here; the job's own rel_error stop rule); Steven G. Johnson's hcubature "
         "(h-adaptive Genz–Malik) and pcubature (p-adaptive Clenshaw–Curtis) from Debian's libcubature "
         "via bench/peers/cubature_peer.cpp, stopped by their own error *estimate* ≤ 5·10⁻⁴·|value| (not a "
