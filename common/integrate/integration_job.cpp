@@ -11,7 +11,7 @@
 #include "common/integrate/integrand.hpp"
 #include "common/integrate/vector_integrand.hpp"
 #include "common/integrate/vegas.hpp"
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "common/protocol/stop_rule_json.hpp"
 #include "common/sampling/ball_simplex.hpp"
 

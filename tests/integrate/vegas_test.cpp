@@ -7,7 +7,7 @@
 #include <cmath>
 
 #include "common/engine/checkpoint.hpp"
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "common/integrate/genz.hpp"
 #include "common/integrate/vector_integrand.hpp"
 #include "common/integrate/vegas.hpp"
