@@ -81,8 +81,11 @@ log "podman $(podman --version | awk '{print $3}'), CONTAINERS_CONF=${CONTAINERS
 
 # --- base image (no registry here: debootstrap from the Debian mirror) -------------
 if ! podman image exists "$base_image"; then
-  mirror=$(awk '/^URIs:/{print $2; exit}' /etc/apt/sources.list.d/debian.sources 2>/dev/null || true)
-  mirror=${mirror:-http://deb.debian.org/debian}
+  # The Debian mirror this machine's apt already uses (deb822 .sources or one-line .list files).
+  mirror=$(cat /etc/apt/sources.list.d/debian.sources /etc/apt/sources.list.d/*.sources 2>/dev/null | awk '/^URIs:/{print $2; exit}' || true)
+  [ -n "$mirror" ] || mirror=$(cat /etc/apt/sources.list /etc/apt/sources.list.d/*.list 2>/dev/null |
+    awk '$1 == "deb" {for (i = 2; i <= NF; i++) if ($i ~ /^[a-z+]+:\/\//) {print $i; exit}}' || true)
+  [ -n "$mirror" ] || die "no Debian mirror in /etc/apt/sources.list{,.d}: configure apt first"
   log "creating $base_image with debootstrap from $mirror"
   timeout 1200 debootstrap --variant=minbase bookworm "$work/rootfs" "$mirror" >"$work/debootstrap.log" 2>&1 ||
     { tail -20 "$work/debootstrap.log"; die "debootstrap failed"; }
