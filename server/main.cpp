@@ -14,6 +14,7 @@
 #include "server/job_store.hpp"
 #include "server/listen_address.hpp"
 #include "server/metrics.hpp"
+#include "server/problem.hpp"
 #include "server/request_handler.hpp"
 
 #if __has_include("common/image/image_io.hpp")
@@ -72,8 +73,21 @@ int main(int argc, char** argv) {
   mc.limits.max_samples = mc.caps.max_samples;
   mc.limits.max_seconds = mc.caps.max_seconds;
 #ifdef TALLY_HAVE_IMAGE_IO
-  hc.images.exr = [](const ImageSnapshot& s, const nlohmann::json& meta) { return encode_exr(s, meta); };
-  hc.images.png = [](const ImageSnapshot& s) { return encode_png(s); };
+  // The image module is loaded on the first image; without it the image routes answer 501.
+  hc.images.exr = [](const ImageSnapshot& s, const nlohmann::json& meta) {
+    try {
+      return encode_exr(s, meta);
+    } catch (const ImageModuleUnavailable& e) {
+      throw HttpError(501, e.what());
+    }
+  };
+  hc.images.png = [](const ImageSnapshot& s) {
+    try {
+      return encode_png(s);
+    } catch (const ImageModuleUnavailable& e) {
+      throw HttpError(501, e.what());
+    }
+  };
 #endif
 
   try {

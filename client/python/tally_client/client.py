@@ -220,6 +220,7 @@ class Client:
             if deadline is not None and time.monotonic() >= deadline:
                 raise TimeoutError(f"job {job_id}: no end event before the deadline")
             headers = {"Accept": "text/event-stream"}
+            resumed_after = last  # events up to this id were yielded already
             if last is not None:
                 headers["Last-Event-ID"] = str(last)
             read_timeout = max(self.timeout, 60.0)  # > the server's 15 s heartbeat
@@ -247,8 +248,9 @@ class Client:
                                 continue
                             broken_since = None
                             delay = 0.05
-                            # A resumed stream replays from the buffer: skip what was yielded.
-                            if last is not None and ev.id <= last and ev.event != "end":
+                            # A resumed stream may start with a fresh snapshot of what was
+                            # yielded already. (The events of one snapshot may share an id.)
+                            if resumed_after is not None and ev.id <= resumed_after and ev.event != "end":
                                 continue
                             last = ev.id if last is None else max(last, ev.id)
                             yield ev
