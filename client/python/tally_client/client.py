@@ -9,7 +9,7 @@ import ssl
 import time
 import urllib.parse
 from dataclasses import dataclass
-from typing import Any, Dict, Iterator, List, Mapping, Optional, Tuple
+from typing import Any, Dict, Iterator, List, Mapping, Optional, Tuple, Type
 
 from .errors import TallyConnectionError, problem_from_response
 from .image import Image, decode_exr, image_from_tiles
@@ -20,7 +20,7 @@ TERMINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
 JsonObject = Dict[str, Any]
 
 # Errors that mean "the connection broke" (as opposed to an HTTP error answer).
-_NETWORK_ERRORS: Tuple[type, ...] = (OSError, http.client.HTTPException)
+_NETWORK_ERRORS: Tuple[Type[Exception], ...] = (OSError, http.client.HTTPException)
 
 
 @dataclass(frozen=True)

@@ -44,9 +44,9 @@ class Image:
 
     width: int
     height: int
-    mean_flat: array  # width*height*3
-    std_error_flat: array  # width*height*3
-    samples_flat: array  # width*height
+    mean_flat: "array[float]"  # width*height*3
+    std_error_flat: "array[float]"  # width*height*3
+    samples_flat: "array[float]"  # width*height
     metadata: Dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -147,7 +147,7 @@ def _attribute_value(kind: str, raw: bytes) -> Any:
 
 def _channels(raw: bytes) -> List[Tuple[str, int]]:
     r = _Reader(raw)
-    out = []
+    out: List[Tuple[str, int]] = []
     while True:
         name = r.cstring()
         if not name:
@@ -175,7 +175,7 @@ def _unzip(chunk: bytes, expected: int) -> bytes:
     return bytes(out)
 
 
-def _to_floats(raw: bytes, pixel_type: int) -> array:
+def _to_floats(raw: bytes, pixel_type: int) -> "array[float]":
     if pixel_type == 2:
         a = array("f", raw)
     elif pixel_type == 0:
@@ -224,7 +224,7 @@ def decode_exr(data: bytes) -> Image:
     nchunks = (height + lines - 1) // lines
     offsets = r.unpack(f"<{nchunks}Q")
 
-    planes: Dict[str, array] = {name: array("f") for name, _ in channels}
+    planes: Dict[str, "array[float]"] = {name: array("f") for name, _ in channels}
     line_bytes = sum(_PIXEL_BYTES[t] for _, t in channels) * width
     rows_seen = 0
     for off in sorted(offsets):
@@ -246,7 +246,7 @@ def decode_exr(data: bytes) -> Image:
     if rows_seen != height:
         raise ExrError(f"EXR chunks hold {rows_seen} lines, the data window {height}")
 
-    def plane(name: str) -> array:
+    def plane(name: str) -> "array[float]":
         if name not in planes:
             raise ExrError(f"EXR has no channel {name} (has {', '.join(planes)})")
         return planes[name]
