@@ -156,6 +156,8 @@ class CuttingProxy:
                 if server in readable:
                     data = server.recv(65536)
                     if not data:
+                        if held:
+                            client.sendall(held)  # the stream ended before the cut point
                         break
                     if not cut_here:
                         client.sendall(data)
