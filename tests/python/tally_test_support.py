@@ -199,3 +199,85 @@ def free_port() -> int:
     port = s.getsockname()[1]
     s.close()
     return port
+
+
+class TlsProxy:
+    """A TLS-terminating loopback proxy in front of `port`, with a throw-away self-signed
+    certificate for 127.0.0.1 made by the openssl command (cafile: the certificate)."""
+
+    def __init__(self, port: int):
+        import ssl
+        self.upstream = port
+        self.dir = tempfile.mkdtemp(prefix="tally_tls_")
+        self.cafile = os.path.join(self.dir, "cert.pem")
+        key = os.path.join(self.dir, "key.pem")
+        subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", key,
+                        "-out", self.cafile, "-days", "1", "-subj", "/CN=127.0.0.1",
+                        "-addext", "subjectAltName=IP:127.0.0.1"],
+                       check=True, capture_output=True, timeout=60)
+        self._ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+        self._ctx.load_cert_chain(self.cafile, key)
+        self._listener = socket.create_server(("127.0.0.1", 0))
+        self._listener.settimeout(0.2)
+        self.port = self._listener.getsockname()[1]
+        self.url = f"https://127.0.0.1:{self.port}"
+        self._stop = threading.Event()
+        self._threads: List[threading.Thread] = []
+        self._accept_thread = threading.Thread(target=self._accept, daemon=True)
+        self._accept_thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._accept_thread.join(timeout=5)
+        self._listener.close()
+        for t in self._threads:
+            t.join(timeout=5)
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def _accept(self) -> None:
+        while not self._stop.is_set():
+            try:
+                raw, _ = self._listener.accept()
+            except socket.timeout:
+                continue
+            except OSError:
+                return
+            t = threading.Thread(target=self._serve, args=(raw,), daemon=True)
+            self._threads.append(t)
+            t.start()
+
+    def _serve(self, raw: socket.socket) -> None:
+        try:
+            raw.settimeout(10)
+            client = self._ctx.wrap_socket(raw, server_side=True)
+        except OSError:
+            raw.close()  # e.g. a client that rejected the certificate
+            return
+        try:
+            server = socket.create_connection(("127.0.0.1", self.upstream), timeout=10)
+        except OSError:
+            client.close()
+            return
+
+        def pump(src: socket.socket, dst: socket.socket) -> None:
+            try:
+                while not self._stop.is_set():
+                    data = src.recv(65536)
+                    if not data:
+                        break
+                    dst.sendall(data)
+            except OSError:
+                pass
+            finally:
+                for s in (src, dst):
+                    try:
+                        s.shutdown(socket.SHUT_RDWR)
+                    except OSError:
+                        pass
+
+        back = threading.Thread(target=pump, args=(server, client), daemon=True)
+        back.start()
+        pump(client, server)
+        back.join(timeout=10)
+        client.close()
+        server.close()

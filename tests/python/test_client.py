@@ -8,7 +8,8 @@ import sys
 import unittest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from tally_test_support import CuttingProxy, Server, disk_spec, free_port, header_value, small_image_spec  # noqa: E402
+from tally_test_support import (CuttingProxy, Server, TlsProxy, disk_spec, free_port, header_value,  # noqa: E402
+                                small_image_spec)
 
 import tally_client  # noqa: E402
 from tally_client import (BadRequest, Client, Conflict, HeaderTooLarge, InvalidSpec, MethodNotAllowed,  # noqa: E402
@@ -225,6 +226,21 @@ class ClientMethods(unittest.TestCase):
             self.assertEqual(len(heads), 2)
             self.assertEqual(header_value(heads[0], "Authorization"), "Bearer s3cret")
             self.assertIsNone(header_value(heads[1], "Authorization"))
+        finally:
+            proxy.close()
+
+    def test_https(self) -> None:
+        import ssl
+        proxy = TlsProxy(self.server.port)
+        try:
+            c = Client(proxy.url, ssl_context=ssl.create_default_context(cafile=proxy.cafile), timeout=30)
+            job = c.submit(disk_spec(100_000, seed=12))
+            self.assertEqual(c.wait(job, timeout=60)["samples"], 100_000)
+            self.assertEqual([e.event for e in c.events(job)][-1], "end")
+            # The default context verifies certificates: a self-signed one is refused.
+            with self.assertRaises(TallyConnectionError) as cm:
+                Client(proxy.url, timeout=30).list()
+            self.assertIn("CERTIFICATE_VERIFY_FAILED", str(cm.exception))
         finally:
             proxy.close()
 
