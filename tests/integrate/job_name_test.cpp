@@ -8,7 +8,7 @@
 #include <string>
 
 #include "common/jobs/job_factory.hpp"
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 
 namespace tally {
 namespace {
