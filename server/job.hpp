@@ -25,16 +25,19 @@ inline bool is_terminal(JobStatus s) { return s != JobStatus::queued && s != Job
 class Job {
  public:
   Job(std::string id_, int64_t seq_, nlohmann::json spec_, int priority_, double created_at_, uint64_t epoch,
-      size_t event_buffer)
+      size_t event_buffer, std::string owner_ = {})
       : id(std::move(id_)), seq(seq_), spec(std::move(spec_)), priority(priority_), created_at(created_at_),
-        events(epoch, event_buffer) {}
+        owner(std::move(owner_)), events(epoch, event_buffer) {}
 
   const std::string id;
   const int64_t seq;
   const nlohmann::json spec;
   const int priority;
   const double created_at;
+  const std::string owner;  // the principal that submitted it ("" without access control)
   EventLog events;
+  // The owner's running-jobs quota when it was submitted; guarded by the manager's mutex.
+  uint64_t owner_max_running = UINT64_MAX;
 
   mutable std::mutex mu;
   // --- guarded by mu ---

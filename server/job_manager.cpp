@@ -139,6 +139,7 @@ json JobManager::status_json(Job& job, uint64_t* version) const {
   j["id"] = job.id;
   j["state"] = std::string(job_status_name(job.status));
   j["priority"] = job.priority;
+  if (!job.owner.empty()) j["owner"] = job.owner;
   j["spec"] = job.spec;
   j["plan"] = job.def ? job.def->plan() : json(nullptr);
   if (job.runner) j["stop_rule"] = stop_rule_to_json(job.runner->rule());
@@ -191,6 +192,7 @@ json JobManager::summary_json(Job& job) const {
   j["state"] = std::string(job_status_name(job.status));
   j["kind"] = job.spec.value("kind", "");
   j["priority"] = job.priority;
+  if (!job.owner.empty()) j["owner"] = job.owner;
   j["created_at"] = time_json(job.created_at);
   if (job.runner) {
     const JobState& s = job.runner->state();
@@ -238,6 +240,7 @@ void JobManager::persist(Job& job, bool with_checkpoint) {
     s.seq = job.seq;
     s.spec = dump(job.spec);
     s.priority = job.priority;
+    s.owner = job.owner;
     s.state = std::string(job_status_name(job.status));
     s.stop_rule = job.runner ? dump(stop_rule_to_json(job.runner->rule())) : std::string("{}");
     s.error = job.error;
@@ -285,9 +288,10 @@ void JobManager::finish_locked(Job& job, double now) {
   job.events.append("end", dump(end));
 }
 
-std::shared_ptr<Job> JobManager::submit(const json& spec, int priority) {
-  std::shared_ptr<const JobDefinition> def = compiler_(spec, config_.limits);  // throws SpecError
-  auto runner = std::make_unique<JobRunner>(def->kernel(), def->stop_rule(), config_.caps);
+std::shared_ptr<Job> JobManager::submit(const json& spec, int priority, const Submitter& who) {
+  const JobLimits& limits = who.limits ? *who.limits : config_.limits;
+  std::shared_ptr<const JobDefinition> def = compiler_(spec, limits);  // throws SpecError
+  auto runner = std::make_unique<JobRunner>(def->kernel(), def->stop_rule(), who.caps ? *who.caps : config_.caps);
   std::shared_ptr<Job> job;
   {
     std::lock_guard lock(mu_);
@@ -296,8 +300,21 @@ std::shared_ptr<Job> JobManager::submit(const json& spec, int priority) {
       throw JobError(JobError::Kind::queue_full,
                      fmt::format("the job queue is full ({} queued, {} running); retry later", queue_.size(), running_));
     }
+    if (who.max_queued != UINT64_MAX || who.max_running != UINT64_MAX) {
+      const uint64_t running = running_by_owner_.count(who.owner) ? running_by_owner_.at(who.owner) : 0;
+      const auto queued = static_cast<uint64_t>(
+          std::count_if(queue_.begin(), queue_.end(), [&](const auto& j) { return j->owner == who.owner; }));
+      const bool would_wait = running >= who.max_running || running_ >= config_.max_running;
+      if (would_wait && queued >= who.max_queued) {
+        throw JobError(JobError::Kind::quota,
+                       fmt::format("quota max_queued_jobs: \"{}\" already has {} queued and {} running jobs "
+                                   "(max_queued_jobs {}, max_running_jobs {})",
+                                   who.owner, queued, running, who.max_queued, who.max_running));
+      }
+    }
     job = std::make_shared<Job>(new_job_id(), next_seq_++, spec, clamp_priority(priority), unix_now(), epoch_,
-                                config_.event_buffer);
+                                config_.event_buffer, who.owner);
+    job->owner_max_running = who.max_running;
     job->def = std::move(def);
     job->runner = std::move(runner);
     jobs_[job->id] = job;
@@ -314,10 +331,18 @@ std::shared_ptr<Job> JobManager::submit(const json& spec, int priority) {
 
 void JobManager::start_queued_locked() {
   while (running_ < config_.max_running && !queue_.empty() && !shutting_down_) {
-    // Highest priority first, then submission order.
-    auto it = std::min_element(queue_.begin(), queue_.end(), [](const auto& a, const auto& b) {
-      return a->priority != b->priority ? a->priority > b->priority : a->seq < b->seq;
-    });
+    // Highest priority first, then submission order; skipping owners at their
+    // running-jobs quota.
+    auto it = queue_.end();
+    for (auto c = queue_.begin(); c != queue_.end(); ++c) {
+      const auto r = running_by_owner_.find((*c)->owner);
+      if (r != running_by_owner_.end() && r->second >= (*c)->owner_max_running) continue;
+      if (it == queue_.end() || ((*c)->priority != (*it)->priority ? (*c)->priority > (*it)->priority
+                                                                   : (*c)->seq < (*it)->seq)) {
+        it = c;
+      }
+    }
+    if (it == queue_.end()) break;
     std::shared_ptr<Job> job = *it;
     queue_.erase(it);
     PassWork pass;
@@ -340,6 +365,7 @@ void JobManager::start_queued_locked() {
         ej.spec_json = job->spec.dump();
         ej.epoch = epoch_;
         ej.priority = job->priority;
+        ej.owner = job->owner;
       }
     }
     if (pass.empty()) {
@@ -348,13 +374,17 @@ void JobManager::start_queued_locked() {
       continue;
     }
     ++running_;
+    ++running_by_owner_[job->owner];
     executor_->add(std::move(ej), std::move(pass));
   }
 }
 
-void JobManager::job_left_scheduler() {
+void JobManager::job_left_scheduler(const Job& job) {
   std::lock_guard lock(mu_);
   if (running_ > 0) --running_;
+  if (auto it = running_by_owner_.find(job.owner); it != running_by_owner_.end() && --it->second == 0) {
+    running_by_owner_.erase(it);
+  }
   start_queued_locked();
 }
 
@@ -402,7 +432,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     }
   }
   if (checkpoint) persist(*job, true);
-  if (finished) job_left_scheduler();
+  if (finished) job_left_scheduler(*job);
   return next;
 }
 
@@ -417,7 +447,7 @@ void JobManager::on_failed(const std::string& id, const std::string& error) {
     finish_locked(*job, unix_now());
   }
   persist(*job, true);
-  job_left_scheduler();
+  job_left_scheduler(*job);
 }
 
 void JobManager::on_cancelled(const std::string& id) {
@@ -431,7 +461,7 @@ void JobManager::on_cancelled(const std::string& id) {
     finish_locked(*job, unix_now());
   }
   persist(*job, true);
-  job_left_scheduler();
+  job_left_scheduler(*job);
 }
 
 std::shared_ptr<Job> JobManager::find(const std::string& id) const {
@@ -526,7 +556,8 @@ void JobManager::recover() {
     } catch (const std::exception&) {
       spec = row.spec;
     }
-    auto job = std::make_shared<Job>(row.id, row.seq, spec, row.priority, row.created_at, epoch_, config_.event_buffer);
+    auto job = std::make_shared<Job>(row.id, row.seq, spec, row.priority, row.created_at, epoch_, config_.event_buffer,
+                                     row.owner);
     const auto status = parse_job_status(row.state).value_or(JobStatus::failed);
     job->status = status;
     job->error = row.error;
@@ -634,6 +665,7 @@ ManagerStats JobManager::stats() const {
   s.samples_total = es.samples_done;
   s.workers = es.workers;
   s.busy_workers = es.busy_workers;
+  s.cpu_seconds_by_owner = es.cpu_seconds_by_owner;
   return s;
 }
 

@@ -6,8 +6,13 @@
 #include <filesystem>
 #include <fstream>
 #include <future>
+#include <memory>
+#include <vector>
 
 #include "common/jobs/job_factory.hpp"
+#include "server/auth/access_control.hpp"
+#include "server/auth/auth_file.hpp"
+#include "server/auth/token.hpp"
 #include "server/cpu_quota.hpp"
 #include "server/http_server.hpp"
 #include "server/job_manager.hpp"
@@ -59,7 +64,46 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--event-buffer", mc.event_buffer, "events kept per job for Last-Event-ID resume")->capture_default_str();
   app.add_option("--pilot-seconds", hc.pilot_seconds, "length of the validate pilot run")->capture_default_str();
+  std::string auth_file;
+  bool insecure_no_auth = false;
+  std::vector<std::string> allowed_hosts;
+  app.add_option("--auth-file", auth_file, "principals and token hashes (JSON, docs/security.md); SIGHUP reloads it");
+  app.add_flag("--insecure-no-auth", insecure_no_auth, "listen off loopback without --auth-file (anyone may do anything)");
+  app.add_option("--allowed-host", allowed_hosts, "extra Host header value accepted without --auth-file (repeatable)");
+  app.add_option("--tls-cert", http.tls_cert, "PEM certificate chain: serve HTTPS (needs --tls-key)");
+  app.add_option("--tls-key", http.tls_key, "PEM private key of --tls-cert");
+
+  // tally-server token new NAME --role user: a fresh token, shown once, and its entry.
+  CLI::App* token_cmd = app.add_subcommand("token", "manage bearer tokens");
+  CLI::App* token_new = token_cmd->add_subcommand("new", "print a fresh token and the auth-file entry to add");
+  std::string token_name, token_role = "user";
+  token_new->add_option("name", token_name, "principal name")->required();
+  token_new->add_option("--role", token_role, "admin, user, reader or metrics")->capture_default_str();
+  token_cmd->require_subcommand(1);
   CLI11_PARSE(app, argc, argv);
+
+  if (token_new->parsed()) {
+    PrincipalEntry e;
+    e.name = token_name;
+    const auto role = parse_role(token_role);
+    if (!role) {
+      fmt::print(stderr, "tally-server: --role must be admin, user, reader or metrics, got \"{}\"\n", token_role);
+      return 2;
+    }
+    e.role = *role;
+    const std::string token = generate_token();
+    e.token_sha256 = token_sha256_hex(token);
+    try {
+      parse_auth_file(nlohmann::json{{"principals", {principal_entry_json(e)}}});  // the name is valid
+    } catch (const std::exception& ex) {
+      fmt::print(stderr, "tally-server: {}\n", ex.what());
+      return 2;
+    }
+    fmt::print(stderr, "The token is shown once; only its hash goes into the auth file. Add the entry below to\n"
+                       "\"principals\" and send the server SIGHUP.\n");
+    fmt::print("{}\n{}\n", token, principal_entry_json(e).dump());
+    return 0;
+  }
 
   const auto addr = parse_listen_address(listen);
   if (!addr) {
@@ -68,6 +112,43 @@ int main(int argc, char** argv) {
   }
   http.address = addr->host;
   http.port = addr->port;
+  if (http.tls_cert.empty() != http.tls_key.empty()) {
+    fmt::print(stderr, "tally-server: --tls-cert and --tls-key go together\n");
+    return 2;
+  }
+  const bool loopback = is_loopback_address(http.address);
+  if (!loopback && auth_file.empty() && !insecure_no_auth) {
+    fmt::print(stderr,
+               "tally-server: refusing to listen on {} without access control: anyone who reaches the port could\n"
+               "run, read and cancel every job. Give --auth-file (docs/security.md), or --insecure-no-auth if\n"
+               "something in front of the server already authenticates every caller.\n",
+               http.address);
+    return 2;
+  }
+  std::unique_ptr<AccessControl> access;
+  if (!auth_file.empty()) {
+    try {
+      access = std::make_unique<AccessControl>(load_auth_file(auth_file));
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "tally-server: {}\n", e.what());
+      return 2;
+    }
+  }
+  hc.access.access = access.get();
+  hc.access.metrics_open = loopback;
+  hc.access.check_host = !access;  // without tokens, only names of this machine (DNS rebinding)
+  for (auto h : allowed_hosts) {
+    for (char& c : h) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    hc.access.allowed_hosts.push_back(h);
+  }
+  hc.access.tls = !http.tls_cert.empty();
+  hc.access.insecure_no_auth = !access && !loopback;
+  if (hc.access.insecure_no_auth) {
+    fmt::print(stderr,
+               "tally-server: WARNING: INSECURE: listening on {} with NO ACCESS CONTROL (--insecure-no-auth).\n"
+               "tally-server: WARNING: anyone who reaches this port may run, read and cancel every job.\n",
+               http.address);
+  }
   mc.workers = workers > 0 ? workers : default_worker_count();
   mc.limits.max_samples = mc.caps.max_samples;
   mc.limits.max_seconds = mc.caps.max_seconds;
@@ -87,14 +168,27 @@ int main(int argc, char** argv) {
     HttpServer server(http, handler, metrics);
     std::promise<int> signalled;
     server.on_signal([&signalled](int sig) { signalled.set_value(sig); });
+    server.on_hangup([&access, &auth_file] {
+      if (!access) return;
+      try {
+        const ReloadResult r = access->reload(load_auth_file(auth_file));
+        fmt::print("tally-server: SIGHUP: reloaded {}: {} principals, {} added, {} revoked\n", auth_file, r.principals,
+                   r.added, r.revoked);
+      } catch (const std::exception& e) {
+        fmt::print(stderr, "tally-server: SIGHUP: keeping the previous principals: {}\n", e.what());
+      }
+      std::fflush(stdout);
+    });
     const uint16_t port = server.start();
     if (!port_file.empty()) {
       const std::string tmp = port_file + ".tmp";
       std::ofstream(tmp) << port << "\n";
       std::filesystem::rename(tmp, port_file);
     }
-    fmt::print("tally-server listening on http://{}:{} ({} workers, data in {})\n", http.address, port, mc.workers,
-               std::filesystem::absolute(data_dir).string());
+    fmt::print("tally-server listening on {}://{}:{} ({} workers, data in {}, access control {})\n",
+               http.tls_cert.empty() ? "http" : "https", http.address, port, mc.workers,
+               std::filesystem::absolute(data_dir).string(),
+               access ? fmt::format("on, {} principals", access->principal_count()) : std::string("off"));
     std::fflush(stdout);
 
     const int sig = signalled.get_future().get();

@@ -8,6 +8,8 @@
 
 #include "common/json/spec_reader.hpp"
 #include "common/protocol/stop_rule_json.hpp"
+#include "server/auth/revocation.hpp"
+#include "server/auth/token.hpp"
 #include "server/job_event_stream.hpp"
 #include "server/json_depth.hpp"
 #include "server/pilot.hpp"
@@ -81,13 +83,19 @@ void RequestHandler::add_routes() {
     if (!ready_ || manager_.shutting_down()) throw HttpError(503, "the server is not ready (starting or shutting down)");
     HttpResponse r;
     r.set_header("Content-Type", "text/plain; charset=utf-8");
-    r.body = "ready\n";
+    r.body = config_.access.insecure_no_auth ? "ready (INSECURE: no access control, --insecure-no-auth)\n" : "ready\n";
     return r;
   });
   router_.add("GET", "/metrics", [this](const HttpRequest&, const PathParams&) {
     HttpResponse r;
     r.set_header("Content-Type", "text/plain; version=0.0.4; charset=utf-8");
     r.body = metrics_.render(manager_.stats());
+    r.body += fmt::format(
+        "# HELP tally_access_control 1 when bearer tokens are required (--auth-file)\n"
+        "# TYPE tally_access_control gauge\ntally_access_control {}\n"
+        "# HELP tally_insecure_no_auth 1 when listening off loopback without access control (--insecure-no-auth)\n"
+        "# TYPE tally_insecure_no_auth gauge\ntally_insecure_no_auth {}\n",
+        config_.access.access ? 1 : 0, config_.access.insecure_no_auth ? 1 : 0);
     return r;
   });
   router_.add("GET", "/v1/openapi.json", [](const HttpRequest&, const PathParams&) {
@@ -108,6 +116,9 @@ void RequestHandler::add_routes() {
               [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, true); }, true);
   router_.add("GET", "/v1/jobs/{id}/image.png",
               [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, false); }, true);
+  router_.add("POST", "/v1/session", bind(&RequestHandler::login));
+  router_.add("GET", "/v1/session", bind(&RequestHandler::whoami));
+  router_.add("DELETE", "/v1/session", bind(&RequestHandler::logout));
 }
 
 bool RequestHandler::may_block(const HttpRequest& request) const {
@@ -115,11 +126,14 @@ bool RequestHandler::may_block(const HttpRequest& request) const {
   return m.route && m.route->may_block;
 }
 
-HttpResponse RequestHandler::handle(const HttpRequest& request) {
+HttpResponse RequestHandler::handle(HttpRequest request) {
   const auto t0 = std::chrono::steady_clock::now();
   const RouteMatch m = router_.match(request.method, request.path());
   HttpResponse res;
   try {
+    // The one authorize step: the caller, or 400/401/403/429 before any route runs.
+    request.principal =
+        std::make_shared<const Principal>(authorize(request, m.route ? m.route->pattern : "", config_.access));
     if (!m.route) {
       if (auto file = serve_static_file(request)) return *file;  // the preview page, examples
       if (!m.allow.empty()) {
@@ -149,10 +163,12 @@ HttpResponse RequestHandler::handle(const HttpRequest& request) {
         res = problem_response(503, e.what());
         res.set_header("Retry-After", "5");
         break;
+      case JobError::Kind::quota: res = problem_response(403, e.what()); break;
     }
   } catch (const std::exception& e) {
     res = problem_response(500, fmt::format("internal error: {}", e.what()));
   }
+  if (res.header("X-Content-Type-Options").empty()) res.set_header("X-Content-Type-Options", "nosniff");
   const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   metrics_.observe(m.route ? m.route->pattern : std::string("unmatched"), request.method, res.status, dt);
   return res;
@@ -174,16 +190,37 @@ json RequestHandler::parse_json_body(const HttpRequest& request) const {
   }
 }
 
-std::shared_ptr<Job> RequestHandler::job_or_404(const std::string& id) const {
+std::shared_ptr<Job> RequestHandler::visible_job(const HttpRequest& req, const std::string& id) const {
   auto job = manager_.find(id);
-  if (!job) throw HttpError(404, fmt::format("no job with id \"{}\"", id));
+  if (!job || !req.principal || !req.principal->may_see(job->owner)) {
+    throw HttpError(404, fmt::format("no job with id \"{}\"", id));
+  }
   return job;
+}
+
+Submitter RequestHandler::submitter(const HttpRequest& req) const {
+  Submitter s;
+  const Principal& p = *req.principal;
+  s.owner = p.name;
+  const Quotas& q = p.quotas;
+  s.max_running = q.max_running_jobs;
+  s.max_queued = q.max_queued_jobs;
+  JobLimits limits = manager_.config().limits;
+  JobCaps caps = manager_.config().caps;
+  limits.max_samples = std::min<uint64_t>(limits.max_samples, q.max_samples);
+  limits.max_seconds = std::min(limits.max_seconds, q.max_seconds);
+  limits.max_pixels = std::min<uint64_t>(limits.max_pixels, q.max_pixels);
+  caps.max_samples = std::min<uint64_t>(caps.max_samples, q.max_samples);
+  caps.max_seconds = std::min(caps.max_seconds, q.max_seconds);
+  s.limits = limits;
+  s.caps = caps;
+  return s;
 }
 
 HttpResponse RequestHandler::post_job(const HttpRequest& req, const PathParams&) {
   const int priority = parse_priority(req);
   const json spec = parse_json_body(req);
-  auto job = manager_.submit(spec, priority);
+  auto job = manager_.submit(spec, priority, submitter(req));
   const json summary = manager_.summary_json(*job);
   HttpResponse r = json_response(202, {{"id", job->id},
                                        {"state", summary["state"]},
@@ -203,6 +240,7 @@ HttpResponse RequestHandler::list_jobs(const HttpRequest& req, const PathParams&
   }
   json jobs = json::array();
   for (const auto& job : manager_.list()) {
+    if (!req.principal->may_see(job->owner)) continue;
     json s = manager_.summary_json(*job);
     if (filter && s["state"] != job_status_name(*filter)) continue;
     jobs.push_back(std::move(s));
@@ -210,24 +248,24 @@ HttpResponse RequestHandler::list_jobs(const HttpRequest& req, const PathParams&
   return json_response(200, {{"jobs", jobs}});
 }
 
-HttpResponse RequestHandler::get_job(const HttpRequest&, const PathParams& p) {
-  auto job = job_or_404(p.at("id"));
+HttpResponse RequestHandler::get_job(const HttpRequest& req, const PathParams& p) {
+  auto job = visible_job(req, p.at("id"));
   HttpResponse r;
   r.set_header("Content-Type", "application/json");
   r.body = manager_.status_body(*job);
   return r;
 }
 
-HttpResponse RequestHandler::delete_job(const HttpRequest&, const PathParams& p) {
-  auto job = manager_.cancel(p.at("id"));
+HttpResponse RequestHandler::delete_job(const HttpRequest& req, const PathParams& p) {
+  auto job = manager_.cancel(visible_job(req, p.at("id"))->id);
   json s = manager_.summary_json(*job);
   // 200 when the job is already cancelled, 202 when it stops at the next chunk boundary.
   return json_response(s["state"] == "cancelled" ? 200 : 202, s);
 }
 
 HttpResponse RequestHandler::extend_job(const HttpRequest& req, const PathParams& p) {
+  auto job = visible_job(req, p.at("id"));
   const json body = parse_json_body(req);
-  auto job = job_or_404(p.at("id"));
   StopRule rule;
   {
     std::lock_guard lock(job->mu);
@@ -236,7 +274,7 @@ HttpResponse RequestHandler::extend_job(const HttpRequest& req, const PathParams
       rule.min_samples = job->runner->rule().min_samples;
     }
   }
-  const JobLimits& lim = manager_.config().limits;
+  const JobLimits lim = *submitter(req).limits;
   SpecReader rd(body, "");
   rule.max_samples = rd.integer_or("max_samples", 0, 1, lim.max_samples);
   rule.abs_error = rd.number_or("abs_error", 0.0, 1e-300, 1e300);
@@ -252,7 +290,7 @@ HttpResponse RequestHandler::extend_job(const HttpRequest& req, const PathParams
 
 HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathParams&) {
   const json spec = parse_json_body(req);
-  std::unique_ptr<JobDefinition> def = manager_.compiler()(spec, manager_.config().limits);
+  std::unique_ptr<JobDefinition> def = manager_.compiler()(spec, *submitter(req).limits);
   json out = {{"valid", true},
               {"kind", std::string(def->kind())},
               {"plan", def->plan()},
@@ -282,7 +320,7 @@ HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathPara
 }
 
 HttpResponse RequestHandler::job_events(const HttpRequest& req, const PathParams& p) {
-  auto job = job_or_404(p.at("id"));
+  auto job = visible_job(req, p.at("id"));
   const std::string_view accept = req.header("accept");
   const StreamFormat fmt = accept.find("application/x-ndjson") != std::string_view::npos ? StreamFormat::ndjson
                                                                                           : StreamFormat::sse;
@@ -292,12 +330,14 @@ HttpResponse RequestHandler::job_events(const HttpRequest& req, const PathParams
   r.set_header("Content-Type", fmt == StreamFormat::ndjson ? "application/x-ndjson" : "text/event-stream");
   r.set_header("Cache-Control", "no-cache");
   r.set_header("X-Accel-Buffering", "no");
-  r.stream = std::make_shared<JobEventStream>(job, manager_, fmt, last);
+  // Ends when the caller's token is revoked or its browser session logs out.
+  r.stream = revocable(std::make_shared<JobEventStream>(job, manager_, fmt, last), req.principal->principal_revocation,
+                       req.principal->session_revocation);
   return r;
 }
 
-HttpResponse RequestHandler::job_tile(const HttpRequest&, const PathParams& p) {
-  auto job = job_or_404(p.at("id"));
+HttpResponse RequestHandler::job_tile(const HttpRequest& req, const PathParams& p) {
+  auto job = visible_job(req, p.at("id"));
   const auto n = parse_u64(p.at("n"));
   std::lock_guard lock(job->mu);
   const ImageSource* img = job->def ? job->def->image() : nullptr;
@@ -316,8 +356,8 @@ HttpResponse RequestHandler::job_tile(const HttpRequest&, const PathParams& p) {
                              {"samples", s.samples}});
 }
 
-HttpResponse RequestHandler::job_image(const HttpRequest&, const PathParams& p, bool exr) {
-  auto job = job_or_404(p.at("id"));
+HttpResponse RequestHandler::job_image(const HttpRequest& req, const PathParams& p, bool exr) {
+  auto job = visible_job(req, p.at("id"));
   ImageSnapshot snap;
   json meta;
   {
@@ -339,6 +379,52 @@ HttpResponse RequestHandler::job_image(const HttpRequest&, const PathParams& p, 
   r.set_header("Content-Type", exr ? "image/x-exr" : "image/png");
   r.set_header("Content-Disposition", fmt::format("inline; filename=\"{}.{}\"", job->id, exr ? "exr" : "png"));
   r.body = exr ? config_.images.exr(snap, meta) : config_.images.png(snap);
+  return r;
+}
+
+// ---- browser sessions: EventSource cannot send an Authorization header, so the
+// page trades a token for an HttpOnly, SameSite=Strict cookie once.
+
+HttpResponse RequestHandler::login(const HttpRequest& req, const PathParams&) {
+  const json body = parse_json_body(req);
+  SpecReader rd(body, "");
+  const std::string token = rd.string("token", 512);
+  rd.finish();
+  AccessControl* access = config_.access.access;
+  if (!access) throw HttpError(404, "access control is off: no login is needed");
+  const auto who = is_b64token(token) ? access->authenticate_token(token) : std::nullopt;
+  if (!who) {
+    HttpError e(401, "unknown or revoked token");
+    e.headers.emplace_back("WWW-Authenticate", "Bearer realm=\"tally\", error=\"invalid_token\"");
+    throw e;
+  }
+  if (who->role == Role::metrics) throw HttpError(403, "role metrics may not open a browser session");
+  const std::string sid = access->open_session(*who);
+  HttpResponse r = json_response(200, {{"name", who->name}, {"role", std::string(role_name(who->role))},
+                                       {"access_control", true}});
+  r.set_header("Set-Cookie", fmt::format("{}={}; Path=/; HttpOnly; SameSite=Strict; Max-Age=43200{}", kSessionCookie,
+                                         sid, config_.access.tls ? "; Secure" : ""));
+  r.set_header("Cache-Control", "no-store");
+  return r;
+}
+
+HttpResponse RequestHandler::whoami(const HttpRequest& req, const PathParams&) {
+  const Principal& p = *req.principal;
+  return json_response(200, {{"name", p.name},
+                             {"role", std::string(role_name(p.role))},
+                             {"access_control", config_.access.access != nullptr},
+                             {"via_cookie", p.via_cookie}});
+}
+
+HttpResponse RequestHandler::logout(const HttpRequest& req, const PathParams&) {
+  if (config_.access.access) {
+    const std::string sid = cookie_value(req, kSessionCookie);
+    if (!sid.empty()) config_.access.access->close_session(sid);  // its event streams end
+  }
+  HttpResponse r;
+  r.status = 204;
+  r.set_header("Set-Cookie", fmt::format("{}=; Path=/; HttpOnly; SameSite=Strict; Max-Age=0{}", kSessionCookie,
+                                         config_.access.tls ? "; Secure" : ""));
   return r;
 }
 
