@@ -8,7 +8,7 @@
 #include <cmath>
 
 #include "server/auth/token.hpp"
-#include "server/problem.hpp"
+#include "server/api/problem.hpp"
 
 namespace tally {
 

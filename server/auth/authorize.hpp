@@ -10,7 +10,7 @@
 
 #include "server/auth/access_control.hpp"
 #include "server/auth/principal.hpp"
-#include "server/http_types.hpp"
+#include "server/http/http_types.hpp"
 
 namespace tally {
 

@@ -10,7 +10,7 @@
 #include <mutex>
 #include <string>
 
-#include "server/event_stream.hpp"
+#include "server/http/event_stream.hpp"
 
 namespace tally {
 

@@ -10,12 +10,12 @@
 #include <atomic>
 #include <filesystem>
 
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "server/auth/access_control.hpp"
 #include "server/auth/auth_file.hpp"
 #include "server/auth/token.hpp"
 #include "server/auth/token_bucket.hpp"
-#include "server/event_stream.hpp"
+#include "server/http/event_stream.hpp"
 #include "server_test_support.hpp"
 
 namespace tally::test {

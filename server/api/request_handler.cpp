@@ -1,0 +1,191 @@
+#include "server/api/request_handler.hpp"
+
+#include <fmt/format.h>
+
+#include <chrono>
+
+#include "common/protocol/spec_reader.hpp"
+#include "server/api/json_depth.hpp"
+#include "server/api/problem.hpp"
+#include "server/api/route_support.hpp"
+#include "server/api/static_files.hpp"
+#include "server/auth/token.hpp"
+
+namespace tally {
+
+using nlohmann::json;
+
+RequestHandler::RequestHandler(JobManager& manager, Metrics& metrics, HandlerConfig config)
+    : manager_(manager), metrics_(metrics), config_(std::move(config)) {
+  add_routes();
+}
+
+void RequestHandler::add_routes() {
+  using namespace std::placeholders;
+  auto bind = [this](HttpResponse (RequestHandler::*fn)(const HttpRequest&, const PathParams&)) {
+    return [this, fn](const HttpRequest& r, const PathParams& p) { return (this->*fn)(r, p); };
+  };
+  router_.add("GET", "/livez", [](const HttpRequest&, const PathParams&) {
+    HttpResponse r;
+    r.set_header("Content-Type", "text/plain; charset=utf-8");
+    r.body = "ok\n";
+    return r;
+  });
+  router_.add("GET", "/readyz", [this](const HttpRequest&, const PathParams&) {
+    if (!ready_ || manager_.shutting_down()) throw HttpError(503, "the server is not ready (starting or shutting down)");
+    HttpResponse r;
+    r.set_header("Content-Type", "text/plain; charset=utf-8");
+    r.body = config_.access.insecure_no_auth ? "ready (INSECURE: no access control, --insecure-no-auth)\n" : "ready\n";
+    return r;
+  });
+  router_.add("GET", "/metrics", [this](const HttpRequest&, const PathParams&) {
+    HttpResponse r;
+    r.set_header("Content-Type", "text/plain; version=0.0.4; charset=utf-8");
+    r.body = metrics_.render(manager_.stats());
+    r.body += fmt::format(
+        "# HELP tally_access_control 1 when bearer tokens are required (--auth-file)\n"
+        "# TYPE tally_access_control gauge\ntally_access_control {}\n"
+        "# HELP tally_insecure_no_auth 1 when listening off loopback without access control (--insecure-no-auth)\n"
+        "# TYPE tally_insecure_no_auth gauge\ntally_insecure_no_auth {}\n",
+        config_.access.access ? 1 : 0, config_.access.insecure_no_auth ? 1 : 0);
+    return r;
+  });
+  router_.add("GET", "/v1/openapi.json", [](const HttpRequest&, const PathParams&) {
+    HttpResponse r;
+    r.set_header("Content-Type", "application/json");
+    r.body = openapi_document();
+    return r;
+  });
+  router_.add("POST", "/v1/jobs", bind(&RequestHandler::post_job), true);
+  router_.add("GET", "/v1/jobs", bind(&RequestHandler::list_jobs));
+  router_.add("POST", "/v1/jobs/validate", bind(&RequestHandler::validate_job), true);
+  router_.add("GET", "/v1/jobs/{id}", bind(&RequestHandler::get_job));
+  router_.add("DELETE", "/v1/jobs/{id}", bind(&RequestHandler::delete_job));
+  router_.add("POST", "/v1/jobs/{id}/extend", bind(&RequestHandler::extend_job));
+  router_.add("GET", "/v1/jobs/{id}/events", bind(&RequestHandler::job_events));
+  router_.add("GET", "/v1/jobs/{id}/tiles/{n}", bind(&RequestHandler::job_tile));
+  router_.add("GET", "/v1/jobs/{id}/image.exr",
+              [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, true); }, true);
+  router_.add("GET", "/v1/jobs/{id}/image.png",
+              [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, false); }, true);
+  router_.add("POST", "/v1/session", bind(&RequestHandler::login));
+  router_.add("GET", "/v1/session", bind(&RequestHandler::whoami));
+  router_.add("DELETE", "/v1/session", bind(&RequestHandler::logout));
+}
+
+bool RequestHandler::may_block(const HttpRequest& request) const {
+  const RouteMatch m = router_.match(request.method, request.path());
+  return m.route && m.route->may_block;
+}
+
+HttpResponse RequestHandler::handle(HttpRequest request) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const RouteMatch m = router_.match(request.method, request.path());
+  HttpResponse res;
+  try {
+    // The one authorize step: the caller, or 400/401/403/429 before any route runs.
+    request.principal =
+        std::make_shared<const Principal>(authorize(request, m.route ? m.route->pattern : "", config_.access));
+    if (!m.route) {
+      if (auto file = serve_static_file(request)) return *file;  // the preview page, examples
+      if (!m.allow.empty()) {
+        std::string allow;
+        for (const auto& a : m.allow) allow += (allow.empty() ? "" : ", ") + a;
+        HttpError e(405, fmt::format("{} is not allowed on {}; allowed: {}", request.method, request.path(), allow));
+        e.headers.emplace_back("Allow", allow);
+        throw e;
+      }
+      throw HttpError(404, fmt::format("no route for {}", request.path()));
+    }
+    res = m.route->handler(request, m.params);
+  } catch (const HttpError& e) {
+    res = problem_response(e.status(), e.detail(), e.pointer());
+    for (const auto& [k, v] : e.headers) res.set_header(k, v);
+  } catch (const SpecError& e) {
+    res = problem_response(422, e.detail(), e.pointer(), true);
+  } catch (const JobError& e) {
+    switch (e.kind()) {
+      case JobError::Kind::not_found: res = problem_response(404, e.what()); break;
+      case JobError::Kind::conflict: res = problem_response(409, e.what()); break;
+      case JobError::Kind::queue_full:
+        res = problem_response(503, e.what());
+        res.set_header("Retry-After", "5");
+        break;
+      case JobError::Kind::unavailable:
+        res = problem_response(503, e.what());
+        res.set_header("Retry-After", "5");
+        break;
+      case JobError::Kind::quota: res = problem_response(403, e.what()); break;
+    }
+  } catch (const std::exception& e) {
+    res = problem_response(500, fmt::format("internal error: {}", e.what()));
+  }
+  if (res.header("X-Content-Type-Options").empty()) res.set_header("X-Content-Type-Options", "nosniff");
+  const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  metrics_.observe(m.route ? m.route->pattern : std::string("unmatched"), request.method, res.status, dt);
+  return res;
+}
+
+json RequestHandler::parse_json_body(const HttpRequest& request) const {
+  const std::string_view ct = request.header("content-type");
+  if (ct.empty() || !is_json_media_type(ct)) {
+    throw HttpError(415, fmt::format("the request body must be application/json, got \"{}\"", ct));
+  }
+  if (request.body.empty()) throw HttpError(400, "the request body is empty; a JSON object is required");
+  if (json_nesting_depth(request.body, config_.max_json_depth) > config_.max_json_depth) {
+    throw HttpError(400, fmt::format("JSON nesting deeper than {} levels", config_.max_json_depth));
+  }
+  try {
+    return json::parse(request.body);
+  } catch (const json::parse_error& e) {
+    throw HttpError(400, fmt::format("malformed JSON: {}", e.what()));
+  }
+}
+
+// ---- browser sessions: EventSource cannot send an Authorization header, so the
+// page trades a token for an HttpOnly, SameSite=Strict cookie once.
+
+HttpResponse RequestHandler::login(const HttpRequest& req, const PathParams&) {
+  const json body = parse_json_body(req);
+  SpecReader rd(body, "");
+  const std::string token = rd.string("token", 512);
+  rd.finish();
+  AccessControl* access = config_.access.access;
+  if (!access) throw HttpError(404, "access control is off: no login is needed");
+  const auto who = is_b64token(token) ? access->authenticate_token(token) : std::nullopt;
+  if (!who) {
+    HttpError e(401, "unknown or revoked token");
+    e.headers.emplace_back("WWW-Authenticate", "Bearer realm=\"tally\", error=\"invalid_token\"");
+    throw e;
+  }
+  if (who->role == Role::metrics) throw HttpError(403, "role metrics may not open a browser session");
+  const std::string sid = access->open_session(*who);
+  HttpResponse r = json_response(200, {{"name", who->name}, {"role", std::string(role_name(who->role))},
+                                       {"access_control", true}});
+  r.set_header("Set-Cookie", fmt::format("{}={}; Path=/; HttpOnly; SameSite=Strict; Max-Age=43200{}", kSessionCookie,
+                                         sid, config_.access.tls ? "; Secure" : ""));
+  r.set_header("Cache-Control", "no-store");
+  return r;
+}
+
+HttpResponse RequestHandler::whoami(const HttpRequest& req, const PathParams&) {
+  const Principal& p = *req.principal;
+  return json_response(200, {{"name", p.name},
+                             {"role", std::string(role_name(p.role))},
+                             {"access_control", config_.access.access != nullptr},
+                             {"via_cookie", p.via_cookie}});
+}
+
+HttpResponse RequestHandler::logout(const HttpRequest& req, const PathParams&) {
+  if (config_.access.access) {
+    const std::string sid = cookie_value(req, kSessionCookie);
+    if (!sid.empty()) config_.access.access->close_session(sid);  // its event streams end
+  }
+  HttpResponse r;
+  r.status = 204;
+  r.set_header("Set-Cookie", fmt::format("{}=; Path=/; HttpOnly; SameSite=Strict; Max-Age=0{}", kSessionCookie,
+                                         config_.access.tls ? "; Secure" : ""));
+  return r;
+}
+
+}  // namespace tally

@@ -1,0 +1,99 @@
+#pragma once
+// Turns an HttpRequest into an HttpResponse: routing, content negotiation, JSON
+// parsing with a depth pre-scan, and the one place that maps failures (SpecError,
+// JobError, HttpError) to statuses and problem+json bodies. No sockets here.
+// The route bodies live beside it: job_routes.cpp, image_routes.cpp (and the
+// health/metrics/openapi routes in add_routes). Routes read JobSnapshots.
+#include <atomic>
+#include <chrono>
+#include <functional>
+#include <map>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "common/engine/image_source.hpp"
+#include "server/auth/authorize.hpp"
+#include "server/http/http_types.hpp"
+#include "server/jobs/job_manager.hpp"
+#include "server/api/metrics.hpp"
+#include "server/api/router.hpp"
+
+namespace tally {
+
+struct ImageEncoders {
+  std::function<std::string(const ImageSnapshot&, const nlohmann::json& metadata)> exr;
+  std::function<std::string(const ImageSnapshot&)> png;
+};
+
+struct HandlerConfig {
+  size_t max_json_depth = 64;
+  double pilot_seconds = 0.3;
+  unsigned max_concurrent_pilots = 2;
+  ImageEncoders images;  // empty functions: the image routes answer 501
+  AccessPolicy access;   // who may call (server/auth/authorize.hpp); default: no access control
+};
+
+// GET /v1/jobs/{id} bodies, kept until the job changes (its version) and, for a
+// running job, at most 1 s (its timing fields follow the clock). Thread-safe.
+class StatusCache {
+ public:
+  std::string body(const JobSnapshot& job, const std::function<std::string()>& build);
+
+ private:
+  struct Entry {
+    uint64_t version = 0;
+    std::string body;
+    std::chrono::steady_clock::time_point at{};
+  };
+  std::mutex mu_;
+  std::map<std::string, Entry> entries_;
+};
+
+class RequestHandler {
+ public:
+  RequestHandler(JobManager& manager, Metrics& metrics, HandlerConfig config);
+
+  HttpResponse handle(HttpRequest request);
+  // True for requests that may take long (compile, pilot, image encode): the
+  // session runs them off the I/O threads.
+  bool may_block(const HttpRequest& request) const;
+  const Router& router() const { return router_; }
+  void set_ready(bool ready) { ready_ = ready; }
+
+ private:
+  void add_routes();
+  nlohmann::json parse_json_body(const HttpRequest& request) const;
+  // The one lookup of every job route: the job if the caller may see it, else 404
+  // (another tenant's job is indistinguishable from a missing one).
+  std::shared_ptr<Job> visible_job(const HttpRequest& request, const std::string& id) const;
+  JobSnapshot visible_snapshot(const HttpRequest& request, const std::string& id) const;
+  // The server's limits tightened by the caller's quotas.
+  Submitter submitter(const HttpRequest& request) const;
+
+  HttpResponse post_job(const HttpRequest&, const PathParams&);
+  HttpResponse list_jobs(const HttpRequest&, const PathParams&);
+  HttpResponse get_job(const HttpRequest&, const PathParams&);
+  HttpResponse delete_job(const HttpRequest&, const PathParams&);
+  HttpResponse extend_job(const HttpRequest&, const PathParams&);
+  HttpResponse validate_job(const HttpRequest&, const PathParams&);
+  HttpResponse job_events(const HttpRequest&, const PathParams&);
+  HttpResponse job_tile(const HttpRequest&, const PathParams&);
+  HttpResponse job_image(const HttpRequest&, const PathParams&, bool exr);
+  HttpResponse login(const HttpRequest&, const PathParams&);
+  HttpResponse whoami(const HttpRequest&, const PathParams&);
+  HttpResponse logout(const HttpRequest&, const PathParams&);
+
+  JobManager& manager_;
+  Metrics& metrics_;
+  HandlerConfig config_;
+  Router router_;
+  std::atomic<bool> ready_{true};
+  std::atomic<unsigned> pilots_{0};
+  StatusCache status_cache_;
+};
+
+// The OpenAPI 3.1 document (docs/openapi.json, embedded at build time).
+const std::string& openapi_document();
+
+}  // namespace tally

@@ -1,0 +1,466 @@
+#include "server/jobs/job_manager.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <chrono>
+#include <random>
+#include <set>
+
+#include "common/log/log.hpp"
+#include "common/protocol/job_json.hpp"
+#include "server/executor/in_process_executor.hpp"
+
+namespace tally {
+
+using nlohmann::json;
+
+double unix_now() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+namespace {
+
+std::string new_job_id() {
+  static std::mutex mu;
+  static std::mt19937_64 rng{std::random_device{}() ^
+                             static_cast<uint64_t>(std::chrono::steady_clock::now().time_since_epoch().count())};
+  std::lock_guard lock(mu);
+  return fmt::format("{:016x}", rng());
+}
+
+std::string dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
+
+JobStatus status_of(const JobRunner& r) {
+  switch (r.stop_reason()) {
+    case StopReason::none: return JobStatus::running;
+    case StopReason::cancelled: return JobStatus::cancelled;
+    case StopReason::failed: return JobStatus::failed;
+    default: return JobStatus::succeeded;
+  }
+}
+
+}  // namespace
+
+JobSnapshot Job::snapshot_locked() const {
+  JobSnapshot s;
+  s.id = id_;
+  s.seq = seq_;
+  s.priority = priority_;
+  s.owner = owner_;
+  s.spec = spec_;
+  s.created_at = created_at_;
+  s.started_at = started_at_;
+  s.finished_at = finished_at_;
+  s.status = status_;
+  s.error = error_;
+  s.version = version_;
+  s.def = def_;
+  // The runner changes in place at pass boundaries: readers get a copy made once
+  // per version, which no one mutates afterwards.
+  if (runner_ && published_version_ != version_) {
+    published_ = std::make_shared<const JobRunner>(*runner_);
+    published_version_ = version_;
+  }
+  if (!runner_) published_.reset();
+  s.runner = published_;
+  s.final_result = final_result_;
+  s.last_event_id = events_.last_id();
+  return s;
+}
+
+JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compiler)
+    : config_(std::move(config)), compiler_(std::move(compiler)),
+      recorder_(store, compiler_, config_.limits, config_.event_buffer) {
+  ExecutorCallbacks cb;
+  cb.pass_done = [this](const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
+                        double wall) { return on_pass_done(id, done, std::move(results), wall); };
+  cb.cancelled = [this](const std::string& id) { on_cancelled(id); };
+  cb.failed = [this](const std::string& id, const std::string& error) { on_failed(id, error); };
+  executor_ = std::make_unique<InProcessExecutor>(config_.workers, std::move(cb), config_.chunk_target_s);
+}
+
+JobManager::~JobManager() { executor_->stop(); }
+
+// ---------------------------------------------------------------- snapshots
+
+JobSnapshot JobManager::snapshot(const Job& job) const {
+  std::lock_guard lock(job.mu_);
+  return job.snapshot_locked();
+}
+
+JobSnapshot JobManager::snapshot(const std::string& id) const {
+  const std::shared_ptr<Job> job = find(id);
+  if (!job) throw JobError(JobError::Kind::not_found, fmt::format("no job with id \"{}\"", id));
+  return snapshot(*job);
+}
+
+std::vector<JobSnapshot> JobManager::snapshots() const {
+  std::vector<JobSnapshot> out;
+  for (const auto& job : list()) out.push_back(snapshot(*job));
+  return out;
+}
+
+// ---------------------------------------------------------------- lifecycle
+
+void JobManager::publish_state_locked(Job& job) {
+  job.events_.append("state", dump(state_event_json(job.status_, job.runner_.get(), job.error_, false)));
+}
+
+void JobManager::finish_locked(Job& job, double now) {
+  job.status_ = job.runner_ ? status_of(*job.runner_) : JobStatus::failed;
+  if (job.status_ == JobStatus::running) job.status_ = JobStatus::succeeded;  // plan_pass had nothing left
+  if (job.runner_ && job.runner_->error_message() && job.error_.empty()) job.error_ = *job.runner_->error_message();
+  job.finished_at_ = now;
+  job.final_result_ = job.runner_ && job.def_ ? std::make_shared<const json>(engine_json(*job.def_, *job.runner_))
+                                              : std::make_shared<const json>(json::object());
+  job.version_++;
+  publish_state_locked(job);
+  job.events_.append("end", dump(state_event_json(job.status_, job.runner_.get(), job.error_, true)));
+  log::job(job.status_ == JobStatus::failed ? log::Level::warn : log::Level::info, job.id_, "{}{}{}",
+           job_status_name(job.status_),
+           job.runner_ ? fmt::format(" ({}, {} samples)", stop_reason_name(job.runner_->stop_reason()),
+                                     job.runner_->state().samples)
+                       : std::string(),
+           job.error_.empty() ? std::string() : ": " + job.error_);
+}
+
+std::shared_ptr<Job> JobManager::submit(const json& spec, int priority, const Submitter& who) {
+  const JobLimits& limits = who.limits ? *who.limits : config_.limits;
+  std::shared_ptr<const JobDefinition> def = compiler_(spec, limits);  // throws SpecError
+  auto runner = std::make_unique<JobRunner>(def->kernel(), def->stop_rule(), limits.caps());
+  std::shared_ptr<Job> job;
+  {
+    std::lock_guard lock(mu_);
+    if (shutting_down_) throw JobError(JobError::Kind::unavailable, "the server is shutting down");
+    if (queue_.size() >= config_.max_queued && running_ >= config_.max_running) {
+      throw JobError(JobError::Kind::queue_full,
+                     fmt::format("the job queue is full ({} queued, {} running); retry later", queue_.size(), running_));
+    }
+    if (who.max_queued != UINT64_MAX || who.max_running != UINT64_MAX) {
+      const auto r = running_by_owner_.find(who.owner);
+      const uint64_t running = r == running_by_owner_.end() ? 0 : r->second;
+      const auto queued = static_cast<uint64_t>(
+          std::count_if(queue_.begin(), queue_.end(), [&](const auto& j) { return j->owner() == who.owner; }));
+      const bool would_wait = running >= who.max_running || running_ >= config_.max_running;
+      if (would_wait && queued >= who.max_queued) {
+        throw JobError(JobError::Kind::quota,
+                       fmt::format("quota max_queued_jobs: \"{}\" already has {} queued and {} running jobs "
+                                   "(max_queued_jobs {}, max_running_jobs {})",
+                                   who.owner, queued, running, who.max_queued, who.max_running));
+      }
+    }
+    job = std::make_shared<Job>(new_job_id(), next_seq_++, spec, clamp_priority(priority), unix_now(), epoch_,
+                                config_.event_buffer, who.owner);
+    job->owner_max_running_ = who.max_running;
+    job->def_ = std::move(def);
+    job->runner_ = std::move(runner);
+    jobs_[job->id()] = job;
+    order_.push_back(job);
+  }
+  log::job(log::Level::info, job->id(), "submitted: kind {}, priority {}", job->def_->kind(), job->priority());
+  recorder_.persist(*job, false);
+  {
+    std::lock_guard lock(mu_);
+    queue_.push_back(job);
+    start_queued_locked();
+  }
+  return job;
+}
+
+void JobManager::start_queued_locked() {
+  while (running_ < config_.max_running && !queue_.empty() && !shutting_down_) {
+    // Highest priority first, then submission order; skipping owners at their
+    // running-jobs quota.
+    auto it = queue_.end();
+    for (auto c = queue_.begin(); c != queue_.end(); ++c) {
+      const auto r = running_by_owner_.find((*c)->owner());
+      if (r != running_by_owner_.end() && r->second >= (*c)->owner_max_running_) continue;
+      if (it == queue_.end() || ((*c)->priority() != (*it)->priority() ? (*c)->priority() > (*it)->priority()
+                                                                       : (*c)->seq() < (*it)->seq())) {
+        it = c;
+      }
+    }
+    if (it == queue_.end()) break;
+    std::shared_ptr<Job> job = *it;
+    queue_.erase(it);
+    PassWork pass;
+    ExecutorJob ej;
+    {
+      std::lock_guard jl(job->mu_);
+      if (job->status_ != JobStatus::queued || !job->runner_) continue;
+      job->status_ = JobStatus::running;
+      if (job->started_at_ <= 0) job->started_at_ = unix_now();
+      job->version_++;
+      publish_state_locked(*job);
+      pass.pass = job->runner_->state().passes;
+      pass.blocks = job->runner_->plan_pass();
+      pass.pass_input = job->runner_->pass_input();
+      if (pass.empty()) {
+        finish_locked(*job, unix_now());
+      } else {
+        ej.id = job->id();
+        ej.kernel = job->def_->kernel();
+        ej.spec_json = job->spec().dump();
+        ej.epoch = epoch_;
+        ej.priority = job->priority();
+        ej.owner = job->owner();
+      }
+    }
+    if (pass.empty()) {
+      // Nothing to run (restored already complete): store the final state.
+      recorder_.persist(*job, true);
+      continue;
+    }
+    log::job(log::Level::debug, job->id(), "running");
+    ++running_;
+    ++running_by_owner_[job->owner()];
+    executor_->add(std::move(ej), std::move(pass));
+  }
+}
+
+void JobManager::job_left_scheduler(const Job& job) {
+  std::lock_guard lock(mu_);
+  if (running_ > 0) --running_;
+  if (auto it = running_by_owner_.find(job.owner()); it != running_by_owner_.end() && --it->second == 0) {
+    running_by_owner_.erase(it);
+  }
+  start_queued_locked();
+}
+
+PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
+                                  double wall) {
+  const std::shared_ptr<Job> job = find(id);
+  if (!job) return {};
+  const std::vector<Block>& blocks = done.blocks;
+  PassWork next;
+  bool finished = false, checkpoint = false;
+  {
+    std::lock_guard lock(job->mu_);
+    JobRunner& r = *job->runner_;
+    try {
+      r.commit_pass(std::move(results), wall);
+    } catch (const std::exception& e) {
+      log::job(log::Level::error, job->id(), "committing pass {} failed: {}", done.pass, e.what());
+      r.fail(fmt::format("internal error committing a pass: {}", e.what()));
+    }
+    job->version_++;
+    job->events_.append("progress", dump(progress_event_json(r)));
+    if (const ImageSource* img = job->def_->image()) {
+      std::set<uint32_t> tiles;
+      for (const Block& b : blocks) tiles.insert(img->tile_of_partition(b.partition));
+      for (uint32_t t : tiles) {
+        const TileRect rc = img->tile_rect(t);
+        job->events_.append("tile", dump(json{{"tile", t}, {"x", rc.x}, {"y", rc.y}, {"w", rc.w}, {"h", rc.h},
+                                              {"pass", r.state().passes}}));
+      }
+    }
+    if (job->cancel_requested_ && !r.finished()) r.cancel();  // takes effect at this boundary
+    if (!r.finished()) {
+      next.pass = r.state().passes;
+      next.blocks = r.plan_pass();
+      next.pass_input = r.pass_input();
+    }
+    if (r.finished() || next.empty()) {
+      finish_locked(*job, unix_now());
+      finished = true;
+      next = PassWork{};
+    }
+    const auto now = std::chrono::steady_clock::now();
+    if (finished || now - job->last_checkpoint_ >= std::chrono::duration<double>(config_.checkpoint_interval_s)) {
+      job->last_checkpoint_ = now;
+      checkpoint = true;
+    }
+  }
+  if (checkpoint) recorder_.persist(*job, true);
+  if (finished) job_left_scheduler(*job);
+  return next;
+}
+
+void JobManager::on_failed(const std::string& id, const std::string& error) {
+  const std::shared_ptr<Job> job = find(id);
+  if (!job) return;
+  {
+    std::lock_guard lock(job->mu_);
+    if (is_terminal(job->status_)) return;
+    // The partial pass was dropped; the runner is at its last pass boundary.
+    job->runner_->fail(error);
+    finish_locked(*job, unix_now());
+  }
+  recorder_.persist(*job, true);
+  job_left_scheduler(*job);
+}
+
+void JobManager::on_cancelled(const std::string& id) {
+  const std::shared_ptr<Job> job = find(id);
+  if (!job) return;
+  {
+    std::lock_guard lock(job->mu_);
+    if (is_terminal(job->status_)) return;
+    // The partial pass was dropped; the runner is at its last pass boundary.
+    job->runner_->cancel();
+    finish_locked(*job, unix_now());
+  }
+  recorder_.persist(*job, true);
+  job_left_scheduler(*job);
+}
+
+std::shared_ptr<Job> JobManager::find(const std::string& id) const {
+  std::lock_guard lock(mu_);
+  auto it = jobs_.find(id);
+  return it == jobs_.end() ? nullptr : it->second;
+}
+
+std::vector<std::shared_ptr<Job>> JobManager::list() const {
+  std::lock_guard lock(mu_);
+  return order_;
+}
+
+std::shared_ptr<Job> JobManager::cancel(const std::string& id) {
+  std::shared_ptr<Job> job = find(id);
+  if (!job) throw JobError(JobError::Kind::not_found, fmt::format("no job with id \"{}\"", id));
+  bool was_queued = false;
+  {
+    std::lock_guard lock(mu_);
+    std::lock_guard jl(job->mu_);
+    if (is_terminal(job->status_)) {
+      throw JobError(JobError::Kind::conflict,
+                     fmt::format("job {} has already finished ({})", id, job_status_name(job->status_)));
+    }
+    if (job->status_ == JobStatus::queued) {
+      queue_.erase(std::remove(queue_.begin(), queue_.end(), job), queue_.end());
+      if (job->runner_) job->runner_->cancel();
+      finish_locked(*job, unix_now());
+      job->status_ = JobStatus::cancelled;
+      was_queued = true;
+    } else {
+      job->cancel_requested_ = true;
+      log::job(log::Level::info, id, "cancel requested; stops at the next chunk boundary");
+    }
+  }
+  if (was_queued) {
+    recorder_.persist(*job, false);
+    return job;
+  }
+  executor_->cancel(id);  // may run on_cancelled right here
+  return job;
+}
+
+std::shared_ptr<Job> JobManager::extend(const std::string& id, const StopRule& rule) {
+  std::shared_ptr<Job> job = find(id);
+  if (!job) throw JobError(JobError::Kind::not_found, fmt::format("no job with id \"{}\"", id));
+  {
+    std::lock_guard lock(mu_);
+    if (shutting_down_) throw JobError(JobError::Kind::unavailable, "the server is shutting down");
+    std::lock_guard jl(job->mu_);
+    if (!is_terminal(job->status_)) {
+      throw JobError(JobError::Kind::conflict,
+                     fmt::format("job {} is still {}; extend a finished job", id, job_status_name(job->status_)));
+    }
+    if (job->status_ == JobStatus::failed || !job->runner_ || !job->def_) {
+      throw JobError(JobError::Kind::conflict,
+                     fmt::format("job {} failed{}; a failed job cannot be extended", id,
+                                 job->error_.empty() ? "" : ": " + job->error_));
+    }
+    JobRunner trial = *job->runner_;  // leave the job untouched if the rule is refused
+    trial.extend(rule);
+    if (trial.finished()) {
+      throw JobError(JobError::Kind::conflict,
+                     fmt::format("the new rule is already met by job {} ({}); ask for more", id,
+                                 stop_reason_name(trial.stop_reason())));
+    }
+    *job->runner_ = std::move(trial);
+    job->status_ = JobStatus::queued;
+    job->cancel_requested_ = false;
+    job->error_.clear();
+    job->finished_at_ = 0;
+    job->final_result_.reset();
+    job->version_++;
+    publish_state_locked(*job);
+  }
+  log::job(log::Level::info, id, "extended; queued again");
+  recorder_.persist(*job, false);
+  std::lock_guard lock(mu_);
+  queue_.push_back(job);
+  start_queued_locked();
+  return job;
+}
+
+// ---------------------------------------------------------------- recovery, shutdown
+
+void JobManager::recover() {
+  JobRecorder::Recovered rec = recorder_.recover();
+  epoch_ = rec.epoch;
+  size_t resumed = 0;
+  std::lock_guard lock(mu_);
+  for (auto& job : rec.jobs) {
+    jobs_[job->id()] = job;
+    order_.push_back(job);
+    next_seq_ = std::max(next_seq_, job->seq() + 1);
+    std::lock_guard jl(job->mu_);
+    if (!is_terminal(job->status_)) {
+      job->status_ = JobStatus::queued;
+      queue_.push_back(job);
+      ++resumed;
+      log::job(log::Level::info, job->id(), "resumes from its checkpoint ({} samples)",
+               job->runner_ ? job->runner_->state().samples : 0);
+    }
+  }
+  if (!rec.jobs.empty()) log::info("recovered {} jobs ({} resume), epoch {}", rec.jobs.size(), resumed, epoch_);
+  start_queued_locked();
+}
+
+void JobManager::shutdown() {
+  {
+    std::lock_guard lock(mu_);
+    if (shutting_down_) return;
+    shutting_down_ = true;
+  }
+  executor_->stop();  // chunks in flight finish; partial passes are dropped
+  for (const auto& job : list()) {
+    bool unfinished;
+    {
+      std::lock_guard jl(job->mu_);
+      unfinished = !is_terminal(job->status_);
+    }
+    if (unfinished) {
+      recorder_.persist(*job, true);  // the state at its last pass boundary
+      log::job(log::Level::info, job->id(), "checkpointed for shutdown; resumes on restart");
+    }
+    job->events_.append("shutdown",
+                        dump(json{{"reason", "the server is shutting down"}, {"resumes", unfinished}}));
+    job->events_.close();
+  }
+}
+
+bool JobManager::shutting_down() const {
+  std::lock_guard lock(mu_);
+  return shutting_down_;
+}
+
+ManagerStats JobManager::stats() const {
+  ManagerStats s;
+  for (JobStatus st : {JobStatus::queued, JobStatus::running, JobStatus::succeeded, JobStatus::failed,
+                       JobStatus::cancelled}) {
+    s.jobs_by_state[std::string(job_status_name(st))] = 0;
+  }
+  std::vector<std::shared_ptr<Job>> jobs;
+  {
+    std::lock_guard lock(mu_);
+    jobs = order_;
+    s.queue_depth = queue_.size();
+  }
+  for (const auto& j : jobs) {
+    std::lock_guard jl(j->mu_);
+    s.jobs_by_state[std::string(job_status_name(j->status_))]++;
+    if (j->status_ == JobStatus::running && j->runner_) s.samples_per_second += j->runner_->samples_per_second();
+  }
+  const ExecutorStats es = executor_->stats();
+  s.samples_total = es.samples_done;
+  s.workers = es.workers;
+  s.busy_workers = es.busy_workers;
+  s.cpu_seconds_by_owner = es.cpu_seconds_by_owner;
+  return s;
+}
+
+}  // namespace tally
