@@ -206,7 +206,7 @@ TEST(Tenancy, ReaderIsReadOnlyOnItsOwnJobs) {
   AuthHarness a(p);
   Submitter rita;
   rita.owner = "rita";  // a job rita submitted when she was a user
-  const std::string id = a.h.manager->submit(fake_spec(kForever, 1, 1, true), 0, rita)->id;
+  const std::string id = a.h.manager->submit(fake_spec(kForever, 1, 1, true), 0, rita)->id();
   ASSERT_TRUE(wait_until([&] { return a.state(p.rita, id) == "running"; }));
   EXPECT_EQ(a.as(p.rita, "GET", "/v1/jobs/" + id).status, 200);
   EXPECT_EQ(a.as(p.rita, "GET", "/v1/jobs/" + id + "/tiles/0").status, 200);
@@ -287,8 +287,8 @@ TEST(FairShare, OwnersShareWorkersEquallyWhateverTheirJobCount) {
   many.owner = "many";
   one.owner = "one";
   std::vector<std::string> ids;
-  for (int i = 0; i < 8; ++i) ids.push_back(m.submit(fake_spec(kForever, 20, 100 + i), 0, many)->id);
-  ids.push_back(m.submit(fake_spec(kForever, 20, 7), 0, one)->id);
+  for (int i = 0; i < 8; ++i) ids.push_back(m.submit(fake_spec(kForever, 20, 100 + i), 0, many)->id());
+  ids.push_back(m.submit(fake_spec(kForever, 20, 7), 0, one)->id());
   std::this_thread::sleep_for(std::chrono::milliseconds(500));  // warm up: every job has a block time estimate
   const auto s0 = m.stats().cpu_seconds_by_owner;
   std::this_thread::sleep_for(std::chrono::seconds(2));
