@@ -19,16 +19,17 @@ struct HealthOptions {
   std::string path = "/readyz";
   double timeout_s = 3.0;
   bool quiet = false;
+  ClientSecurity security;
 };
 
 int check_health(const HealthOptions& o) {
   const auto url = parse_http_url(o.server);
   if (!url) {
-    fmt::print(stderr, "tally: --server must be an http:// URL, got \"{}\"\n", o.server);
+    fmt::print(stderr, "tally: --server must be an http:// or https:// URL, got \"{}\"\n", o.server);
     return exit_code::usage;
   }
   try {
-    HttpClient client(*url, o.timeout_s);
+    HttpClient client(*url, o.timeout_s, o.security);
     const ClientResponse r = client.request("GET", o.path);
     if (r.status == 200) {
       if (!o.quiet) fmt::print("{}{}: ok\n", o.server, o.path);
@@ -47,6 +48,7 @@ void add_health_command(CLI::App& app, int& exit_code) {
   auto opt = std::make_shared<HealthOptions>();
   CLI::App* cmd = app.add_subcommand("health", "Check that the server is ready (GET /readyz); exit 0 if so");
   cmd->add_option("--server", opt->server, "server URL")->envname("TALLY_SERVER")->capture_default_str();
+  add_security_options(cmd, opt->security);
   cmd->add_option("--path", opt->path, "probe path, e.g. /livez")->capture_default_str();
   cmd->add_option("--timeout", opt->timeout_s, "seconds to wait for the answer")
       ->check(CLI::PositiveNumber)

@@ -9,6 +9,8 @@
 #include <boost/asio/write.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
+#include <boost/beast/ssl.hpp>
+#include <boost/asio/ssl/host_name_verification.hpp>
 
 #include <chrono>
 #include <thread>
@@ -34,38 +36,78 @@ bool iequal(std::string_view a, std::string_view b) {
   return true;
 }
 
-// Blocking calls built from async operations, so tcp_stream's timeouts apply.
+// Blocking calls built from async operations, so tcp_stream's timeouts apply. Over
+// https the same calls go through an ssl_stream that verified the server.
 class Connection {
  public:
-  Connection(const HttpUrl& url, double timeout_s) : stream_(ioc_) {
+  Connection(const HttpUrl& url, const ClientSecurity& sec, double timeout_s) {
     tcp::resolver resolver(ioc_);
     beast::error_code ec;
     const auto results = resolver.resolve(url.host, url.port, ec);
     if (ec) throw ConnectionError("cannot resolve " + url.host + ": " + ec.message());
-    stream_.expires_after(secs(timeout_s));
-    stream_.async_connect(results, [&](beast::error_code e, const tcp::endpoint&) { ec = e; });
+    if (url.tls) {
+      ctx_.emplace(net::ssl::context::tls_client);
+      ctx_->set_options(net::ssl::context::default_workarounds | net::ssl::context::no_sslv2 |
+                        net::ssl::context::no_sslv3 | net::ssl::context::no_tlsv1 | net::ssl::context::no_tlsv1_1);
+      try {
+        if (sec.ca_file.empty()) {
+          ctx_->set_default_verify_paths();
+        } else {
+          ctx_->load_verify_file(sec.ca_file);
+        }
+      } catch (const std::exception& e) {
+        throw ConnectionError("cannot load the CA certificates " + sec.ca_file + ": " + e.what());
+      }
+      ctx_->set_verify_mode(net::ssl::verify_peer);
+      ssl_.emplace(ioc_, *ctx_);
+      ssl_->set_verify_callback(net::ssl::host_name_verification(url.host));
+      // SNI, so a server with several names picks the right certificate.
+      SSL_ctrl(ssl_->native_handle(), SSL_CTRL_SET_TLSEXT_HOSTNAME, TLSEXT_NAMETYPE_host_name,
+               const_cast<char*>(url.host.c_str()));
+    } else {
+      tcp_.emplace(ioc_);
+    }
+    beast::tcp_stream& low = lowest();
+    low.expires_after(secs(timeout_s));
+    low.async_connect(results, [&](beast::error_code e, const tcp::endpoint&) { ec = e; });
     run();
     if (ec) throw ConnectionError("cannot connect to " + url.host + ":" + url.port + ": " + ec.message());
+    if (ssl_) {
+      low.expires_after(secs(timeout_s));
+      ssl_->async_handshake(net::ssl::stream_base::client, [&](beast::error_code e) { ec = e; });
+      run();
+      if (ec) {
+        throw ConnectionError("TLS handshake with " + url.host + ":" + url.port + " failed: " + ec.message() +
+                              " (is the certificate trusted? --ca-file)");
+      }
+    }
   }
 
+  // `op(stream, handler)` starts one async operation on the plain or TLS stream.
   template <class Op>
   beast::error_code call(double timeout_s, Op&& op) {
     beast::error_code ec;
-    stream_.expires_after(secs(timeout_s));
-    op([&](beast::error_code e, size_t) { ec = e; });
+    lowest().expires_after(secs(timeout_s));
+    auto h = [&](beast::error_code e, size_t) { ec = e; };
+    if (ssl_) {
+      op(*ssl_, h);
+    } else {
+      op(*tcp_, h);
+    }
     run();
     return ec;
   }
 
-  beast::tcp_stream& stream() { return stream_; }
-
  private:
+  beast::tcp_stream& lowest() { return ssl_ ? beast::get_lowest_layer(*ssl_) : *tcp_; }
   void run() {
     ioc_.restart();
     ioc_.run();
   }
   net::io_context ioc_;
-  beast::tcp_stream stream_;
+  std::optional<net::ssl::context> ctx_;
+  std::optional<beast::tcp_stream> tcp_;
+  std::optional<beast::ssl_stream<beast::tcp_stream>> ssl_;
 };
 
 void fill_headers(const http::fields& f, HeaderList& out) {
@@ -75,10 +117,16 @@ void fill_headers(const http::fields& f, HeaderList& out) {
 }  // namespace
 
 std::optional<HttpUrl> parse_http_url(std::string_view url) {
-  constexpr std::string_view scheme = "http://";
-  if (url.substr(0, scheme.size()) != scheme) return std::nullopt;
-  url.remove_prefix(scheme.size());
   HttpUrl u;
+  if (url.substr(0, 7) == "http://") {
+    url.remove_prefix(7);
+  } else if (url.substr(0, 8) == "https://") {
+    url.remove_prefix(8);
+    u.tls = true;
+  } else {
+    return std::nullopt;
+  }
+  const std::string default_port = u.tls ? "443" : "80";
   const size_t slash = url.find('/');
   std::string_view hostport = url.substr(0, slash);
   if (slash != std::string_view::npos) {
@@ -93,12 +141,12 @@ std::optional<HttpUrl> parse_http_url(std::string_view url) {
       if (hostport[close + 1] != ':') return std::nullopt;
       u.port = std::string(hostport.substr(close + 2));
     } else {
-      u.port = "80";
+      u.port = default_port;
     }
   } else {
     const size_t colon = hostport.rfind(':');
     u.host = std::string(hostport.substr(0, colon));
-    u.port = colon == std::string_view::npos ? "80" : std::string(hostport.substr(colon + 1));
+    u.port = colon == std::string_view::npos ? default_port : std::string(hostport.substr(colon + 1));
   }
   if (u.host.empty() || u.port.empty()) return std::nullopt;
   return u;
@@ -113,10 +161,11 @@ std::string ClientResponse::header(std::string_view name) const {
 
 ClientResponse HttpClient::request(std::string_view method, std::string_view target, std::string_view body,
                                    const HeaderList& headers) {
-  Connection c(url_, timeout_s_);
+  Connection c(url_, security_, timeout_s_);
   http::request<http::string_body> req(http::string_to_verb(method), url_.base_path + std::string(target), 11);
-  req.set(http::field::host, url_.host);
+  req.set(http::field::host, host_header());
   req.set(http::field::user_agent, "tally-cli");
+  if (!security_.token.empty()) req.set(http::field::authorization, "Bearer " + security_.token);
   bool has_ct = false;
   for (const auto& [k, v] : headers) {
     req.set(k, v);
@@ -126,13 +175,13 @@ ClientResponse HttpClient::request(std::string_view method, std::string_view tar
   req.body() = std::string(body);
   req.keep_alive(false);
   req.prepare_payload();
-  if (auto ec = c.call(timeout_s_, [&](auto h) { http::async_write(c.stream(), req, h); })) {
+  if (auto ec = c.call(timeout_s_, [&](auto& s, auto h) { http::async_write(s, req, h); })) {
     throw ConnectionError("sending the request failed: " + ec.message());
   }
   beast::flat_buffer buf;
   http::response_parser<http::string_body> parser;
   parser.body_limit(std::numeric_limits<uint64_t>::max());
-  if (auto ec = c.call(timeout_s_, [&](auto h) { http::async_read(c.stream(), buf, parser, h); })) {
+  if (auto ec = c.call(timeout_s_, [&](auto& s, auto h) { http::async_read(s, buf, parser, h); })) {
     throw ConnectionError("reading the response failed: " + ec.message());
   }
   ClientResponse r;
@@ -144,18 +193,19 @@ ClientResponse HttpClient::request(std::string_view method, std::string_view tar
 
 ClientResponse HttpClient::stream(std::string_view target, const HeaderList& headers,
                                   const std::function<bool(std::string_view)>& on_data, double idle_timeout_s) {
-  Connection c(url_, timeout_s_);
+  Connection c(url_, security_, timeout_s_);
   http::request<http::empty_body> req(http::verb::get, url_.base_path + std::string(target), 11);
-  req.set(http::field::host, url_.host);
+  req.set(http::field::host, host_header());
   req.set(http::field::user_agent, "tally-cli");
+  if (!security_.token.empty()) req.set(http::field::authorization, "Bearer " + security_.token);
   for (const auto& [k, v] : headers) req.set(k, v);
-  if (auto ec = c.call(timeout_s_, [&](auto h) { http::async_write(c.stream(), req, h); })) {
+  if (auto ec = c.call(timeout_s_, [&](auto& s, auto h) { http::async_write(s, req, h); })) {
     throw ConnectionError("sending the request failed: " + ec.message());
   }
   beast::flat_buffer buf;
   http::response_parser<http::buffer_body> parser;
   parser.body_limit(std::numeric_limits<uint64_t>::max());
-  if (auto ec = c.call(timeout_s_, [&](auto h) { http::async_read_header(c.stream(), buf, parser, h); })) {
+  if (auto ec = c.call(timeout_s_, [&](auto& s, auto h) { http::async_read_header(s, buf, parser, h); })) {
     throw ConnectionError("reading the response failed: " + ec.message());
   }
   ClientResponse r;
@@ -166,7 +216,9 @@ ClientResponse HttpClient::stream(std::string_view target, const HeaderList& hea
   while (!parser.is_done()) {
     parser.get().body().data = chunk;
     parser.get().body().size = sizeof chunk;
-    auto ec = c.call(idle_timeout_s, [&](auto h) { http::async_read(c.stream(), buf, parser, h); });
+    // read_some: hand each piece over as it arrives (async_read would wait until the
+    // 16 KiB buffer is full, holding back a slow event stream).
+    auto ec = c.call(idle_timeout_s, [&](auto& s, auto h) { http::async_read_some(s, buf, parser, h); });
     if (ec == http::error::need_buffer) ec = {};
     const size_t n = sizeof chunk - parser.get().body().size;
     if (n > 0) {
@@ -184,23 +236,23 @@ ClientResponse HttpClient::stream(std::string_view target, const HeaderList& hea
 }
 
 std::string HttpClient::raw_exchange(std::string_view raw, double pause_s) {
-  Connection c(url_, timeout_s_);
+  Connection c(url_, security_, timeout_s_);
   beast::error_code ec;
   if (pause_s > 0) {
     for (char ch : raw) {
-      ec = c.call(timeout_s_, [&](auto h) { net::async_write(c.stream(), net::buffer(&ch, 1), h); });
+      ec = c.call(timeout_s_, [&](auto& s, auto h) { net::async_write(s, net::buffer(&ch, 1), h); });
       if (ec) break;  // the server cut us off
       std::this_thread::sleep_for(secs(pause_s));
     }
   } else {
-    ec = c.call(timeout_s_, [&](auto h) { net::async_write(c.stream(), net::buffer(raw.data(), raw.size()), h); });
+    ec = c.call(timeout_s_, [&](auto& s, auto h) { net::async_write(s, net::buffer(raw.data(), raw.size()), h); });
   }
   std::string out;
   char b[4096];
   for (;;) {
     size_t got = 0;
-    ec = c.call(timeout_s_, [&](auto h) {
-      c.stream().async_read_some(net::buffer(b), [&, h](beast::error_code e, size_t n) mutable {
+    ec = c.call(timeout_s_, [&](auto& s, auto h) {
+      s.async_read_some(net::buffer(b), [&, h](beast::error_code e, size_t n) mutable {
         got = n;
         h(e, n);
       });
@@ -209,6 +261,18 @@ std::string HttpClient::raw_exchange(std::string_view raw, double pause_s) {
     if (ec) break;
   }
   return out;
+}
+
+void add_security_options(CLI::App* cmd, ClientSecurity& security) {
+  cmd->add_option("--token", security.token, "bearer token for a server with access control")->envname("TALLY_TOKEN");
+  cmd->add_option("--ca-file", security.ca_file, "PEM CA certificates that sign an https server's certificate")
+      ->envname("TALLY_CA_FILE");
+}
+
+std::string HttpClient::host_header() const {
+  const bool default_port = url_.port == (url_.tls ? "443" : "80");
+  const std::string host = url_.host.find(':') != std::string::npos ? "[" + url_.host + "]" : url_.host;
+  return default_port ? host : host + ":" + url_.port;
 }
 
 }  // namespace tally

@@ -2,6 +2,7 @@
 // A small blocking HTTP/1.1 client for the CLI and the end-to-end tests. Only
 // http_client.cpp includes Beast. One connection per call: the CLI makes a handful
 // of requests, so keep-alive would buy nothing.
+#include <CLI/CLI.hpp>
 #include <functional>
 #include <optional>
 #include <stdexcept>
@@ -22,8 +23,9 @@ struct HttpUrl {
   std::string host = "127.0.0.1";
   std::string port = "8080";
   std::string base_path;  // prefix without trailing '/', usually ""
+  bool tls = false;       // https: the server's certificate is verified (chain and host name)
 };
-// "http://host:port[/prefix]"; nullopt if not an http URL.
+// "http://host:port[/prefix]" or "https://..."; nullopt if neither.
 std::optional<HttpUrl> parse_http_url(std::string_view url);
 
 using HeaderList = std::vector<std::pair<std::string, std::string>>;
@@ -35,9 +37,20 @@ struct ClientResponse {
   std::string header(std::string_view name) const;  // case-insensitive; "" if absent
 };
 
+// Credentials and trust: a bearer token sent on every request (never printed), and the
+// CA certificates (PEM) that vouch for an https server ("" = the system's).
+struct ClientSecurity {
+  std::string token;
+  std::string ca_file;
+};
+
+// Adds --token (TALLY_TOKEN) and --ca-file (TALLY_CA_FILE) to a command.
+void add_security_options(CLI::App* cmd, ClientSecurity& security);
+
 class HttpClient {
  public:
-  explicit HttpClient(HttpUrl url, double timeout_s = 30.0) : url_(std::move(url)), timeout_s_(timeout_s) {}
+  explicit HttpClient(HttpUrl url, double timeout_s = 30.0, ClientSecurity security = {})
+      : url_(std::move(url)), timeout_s_(timeout_s), security_(std::move(security)) {}
 
   ClientResponse request(std::string_view method, std::string_view target, std::string_view body = {},
                          const HeaderList& headers = {});
@@ -54,8 +67,10 @@ class HttpClient {
   const HttpUrl& url() const { return url_; }
 
  private:
+  std::string host_header() const;  // host[:port] as a browser would send it (the server's Host check)
   HttpUrl url_;
   double timeout_s_;
+  ClientSecurity security_;
 };
 
 }  // namespace tally

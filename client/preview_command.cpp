@@ -177,14 +177,14 @@ class Previewer {
 int run_preview(const PreviewOptions& o) {
   try {
     const auto url = parse_http_url(o.server);
-    if (!url) fail(exit_code::usage, fmt::format("--server must be an http:// URL, got \"{}\"", o.server));
+    if (!url) fail(exit_code::usage, fmt::format("--server must be an http:// or https:// URL, got \"{}\"", o.server));
     TevBridgeOptions to;
     if (!split_host_port(o.tev, to.host, to.port)) {
       fail(exit_code::usage, fmt::format("--tev must be HOST:PORT, got \"{}\"", o.tev));
     }
     to.image_name = o.image_name.empty() ? "tally-" + o.job_id : o.image_name;
     to.max_retries = o.tev_retries;
-    HttpClient client(*url);
+    HttpClient client(*url, 30.0, o.security);
     TevBridge bridge(to);
     Previewer p(o, client, bridge);
     p.start(get_json(client, "/v1/jobs/" + o.job_id));
@@ -247,6 +247,7 @@ void add_preview_command(CLI::App& app, int& exit_code) {
   cmd->add_option("id", o->job_id, "job id")->required();
   cmd->add_option("--tev", o->tev, "tev's HOST:PORT")->capture_default_str();
   cmd->add_option("--server", o->server, "server URL")->envname("TALLY_SERVER")->capture_default_str();
+  add_security_options(cmd, o->security);
   cmd->add_option("--name", o->image_name, "image name in tev (default tally-<id>)");
   cmd->add_option("--tev-retries", o->tev_retries, "reconnect attempts when tev goes away")->capture_default_str();
   cmd->add_flag("--quiet,-q", o->quiet, "print nothing but errors");

@@ -8,11 +8,13 @@
 #include <string>
 
 #include "client/api_request.hpp"
+#include "client/http_client.hpp"
 
 namespace tally {
 
 struct PreviewOptions {
   std::string server = kDefaultServer;
+  ClientSecurity security;
   std::string job_id;
   std::string tev = "127.0.0.1:14158";  // HOST:PORT ([v6]:PORT too)
   std::string image_name;               // default "tally-<job id>"

@@ -23,6 +23,7 @@ namespace {
 
 struct RemoteOptions {
   std::string server = kDefaultServer;
+  ClientSecurity security;
 };
 
 // An HTTP answer we did not want: print the problem detail, map to an exit code.
@@ -33,10 +34,10 @@ struct RemoteFailure {
 HttpClient make_client(const RemoteOptions& o) {
   const auto url = parse_http_url(o.server);
   if (!url) {
-    fmt::print(stderr, "tally: --server must be an http:// URL, got \"{}\"\n", o.server);
+    fmt::print(stderr, "tally: --server must be an http:// or https:// URL, got \"{}\"\n", o.server);
     throw RemoteFailure{exit_code::usage};
   }
-  return HttpClient(*url);
+  return HttpClient(*url, 30.0, o.security);
 }
 
 [[noreturn]] void fail_response(const ClientResponse& r) {
@@ -107,6 +108,7 @@ void run_guarded(int& exit_code, F&& f) {
 
 void add_server_option(CLI::App* cmd, RemoteOptions& o) {
   cmd->add_option("--server", o.server, "server URL")->envname("TALLY_SERVER")->capture_default_str();
+  add_security_options(cmd, o.security);
 }
 
 }  // namespace

@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Runs docker/compose.yaml for real with Debian's docker-compose against podman's
 # Docker-compatible API socket (no Docker engine here), on a loopback port:
-#   up (no build: the image from docker/test-image.sh) -> /readyz -> health check ->
-#   a job from the host CLI -> compose stop (SIGTERM, exit 0) -> compose start -> the
-#   job is still there -> down -v.
+#   secrets (a token, auth.json, a self-signed certificate) -> up (no build: the image
+#   from docker/test-image.sh) -> /readyz over HTTPS -> health check -> no token: 401 ->
+#   a job from the host CLI with --token and --ca-file -> compose stop (SIGTERM, exit 0)
+#   -> compose start -> the job is still there -> down -v.
 # Bounded waits; removes the project, its volume and the API service it started.
 # Usage: docker/test-compose.sh     (after docker/test-image.sh; TALLY_IMAGE as there)
 set -euo pipefail
@@ -25,7 +26,7 @@ unset TALLY_BIND
 project=tallycompose$$
 work=$(mktemp -d /tmp/tally-test-compose.XXXXXX)
 export DOCKER_HOST=unix://$work/podman.sock
-url=http://127.0.0.1:$port
+url=https://127.0.0.1:$port
 passed=0
 failed=0
 log() { printf '[%s] %s\n' "$(date +%H:%M:%S)" "$*"; }
@@ -58,9 +59,20 @@ podman cp "$cid:/usr/local/bin/tally" "$work/tally" >/dev/null
 podman rm -v "$cid" >/dev/null
 cli=${TALLY_CLI:-$work/tally}
 
+# Secrets, readable by the container's uid 10001 (a throwaway directory).
+secrets=$work/secrets
+mkdir -p "$secrets"
+token=tly_$(openssl rand -base64 32 | tr '+/' '-_' | tr -d '=\n')
+hash=$(printf '%s' "$token" | sha256sum | cut -d' ' -f1)
+printf '{"principals": [{"name": "compose-test", "role": "user", "token_sha256": "%s"}]}\n' "$hash" >"$secrets/auth.json"
+openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -days 1 -subj /CN=localhost \
+  -addext subjectAltName=DNS:localhost,IP:127.0.0.1 -keyout "$secrets/key.pem" -out "$secrets/cert.pem" 2>/dev/null
+chmod 755 "$secrets" && chmod 644 "$secrets"/*
+export TALLY_SECRETS=$secrets TALLY_TOKEN=$token TALLY_CA_FILE=$secrets/cert.pem
+
 wait_ready() {
   for _ in $(seq 1 120); do
-    curl -fsS -m 1 -o /dev/null "$url/readyz" 2>/dev/null && return 0
+    curl -fsS -m 1 --cacert "$secrets/cert.pem" -o /dev/null "$url/readyz" 2>/dev/null && return 0
     sleep 0.5
   done
   return 1
@@ -77,6 +89,8 @@ for _ in $(seq 1 20); do podman healthcheck run "$container" >/dev/null 2>&1 && 
 sec=$(podman inspect --format 'user={{.Config.User}} read_only={{.HostConfig.ReadonlyRootfs}} security_opt={{.HostConfig.SecurityOpt}}' "$container")
 case "$sec" in *user=10001:10001*read_only=true*no-new-privileges*) pass "$sec" ;; *) fail "$sec" ;; esac
 
+code=$(curl -sS -m 5 --cacert "$secrets/cert.pem" -o /dev/null -w '%{http_code}' "$url/v1/jobs")
+[ "$code" = 401 ] && pass "no token: 401" || fail "no token: $code"
 echo '{"kind":"integrate","integrand":{"builtin":"unit_disk"},"seed":3,"stop":{"max_samples":20000000}}' >"$work/job.json"
 timeout 120 "$cli" submit "$work/job.json" --watch --server "$url" >"$work/submit.out" 2>"$work/submit.err" ||
   { tail -3 "$work/submit.err"; die "submit failed"; }

@@ -153,10 +153,13 @@ podman volume create "$volume" >/dev/null
 
 # podman's periodic health checks need systemd timers, which this sandbox lacks: its
 # complaints go to $work/podman.err, and the check runs with `podman healthcheck run`.
+# The port is published on host loopback only, so this test runs the server without
+# tokens (--insecure-no-auth); docker/test-compose.sh runs it with tokens and TLS.
 create() {  # name -> container created (not started), hardened as in compose.yaml
   podman create --name "$1" -p "127.0.0.1:$port:8080" -v "$volume:/var/lib/tally" \
     --read-only --tmpfs /tmp --cap-drop ALL --security-opt no-new-privileges \
-    --stop-timeout 30 "$image" --listen 0.0.0.0:8080 --data-dir /var/lib/tally --workers 2 >/dev/null 2>>"$work/podman.err"
+    --stop-timeout 30 "$image" --listen 0.0.0.0:8080 --data-dir /var/lib/tally --workers 2 --insecure-no-auth \
+    >/dev/null 2>>"$work/podman.err"
 }
 wait_ready() {  # name -> prints "ready_s start_s": seconds from `podman start` to /readyz 200,
   # and to `podman start` returning (runtime and network set-up); bounded by 60 s

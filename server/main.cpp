@@ -6,8 +6,13 @@
 #include <filesystem>
 #include <fstream>
 #include <future>
+#include <memory>
+#include <vector>
 
 #include "common/jobs/job_factory.hpp"
+#include "server/auth/access_control.hpp"
+#include "server/auth/auth_file.hpp"
+#include "server/auth/token.hpp"
 #include "common/log/log.hpp"
 #include "server/executor/cpu_quota.hpp"
 #include "server/http/fd_limit.hpp"
@@ -69,8 +74,47 @@ int main(int argc, char** argv) {
   app.add_option("--log-format", log_format, "text or json (one object per line)")
       ->check(CLI::IsMember({"text", "json"}))
       ->capture_default_str();
+  std::string auth_file;
+  bool insecure_no_auth = false;
+  std::vector<std::string> allowed_hosts;
+  app.add_option("--auth-file", auth_file, "principals and token hashes (JSON, docs/security.md); SIGHUP reloads it");
+  app.add_flag("--insecure-no-auth", insecure_no_auth, "listen off loopback without --auth-file (anyone may do anything)");
+  app.add_option("--allowed-host", allowed_hosts, "extra Host header value accepted without --auth-file (repeatable)");
+  app.add_option("--tls-cert", http.tls_cert, "PEM certificate chain: serve HTTPS (needs --tls-key)");
+  app.add_option("--tls-key", http.tls_key, "PEM private key of --tls-cert");
+
+  // tally-server token new NAME --role user: a fresh token, shown once, and its entry.
+  CLI::App* token_cmd = app.add_subcommand("token", "manage bearer tokens");
+  CLI::App* token_new = token_cmd->add_subcommand("new", "print a fresh token and the auth-file entry to add");
+  std::string token_name, token_role = "user";
+  token_new->add_option("name", token_name, "principal name")->required();
+  token_new->add_option("--role", token_role, "admin, user, reader or metrics")->capture_default_str();
+  token_cmd->require_subcommand(1);
   CLI11_PARSE(app, argc, argv);
   log::configure(*log::parse_level(log_level), *log::parse_format(log_format));
+
+  if (token_new->parsed()) {
+    PrincipalEntry e;
+    e.name = token_name;
+    const auto role = parse_role(token_role);
+    if (!role) {
+      fmt::print(stderr, "tally-server: --role must be admin, user, reader or metrics, got \"{}\"\n", token_role);
+      return 2;
+    }
+    e.role = *role;
+    const std::string token = generate_token();
+    e.token_sha256 = token_sha256_hex(token);
+    try {
+      parse_auth_file(nlohmann::json{{"principals", {principal_entry_json(e)}}});  // the name is valid
+    } catch (const std::exception& ex) {
+      fmt::print(stderr, "tally-server: {}\n", ex.what());
+      return 2;
+    }
+    fmt::print(stderr, "The token is shown once; only its hash goes into the auth file. Add the entry below to\n"
+                       "\"principals\" and send the server SIGHUP.\n");
+    fmt::print("{}\n{}\n", token, principal_entry_json(e).dump());
+    return 0;
+  }
 
   const auto addr = parse_listen_address(listen);
   if (!addr) {
@@ -88,6 +132,43 @@ int main(int argc, char** argv) {
   }
   http.address = addr->host;
   http.port = addr->port;
+  if (http.tls_cert.empty() != http.tls_key.empty()) {
+    fmt::print(stderr, "tally-server: --tls-cert and --tls-key go together\n");
+    return 2;
+  }
+  const bool loopback = is_loopback_address(http.address);
+  if (!loopback && auth_file.empty() && !insecure_no_auth) {
+    fmt::print(stderr,
+               "tally-server: refusing to listen on {} without access control: anyone who reaches the port could\n"
+               "run, read and cancel every job. Give --auth-file (docs/security.md), or --insecure-no-auth if\n"
+               "something in front of the server already authenticates every caller.\n",
+               http.address);
+    return 2;
+  }
+  std::unique_ptr<AccessControl> access;
+  if (!auth_file.empty()) {
+    try {
+      access = std::make_unique<AccessControl>(load_auth_file(auth_file));
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "tally-server: {}\n", e.what());
+      return 2;
+    }
+  }
+  hc.access.access = access.get();
+  hc.access.metrics_open = loopback;
+  hc.access.check_host = !access;  // without tokens, only names of this machine (DNS rebinding)
+  for (auto h : allowed_hosts) {
+    for (char& c : h) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    hc.access.allowed_hosts.push_back(h);
+  }
+  hc.access.tls = !http.tls_cert.empty();
+  hc.access.insecure_no_auth = !access && !loopback;
+  if (hc.access.insecure_no_auth) {
+    fmt::print(stderr,
+               "tally-server: WARNING: INSECURE: listening on {} with NO ACCESS CONTROL (--insecure-no-auth).\n"
+               "tally-server: WARNING: anyone who reaches this port may run, read and cancel every job.\n",
+               http.address);
+  }
   mc.workers = workers > 0 ? workers : default_worker_count();
 #ifdef TALLY_HAVE_IMAGE_IO
   // The image module is loaded on the first image; without it the image routes answer 501.
@@ -117,6 +198,17 @@ int main(int argc, char** argv) {
     HttpServer server(http, handler, metrics);
     std::promise<int> signalled;
     server.on_signal([&signalled](int sig) { signalled.set_value(sig); });
+    server.on_hangup([&access, &auth_file] {
+      if (!access) return;
+      try {
+        const ReloadResult r = access->reload(load_auth_file(auth_file));
+        log::info("SIGHUP: reloaded {}: {} principals, {} added, {} revoked", auth_file, r.principals, r.added,
+                  r.revoked);
+      } catch (const std::exception& e) {
+        log::warn("SIGHUP: keeping the previous principals: {}", e.what());
+      }
+      std::fflush(stdout);
+    });
     // Serve /livez, /readyz (503 until recovered) and /metrics while recovering; the
     // job routes answer 503 until then.
     handler.set_ready(false);
@@ -128,11 +220,9 @@ int main(int argc, char** argv) {
       std::ofstream(tmp) << port << "\n";
       std::filesystem::rename(tmp, port_file);
     }
-    fmt::print("tally-server listening on http://{}:{} ({} workers, data in {})\n", http.address, port, mc.workers,
-               std::filesystem::absolute(data_dir).string());
-    std::fflush(stdout);
-    log::info("listening on {}:{} ({} workers, data in {})", http.address, port, mc.workers,
-              std::filesystem::absolute(data_dir).string());
+    log::info("listening on {}://{}:{} ({} workers, data in {}, access control {})", http.tls_cert.empty() ? "http" : "https",
+              http.address, port, mc.workers, std::filesystem::absolute(data_dir).string(),
+              access ? fmt::format("on, {} principals", access->principal_count()) : std::string("off"));
 
     const int sig = signalled.get_future().get();
     log::info("signal {}: checkpointing jobs and shutting down", sig);

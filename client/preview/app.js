@@ -10,6 +10,10 @@
 //   GET /v1/jobs/ID/tiles/N pixels of a tile named by a `tile` event, fetched at most
 //                           every 250 ms (slower as the image converges), coalesced
 //   DELETE /v1/jobs/ID, POST /v1/jobs/ID/extend      the buttons
+//   GET /v1/session         who am I; 401 when the server wants a token (docs/security.md):
+//   POST /v1/session        then the page asks for it once and trades it for an HttpOnly,
+//   DELETE /v1/session      SameSite=Strict session cookie (EventSource sends no headers);
+//                           logout ends the cookie and the server closes its streams
 'use strict';
 
 (() => {
@@ -24,6 +28,7 @@
       init.body = typeof body === 'string' ? body : JSON.stringify(body);
     }
     const res = await fetch(url, init);
+    if (res.status === 401 && !url.startsWith('/v1/session')) showLogin('the session has ended; log in again');
     const text = await res.text();
     let json = null;
     try { json = text ? JSON.parse(text) : null; } catch (e) { json = null; }
@@ -104,6 +109,8 @@
   // Browser tests read what the page saw (pass numbers, tile fetches) and can drop
   // the event stream; nothing else uses this object.
   const hook = {
+    streamClosed: 0,
+    loggedIn: false,
     jobId: null,
     passesSeen: [],       // pass of every progress event received, in order
     eventIds: [],         // ids of every event received
@@ -124,6 +131,7 @@
   let view = null;
 
   async function refreshJobs() {
+    if (!loggedIn) return;
     try {
       const data = await api('GET', '/v1/jobs');
       $('server-status').textContent = 'server ok';
@@ -356,9 +364,14 @@
       es.onerror = () => {
         if (this.es !== es || this.ended) return;
         if (es.readyState === EventSource.CLOSED) {
-          // The browser gave up (e.g. an HTTP error while the server restarts):
-          // reconnect ourselves from the last id we saw, with backoff.
+          // The browser gave up (e.g. an HTTP error while the server restarts, or a 401
+          // after the session ended): reconnect ourselves from the last id we saw, with
+          // backoff, unless the session is gone.
           hook.reconnects++;
+          hook.streamClosed++;
+          fetch('/v1/session').then((r) => {
+            if (r.status === 401) showLogin('the session has ended; log in again');
+          }).catch(() => {});
           this.es = null;
           const delay = this.retryDelay;
           this.retryDelay = Math.min(this.retryDelay * 2, 15000);
@@ -639,6 +652,66 @@
     view.start();
   }
 
+  // ------------------------------------------------------------------ session
+
+  let loggedIn = false;
+  let started = false;
+
+  function showLogin(why) {
+    loggedIn = false;
+    if (view) view.close();
+    view = null;
+    $('app-main').hidden = true;
+    $('who').hidden = true;
+    $('login-panel').hidden = false;
+    const r = $('login-result');
+    r.hidden = !why;
+    r.textContent = why || '';
+    hook.loggedIn = false;
+  }
+
+  function showApp(me) {
+    loggedIn = true;
+    hook.loggedIn = true;
+    $('login-panel').hidden = true;
+    $('app-main').hidden = false;
+    $('who').hidden = !me.access_control;
+    $('who-name').textContent = `${me.name} (${me.role})`;
+    if (!started) {
+      started = true;
+      loadExamples();
+      setInterval(refreshJobs, 2000);
+    }
+    refreshJobs();
+    selectedId = null;
+    route();
+  }
+
+  async function checkSession() {
+    try {
+      showApp(await api('GET', '/v1/session'));
+    } catch (e) {
+      if (e.status === 401) showLogin(null);
+      else { $('server-status').textContent = 'server unreachable'; setTimeout(checkSession, 2000); }
+    }
+  }
+
+  $('login-form').addEventListener('submit', async (ev) => {
+    ev.preventDefault();
+    const token = $('login-token').value.trim();
+    try {
+      const me = await api('POST', '/v1/session', { token });
+      $('login-token').value = '';  // the page keeps only the cookie, which it cannot read
+      showApp(me);
+    } catch (e) {
+      showLogin(e.message);
+    }
+  });
+  $('logout-btn').addEventListener('click', async () => {
+    try { await api('DELETE', '/v1/session'); } catch (e) { /* the session is gone either way */ }
+    showLogin('logged out');
+  });
+
   $('example-select').addEventListener('change', pickExample);
   $('validate-btn').addEventListener('click', validate);
   $('submit-form').addEventListener('submit', submit);
@@ -647,9 +720,6 @@
   for (const r of document.querySelectorAll('input[name=view]')) {
     r.addEventListener('change', () => view && view.setMode(r.value));
   }
-  window.addEventListener('hashchange', route);
-  loadExamples();
-  refreshJobs();
-  setInterval(refreshJobs, 2000);
-  route();
+  window.addEventListener('hashchange', () => { if (loggedIn) route(); });
+  checkSession();
 })();

@@ -95,6 +95,7 @@ json status_json(const JobSnapshot& job, double now, json links) {
   j["id"] = job.id;
   j["state"] = std::string(job_status_name(job.status));
   j["priority"] = job.priority;
+  if (!job.owner.empty()) j["owner"] = job.owner;
   j["spec"] = job.spec ? *job.spec : json(nullptr);
   j["plan"] = job.def ? job.def->plan() : json(nullptr);
   if (job.runner) j["stop_rule"] = stop_rule_to_json(job.runner->rule());
@@ -116,6 +117,7 @@ json summary_json(const JobSnapshot& job) {
   j["state"] = std::string(job_status_name(job.status));
   j["kind"] = job.spec && job.spec->is_object() ? job.spec->value("kind", "") : std::string();
   j["priority"] = job.priority;
+  if (!job.owner.empty()) j["owner"] = job.owner;
   j["created_at"] = time_json(job.created_at);
   if (job.runner) {
     const JobState& s = job.runner->state();

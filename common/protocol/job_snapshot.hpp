@@ -25,6 +25,7 @@ struct JobSnapshot {
   std::string id;
   int64_t seq = 0;
   int priority = 0;
+  std::string owner;  // the submitting principal ("" without access control)
   std::shared_ptr<const nlohmann::json> spec;  // as submitted
   double created_at = 0, started_at = 0, finished_at = 0;  // unix seconds, 0 = not yet
   JobStatus status = JobStatus::queued;

@@ -20,8 +20,8 @@ const ImageSource& image_of(const JobSnapshot& s) {
 
 }  // namespace
 
-HttpResponse RequestHandler::job_tile(const HttpRequest&, const PathParams& p) {
-  const JobSnapshot s = manager_.snapshot(p.at("id"));
+HttpResponse RequestHandler::job_tile(const HttpRequest& req, const PathParams& p) {
+  const JobSnapshot s = visible_snapshot(req, p.at("id"));
   const auto n = parse_u64(p.at("n"));
   const ImageSource& img = image_of(s);
   if (!n || *n >= img.tile_count()) {
@@ -38,8 +38,8 @@ HttpResponse RequestHandler::job_tile(const HttpRequest&, const PathParams& p) {
                              {"samples", t.samples}});
 }
 
-HttpResponse RequestHandler::job_image(const HttpRequest&, const PathParams& p, bool exr) {
-  const JobSnapshot s = manager_.snapshot(p.at("id"));
+HttpResponse RequestHandler::job_image(const HttpRequest& req, const PathParams& p, bool exr) {
+  const JobSnapshot s = visible_snapshot(req, p.at("id"));
   const ImageSource& img = image_of(s);
   if (!s.runner) throw HttpError(409, "the job's state is not available");
   if ((exr && !config_.images.exr) || (!exr && !config_.images.png)) {

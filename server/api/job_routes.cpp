@@ -10,6 +10,7 @@
 #include "server/api/pilot.hpp"
 #include "server/api/request_handler.hpp"
 #include "server/api/route_support.hpp"
+#include "server/auth/revocation.hpp"
 
 namespace tally {
 
@@ -34,10 +35,37 @@ std::string StatusCache::body(const JobSnapshot& job, const std::function<std::s
   return body;
 }
 
+std::shared_ptr<Job> RequestHandler::visible_job(const HttpRequest& req, const std::string& id) const {
+  auto job = manager_.find(id);
+  if (!job || !req.principal || !req.principal->may_see(job->owner())) {
+    throw HttpError(404, fmt::format("no job with id \"{}\"", id));
+  }
+  return job;
+}
+
+JobSnapshot RequestHandler::visible_snapshot(const HttpRequest& req, const std::string& id) const {
+  return manager_.snapshot(*visible_job(req, id));
+}
+
+Submitter RequestHandler::submitter(const HttpRequest& req) const {
+  Submitter s;
+  const Principal& p = *req.principal;
+  s.owner = p.name;
+  const Quotas& q = p.quotas;
+  s.max_running = q.max_running_jobs;
+  s.max_queued = q.max_queued_jobs;
+  JobLimits limits = manager_.config().limits;
+  limits.max_samples = std::min<uint64_t>(limits.max_samples, q.max_samples);
+  limits.max_seconds = std::min(limits.max_seconds, q.max_seconds);
+  limits.max_pixels = std::min<uint64_t>(limits.max_pixels, q.max_pixels);
+  s.limits = limits;
+  return s;
+}
+
 HttpResponse RequestHandler::post_job(const HttpRequest& req, const PathParams&) {
   const int priority = parse_priority(req);
   const json spec = parse_json_body(req);
-  auto job = manager_.submit(spec, priority);
+  auto job = manager_.submit(spec, priority, submitter(req));
   const JobSnapshot s = manager_.snapshot(*job);
   HttpResponse r = json_response(202, {{"id", s.id},
                                        {"state", std::string(job_status_name(s.status))},
@@ -58,13 +86,14 @@ HttpResponse RequestHandler::list_jobs(const HttpRequest& req, const PathParams&
   json jobs = json::array();
   for (const JobSnapshot& s : manager_.snapshots()) {
     if (filter && s.status != *filter) continue;
+    if (!req.principal->may_see(s.owner)) continue;
     jobs.push_back(summary_json(s));
   }
   return json_response(200, {{"jobs", jobs}});
 }
 
-HttpResponse RequestHandler::get_job(const HttpRequest&, const PathParams& p) {
-  const JobSnapshot s = manager_.snapshot(p.at("id"));
+HttpResponse RequestHandler::get_job(const HttpRequest& req, const PathParams& p) {
+  const JobSnapshot s = visible_snapshot(req, p.at("id"));
   HttpResponse r;
   r.set_header("Content-Type", "application/json");
   r.body = status_cache_.body(s, [&] {
@@ -77,27 +106,28 @@ HttpResponse RequestHandler::get_job(const HttpRequest&, const PathParams& p) {
   return r;
 }
 
-HttpResponse RequestHandler::delete_job(const HttpRequest&, const PathParams& p) {
-  auto job = manager_.cancel(p.at("id"));
+HttpResponse RequestHandler::delete_job(const HttpRequest& req, const PathParams& p) {
+  auto job = manager_.cancel(visible_job(req, p.at("id"))->id());
   const JobSnapshot s = manager_.snapshot(*job);
   // 200 when the job is already cancelled, 202 when it stops at the next chunk boundary.
   return json_response(s.status == JobStatus::cancelled ? 200 : 202, summary_json(s));
 }
 
 HttpResponse RequestHandler::extend_job(const HttpRequest& req, const PathParams& p) {
+  const JobSnapshot before = visible_snapshot(req, p.at("id"));
   const json body = parse_json_body(req);
-  const JobSnapshot before = manager_.snapshot(p.at("id"));
   // The job keeps its confidence and min_samples; the body sets the new targets.
   const StopRule keep = before.runner ? before.runner->rule() : StopRule{};
   SpecReader rd(body, "");
-  const StopRule rule = parse_stop_rule(rd, manager_.config().limits, &keep);
+  const StopRule rule = parse_stop_rule(rd, *submitter(req).limits, &keep);
   manager_.extend(before.id, rule);
   return json_response(202, summary_json(manager_.snapshot(before.id)));
 }
 
 HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathParams&) {
   const json spec = parse_json_body(req);
-  std::unique_ptr<JobDefinition> def = manager_.compiler()(spec, manager_.config().limits);
+  const JobLimits limits = *submitter(req).limits;
+  std::unique_ptr<JobDefinition> def = manager_.compiler()(spec, limits);
   json out = {{"valid", true},
               {"kind", std::string(def->kind())},
               {"plan", def->plan()},
@@ -111,7 +141,7 @@ HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathPara
   }
   PilotOptions po;
   po.seconds = config_.pilot_seconds;
-  po.caps = manager_.config().limits.caps();
+  po.caps = limits.caps();
   po.parallelism = manager_.config().workers;
   json pilot;
   try {
@@ -131,8 +161,7 @@ HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathPara
 }
 
 HttpResponse RequestHandler::job_events(const HttpRequest& req, const PathParams& p) {
-  auto job = manager_.find(p.at("id"));
-  if (!job) throw HttpError(404, fmt::format("no job with id \"{}\"", p.at("id")));
+  auto job = visible_job(req, p.at("id"));
   const std::string_view accept = req.header("accept");
   const StreamFormat fmt = accept.find("application/x-ndjson") != std::string_view::npos ? StreamFormat::ndjson
                                                                                           : StreamFormat::sse;
@@ -142,7 +171,9 @@ HttpResponse RequestHandler::job_events(const HttpRequest& req, const PathParams
   r.set_header("Content-Type", fmt == StreamFormat::ndjson ? "application/x-ndjson" : "text/event-stream");
   r.set_header("Cache-Control", "no-cache");
   r.set_header("X-Accel-Buffering", "no");
-  r.stream = std::make_shared<JobEventStream>(job, manager_, fmt, last);
+  // Ends when the caller's token is revoked or its browser session logs out.
+  r.stream = revocable(std::make_shared<JobEventStream>(job, manager_, fmt, last), req.principal->principal_revocation,
+                       req.principal->session_revocation);
   return r;
 }
 

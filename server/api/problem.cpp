@@ -7,6 +7,8 @@ namespace tally {
 const char* status_title(int status) {
   switch (status) {
     case 400: return "Bad Request";
+    case 401: return "Unauthorized";
+    case 403: return "Forbidden";
     case 404: return "Not Found";
     case 405: return "Method Not Allowed";
     case 406: return "Not Acceptable";
@@ -28,6 +30,8 @@ std::string problem_type(int status) {
   const char* slug = "error";
   switch (status) {
     case 400: slug = "malformed-request"; break;
+    case 401: slug = "unauthorized"; break;
+    case 403: slug = "forbidden"; break;
     case 404: slug = "not-found"; break;
     case 405: slug = "method-not-allowed"; break;
     case 406: slug = "not-acceptable"; break;
@@ -56,6 +60,7 @@ HttpResponse problem_response(int status, const std::string& detail, const std::
   HttpResponse r;
   r.status = status;
   r.set_header("Content-Type", "application/problem+json");
+  r.set_header("X-Content-Type-Options", "nosniff");
   r.body = j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
   r.body.push_back('\n');
   return r;

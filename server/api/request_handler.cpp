@@ -9,6 +9,7 @@
 #include "server/api/problem.hpp"
 #include "server/api/route_support.hpp"
 #include "server/api/static_files.hpp"
+#include "server/auth/token.hpp"
 
 namespace tally {
 
@@ -35,13 +36,19 @@ void RequestHandler::add_routes() {
     if (auto why = manager_.not_ready_reason()) throw HttpError(503, "the server is not ready: " + *why);
     HttpResponse r;
     r.set_header("Content-Type", "text/plain; charset=utf-8");
-    r.body = "ready\n";
+    r.body = config_.access.insecure_no_auth ? "ready (INSECURE: no access control, --insecure-no-auth)\n" : "ready\n";
     return r;
   });
   router_.add("GET", "/metrics", [this](const HttpRequest&, const PathParams&) {
     HttpResponse r;
     r.set_header("Content-Type", "text/plain; version=0.0.4; charset=utf-8");
     r.body = metrics_.render(manager_.stats());
+    r.body += fmt::format(
+        "# HELP tally_access_control 1 when bearer tokens are required (--auth-file)\n"
+        "# TYPE tally_access_control gauge\ntally_access_control {}\n"
+        "# HELP tally_insecure_no_auth 1 when listening off loopback without access control (--insecure-no-auth)\n"
+        "# TYPE tally_insecure_no_auth gauge\ntally_insecure_no_auth {}\n",
+        config_.access.access ? 1 : 0, config_.access.insecure_no_auth ? 1 : 0);
     return r;
   });
   router_.add("GET", "/v1/openapi.json", [](const HttpRequest&, const PathParams&) {
@@ -62,6 +69,9 @@ void RequestHandler::add_routes() {
               [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, true); }, true);
   router_.add("GET", "/v1/jobs/{id}/image.png",
               [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, false); }, true);
+  router_.add("POST", "/v1/session", bind(&RequestHandler::login));
+  router_.add("GET", "/v1/session", bind(&RequestHandler::whoami));
+  router_.add("DELETE", "/v1/session", bind(&RequestHandler::logout));
 }
 
 bool RequestHandler::may_block(const HttpRequest& request) const {
@@ -69,11 +79,14 @@ bool RequestHandler::may_block(const HttpRequest& request) const {
   return m.route && m.route->may_block;
 }
 
-HttpResponse RequestHandler::handle(const HttpRequest& request) {
+HttpResponse RequestHandler::handle(HttpRequest request) {
   const auto t0 = std::chrono::steady_clock::now();
   const RouteMatch m = router_.match(request.method, request.path());
   HttpResponse res;
   try {
+    // The one authorize step: the caller, or 400/401/403/429 before any route runs.
+    request.principal =
+        std::make_shared<const Principal>(authorize(request, m.route ? m.route->pattern : "", config_.access));
     if (!m.route) {
       if (auto file = serve_static_file(request)) return *file;  // the preview page, examples
       if (!m.allow.empty()) {
@@ -110,10 +123,12 @@ HttpResponse RequestHandler::handle(const HttpRequest& request) {
         res = problem_response(503, e.what());
         res.set_header("Retry-After", "5");
         break;
+      case JobError::Kind::quota: res = problem_response(403, e.what()); break;
     }
   } catch (const std::exception& e) {
     res = problem_response(500, fmt::format("internal error: {}", e.what()));
   }
+  if (res.header("X-Content-Type-Options").empty()) res.set_header("X-Content-Type-Options", "nosniff");
   const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   metrics_.observe(m.route ? m.route->pattern : std::string("unmatched"), request.method, res.status, dt);
   return res;
@@ -136,6 +151,52 @@ json RequestHandler::parse_json_body(const HttpRequest& request) const {
     const std::string at = json_pointer_at_error(request.body);
     throw HttpError(400, fmt::format("number out of range at \"{}\": {}", at, e.what()), at);
   }
+}
+
+// ---- browser sessions: EventSource cannot send an Authorization header, so the
+// page trades a token for an HttpOnly, SameSite=Strict cookie once.
+
+HttpResponse RequestHandler::login(const HttpRequest& req, const PathParams&) {
+  const json body = parse_json_body(req);
+  SpecReader rd(body, "");
+  const std::string token = rd.string("token", 512);
+  rd.finish();
+  AccessControl* access = config_.access.access;
+  if (!access) throw HttpError(404, "access control is off: no login is needed");
+  const auto who = is_b64token(token) ? access->authenticate_token(token) : std::nullopt;
+  if (!who) {
+    HttpError e(401, "unknown or revoked token");
+    e.headers.emplace_back("WWW-Authenticate", "Bearer realm=\"tally\", error=\"invalid_token\"");
+    throw e;
+  }
+  if (who->role == Role::metrics) throw HttpError(403, "role metrics may not open a browser session");
+  const std::string sid = access->open_session(*who);
+  HttpResponse r = json_response(200, {{"name", who->name}, {"role", std::string(role_name(who->role))},
+                                       {"access_control", true}});
+  r.set_header("Set-Cookie", fmt::format("{}={}; Path=/; HttpOnly; SameSite=Strict; Max-Age=43200{}", kSessionCookie,
+                                         sid, config_.access.tls ? "; Secure" : ""));
+  r.set_header("Cache-Control", "no-store");
+  return r;
+}
+
+HttpResponse RequestHandler::whoami(const HttpRequest& req, const PathParams&) {
+  const Principal& p = *req.principal;
+  return json_response(200, {{"name", p.name},
+                             {"role", std::string(role_name(p.role))},
+                             {"access_control", config_.access.access != nullptr},
+                             {"via_cookie", p.via_cookie}});
+}
+
+HttpResponse RequestHandler::logout(const HttpRequest& req, const PathParams&) {
+  if (config_.access.access) {
+    const std::string sid = cookie_value(req, kSessionCookie);
+    if (!sid.empty()) config_.access.access->close_session(sid);  // its event streams end
+  }
+  HttpResponse r;
+  r.status = 204;
+  r.set_header("Set-Cookie", fmt::format("{}=; Path=/; HttpOnly; SameSite=Strict; Max-Age=0{}", kSessionCookie,
+                                         config_.access.tls ? "; Secure" : ""));
+  return r;
 }
 
 }  // namespace tally

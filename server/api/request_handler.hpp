@@ -13,6 +13,7 @@
 #include <string>
 
 #include "common/engine/image_source.hpp"
+#include "server/auth/authorize.hpp"
 #include "server/http/http_types.hpp"
 #include "server/jobs/job_manager.hpp"
 #include "server/api/metrics.hpp"
@@ -30,6 +31,7 @@ struct HandlerConfig {
   double pilot_seconds = 0.3;
   unsigned max_concurrent_pilots = 2;
   ImageEncoders images;  // empty functions: the image routes answer 501
+  AccessPolicy access;   // who may call (server/auth/authorize.hpp); default: no access control
 };
 
 // GET /v1/jobs/{id} bodies, kept until the job changes (its version) and, for a
@@ -52,7 +54,7 @@ class RequestHandler {
  public:
   RequestHandler(JobManager& manager, Metrics& metrics, HandlerConfig config);
 
-  HttpResponse handle(const HttpRequest& request);
+  HttpResponse handle(HttpRequest request);
   // True for requests that may take long (compile, pilot, image encode): the
   // session runs them off the I/O threads.
   bool may_block(const HttpRequest& request) const;
@@ -62,6 +64,12 @@ class RequestHandler {
  private:
   void add_routes();
   nlohmann::json parse_json_body(const HttpRequest& request) const;
+  // The one lookup of every job route: the job if the caller may see it, else 404
+  // (another tenant's job is indistinguishable from a missing one).
+  std::shared_ptr<Job> visible_job(const HttpRequest& request, const std::string& id) const;
+  JobSnapshot visible_snapshot(const HttpRequest& request, const std::string& id) const;
+  // The server's limits tightened by the caller's quotas.
+  Submitter submitter(const HttpRequest& request) const;
 
   HttpResponse post_job(const HttpRequest&, const PathParams&);
   HttpResponse list_jobs(const HttpRequest&, const PathParams&);
@@ -72,6 +80,9 @@ class RequestHandler {
   HttpResponse job_events(const HttpRequest&, const PathParams&);
   HttpResponse job_tile(const HttpRequest&, const PathParams&);
   HttpResponse job_image(const HttpRequest&, const PathParams&, bool exr);
+  HttpResponse login(const HttpRequest&, const PathParams&);
+  HttpResponse whoami(const HttpRequest&, const PathParams&);
+  HttpResponse logout(const HttpRequest&, const PathParams&);
 
   JobManager& manager_;
   Metrics& metrics_;

@@ -65,6 +65,8 @@ struct ExecutorStats {
     uint64_t pending = 0, in_flight = 0, redelivered = 0;
   };
   std::map<std::string, JobBlocks> blocks_by_job;
+  // Compute seconds spent on each owner's blocks since start (the fair-share accounting).
+  std::map<std::string, double> cpu_seconds_by_owner;
 };
 
 class Executor {

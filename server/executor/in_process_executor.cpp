@@ -30,6 +30,13 @@ void InProcessExecutor::stop() {
   }
   std::lock_guard lock(mu_);
   active_.clear();
+  owners_.clear();
+}
+
+void InProcessExecutor::erase_locked(std::map<std::string, std::unique_ptr<Active>>::iterator it) {
+  auto o = owners_.find(it->second->owner);
+  if (o != owners_.end() && --o->second.jobs == 0) owners_.erase(o);
+  active_.erase(it);
 }
 
 ExecutorStats InProcessExecutor::stats() const {
@@ -38,6 +45,8 @@ ExecutorStats InProcessExecutor::stats() const {
   s.busy_workers = busy_workers();
   s.samples_done = samples_done();
   s.scheduled_jobs = scheduled_jobs();
+  std::lock_guard lock(mu_);
+  s.cpu_seconds_by_owner = cpu_seconds_by_owner_;
   return s;
 }
 
@@ -46,9 +55,17 @@ size_t InProcessExecutor::scheduled_jobs() const {
   return active_.size();
 }
 
-double InProcessExecutor::min_vtime_locked() const {
+double InProcessExecutor::min_vtime_locked(const std::string& owner) const {
   double v = std::numeric_limits<double>::infinity();
-  for (const auto& [id, a] : active_) v = std::min(v, a->vtime);
+  for (const auto& [id, a] : active_) {
+    if (a->owner == owner) v = std::min(v, a->vtime);
+  }
+  return std::isfinite(v) ? v : 0.0;
+}
+
+double InProcessExecutor::min_owner_vtime_locked() const {
+  double v = std::numeric_limits<double>::infinity();
+  for (const auto& [name, o] : owners_) v = std::min(v, o.vtime);
   return std::isfinite(v) ? v : 0.0;
 }
 
@@ -67,10 +84,14 @@ void InProcessExecutor::add(ExecutorJob job, PassWork first_pass) {
     if (stopping_) return;
     auto a = std::make_unique<Active>();
     a->id = job.id;
+    a->owner = job.owner;
     a->kernel = std::move(job.kernel);
     a->weight = priority_weight(job.priority);
-    // Join at the current virtual time: a newcomer neither starves nor is starved.
-    a->vtime = min_vtime_locked();
+    // Join at the current virtual times (the owner's among owners, the job's among the
+    // owner's jobs): a newcomer neither starves nor is starved.
+    if (!owners_.count(a->owner)) owners_[a->owner].vtime = min_owner_vtime_locked();
+    owners_[a->owner].jobs += 1;
+    a->vtime = min_vtime_locked(a->owner);
     start_pass_locked(*a, std::move(first_pass));
     active_[job.id] = std::move(a);
   }
@@ -87,7 +108,7 @@ bool InProcessExecutor::cancel(const std::string& id) {
     if (a.cancel_requested) return true;
     a.cancel_requested = true;
     if (a.inflight == 0 && !a.committing) {
-      active_.erase(it);
+      erase_locked(it);
       call_now = true;
     }
   }
@@ -97,9 +118,14 @@ bool InProcessExecutor::cancel(const std::string& id) {
 
 InProcessExecutor::Active* InProcessExecutor::pick_locked() {
   Active* best = nullptr;
+  double best_owner = 0.0;
   for (auto& [id, a] : active_) {
     if (a->cancel_requested || a->committing || a->next >= a->pass.blocks.size()) continue;
-    if (!best || a->vtime < best->vtime) best = a.get();
+    const double ov = owners_[a->owner].vtime;
+    if (!best || ov < best_owner || (ov == best_owner && a->vtime < best->vtime)) {
+      best = a.get();
+      best_owner = ov;
+    }
   }
   return best;
 }
@@ -131,6 +157,7 @@ void InProcessExecutor::worker_loop() {
     }
     const double estimate = a->block_seconds * static_cast<double>(end - begin);
     a->vtime += estimate / a->weight;
+    owners_[a->owner].vtime += estimate;
     const Kernel* kernel = a->kernel.get();
     const Block* blocks = a->pass.blocks.data();
     const std::string_view pass_input = a->pass.pass_input;
@@ -153,13 +180,15 @@ void InProcessExecutor::worker_loop() {
     a->inflight -= 1;
     a->done += end - begin;
     a->vtime += (dt - estimate) / a->weight;
+    owners_[a->owner].vtime += dt - estimate;
+    cpu_seconds_by_owner_[a->owner] += dt;
     const double per_block = dt / static_cast<double>(end - begin);
     a->block_seconds = a->block_seconds > 0 ? 0.7 * a->block_seconds + 0.3 * per_block : per_block;
 
     if (a->cancel_requested) {
       if (a->inflight == 0) {
         const std::string id = a->id;
-        active_.erase(id);
+        erase_locked(active_.find(id));
         lock.unlock();
         if (cb_.cancelled) cb_.cancelled(id);
         lock.lock();
@@ -182,14 +211,14 @@ void InProcessExecutor::worker_loop() {
     Active& job = *it->second;
     job.committing = false;
     if (job.cancel_requested && !next.empty()) {
-      active_.erase(it);
+      erase_locked(it);
       lock.unlock();
       if (cb_.cancelled) cb_.cancelled(id);
       lock.lock();
       continue;
     }
     if (next.empty()) {
-      active_.erase(it);
+      erase_locked(it);
       continue;
     }
     start_pass_locked(job, std::move(next));

@@ -1,9 +1,11 @@
 #pragma once
 // The in-process executor: a worker pool. Each running job contributes the blocks of its current pass,
-// handed out in chunks; workers take the next chunk from the job with the least
-// virtual time (stride scheduling: a chunk charges its measured run time divided
-// by the job's weight), so running jobs share the CPUs fairly and a short job
-// submitted behind a long one finishes promptly. Results land in per-block slots
+// handed out in chunks. Scheduling is two-level stride scheduling: workers take the next
+// chunk from the owner (principal) with the least virtual time, then from that owner's job
+// with the least virtual time. A chunk charges its measured run time to its owner (all
+// owners weigh the same) and, divided by the job's priority weight, to its job. So owners
+// share the CPUs fairly first (8 jobs do not get 8x the CPU of 1), then an owner's jobs
+// share its part, and a short job submitted behind a long one finishes promptly. Results land in per-block slots
 // and are committed in block order by whoever finishes a pass's last chunk, so the
 // bits do not depend on worker count, chunking or other jobs.
 #include <atomic>
@@ -45,6 +47,7 @@ class InProcessExecutor final : public Executor {
  private:
   struct Active {
     std::string id;
+    std::string owner;
     std::shared_ptr<const Kernel> kernel;
     double weight = 1.0;
     double vtime = 0.0;
@@ -64,13 +67,22 @@ class InProcessExecutor final : public Executor {
   Active* pick_locked();
   size_t chunk_size_locked(const Active& a) const;
   void start_pass_locked(Active& a, PassWork pass);
-  double min_vtime_locked() const;
+  double min_vtime_locked(const std::string& owner) const;
+  double min_owner_vtime_locked() const;
+
+  struct Owner {
+    double vtime = 0.0;  // run time charged to the owner (the first level of the stride scheduler)
+    size_t jobs = 0;     // its jobs in active_
+  };
 
   ExecutorCallbacks cb_;
   double chunk_target_;
   mutable std::mutex mu_;
   std::condition_variable cv_;
   std::map<std::string, std::unique_ptr<Active>> active_;
+  std::map<std::string, Owner> owners_;               // owners with a job in active_
+  std::map<std::string, double> cpu_seconds_by_owner_;  // measured chunk run time since start
+  void erase_locked(std::map<std::string, std::unique_ptr<Active>>::iterator it);
   std::string last_picked_;
   bool stopping_ = false;
   std::atomic<uint64_t> samples_done_{0};

@@ -13,6 +13,7 @@
 #include <boost/asio/thread_pool.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
+#include <boost/beast/ssl.hpp>
 #include <fmt/format.h>
 
 #include <atomic>
@@ -95,10 +96,27 @@ struct Shared {
   std::atomic<size_t> connections{0};
 };
 
-class Session : public std::enable_shared_from_this<Session> {
+template <class Stream>
+struct StreamTraits {
+  static constexpr bool tls = false;
+  static Stream make(tcp::socket&& s, net::ssl::context*) { return Stream(std::move(s)); }
+};
+template <>
+struct StreamTraits<beast::ssl_stream<beast::tcp_stream>> {
+  static constexpr bool tls = true;
+  static beast::ssl_stream<beast::tcp_stream> make(tcp::socket&& s, net::ssl::context* ctx) {
+    return beast::ssl_stream<beast::tcp_stream>(std::move(s), *ctx);
+  }
+};
+
+// One connection, plain (beast::tcp_stream) or TLS (beast::ssl_stream over it).
+template <class Stream>
+class Session : public std::enable_shared_from_this<Session<Stream>> {
+  using std::enable_shared_from_this<Session<Stream>>::shared_from_this;
+
  public:
-  Session(tcp::socket&& socket, Shared& shared, bool reject)
-      : stream_(std::move(socket)),
+  Session(tcp::socket&& socket, net::ssl::context* tls, Shared& shared, bool reject)
+      : stream_(StreamTraits<Stream>::make(std::move(socket), tls)),
         shared_(shared),
         reject_(reject),
         heartbeat_(stream_.get_executor()),
@@ -114,20 +132,35 @@ class Session : public std::enable_shared_from_this<Session> {
 
   void run() {
     net::dispatch(stream_.get_executor(), [self = shared_from_this()] {
-      if (self->reject_) {
-        self->shared_.metrics.rejected_connections++;
-        self->send(problem_response(503, "too many connections; retry later"), false);
+      if constexpr (StreamTraits<Stream>::tls) {
+        // TLS first (within the read timeout); a client that never finishes it is cut off.
+        self->lowest().expires_after(secs(self->shared_.config.read_timeout_s));
+        self->stream_.async_handshake(net::ssl::stream_base::server, [self](beast::error_code ec) {
+          if (ec) return self->on_error(ec);
+          self->start();
+        });
       } else {
-        self->wait_for_request();
+        self->start();
       }
     });
   }
 
  private:
+  beast::tcp_stream& lowest() { return beast::get_lowest_layer(stream_); }
+
+  void start() {
+    if (reject_) {
+      shared_.metrics.rejected_connections++;
+      send(problem_response(503, "too many connections; retry later"), false);
+    } else {
+      wait_for_request();
+    }
+  }
+
   // Idle phase: wait (idle timeout) for the first byte of the next request.
   void wait_for_request() {
     if (buffer_.size() > 0) return read_request();
-    stream_.expires_after(secs(shared_.config.idle_timeout_s));
+    lowest().expires_after(secs(shared_.config.idle_timeout_s));
     stream_.async_read_some(buffer_.prepare(4096), [self = shared_from_this()](beast::error_code ec, size_t n) {
       if (ec) return self->on_error(ec);
       self->buffer_.commit(n);
@@ -140,14 +173,14 @@ class Session : public std::enable_shared_from_this<Session> {
   void read_request() {
     parser_.emplace();
     configure_parser(*parser_, shared_.config);
-    stream_.expires_never();
+    lowest().expires_never();
     read_timed_out_ = false;
     read_timer_.expires_after(secs(shared_.config.read_timeout_s));
     read_timer_.async_wait([self = shared_from_this()](beast::error_code ec) {
       if (ec) return;  // cancelled: the request arrived in time
       self->read_timed_out_ = true;
       beast::error_code ignored;
-      self->stream_.socket().cancel(ignored);
+      self->lowest().socket().cancel(ignored);
     });
     http::async_read(stream_, buffer_, *parser_,
                      [self = shared_from_this()](beast::error_code ec, size_t) { self->on_read(ec); });
@@ -157,8 +190,8 @@ class Session : public std::enable_shared_from_this<Session> {
     if (ec == beast::error::timeout) shared_.metrics.timeouts++;
     beast::error_code ignored;
     read_timer_.cancel();
-    stream_.socket().shutdown(tcp::socket::shutdown_both, ignored);
-    stream_.socket().close(ignored);
+    lowest().socket().shutdown(tcp::socket::shutdown_both, ignored);
+    lowest().socket().close(ignored);
   }
 
   // After an error response that ends the connection: stop sending, then discard
@@ -166,13 +199,13 @@ class Session : public std::enable_shared_from_this<Session> {
   // resets the connection) cannot destroy the response before the client reads it.
   void linger_close() {
     beast::error_code ignored;
-    stream_.socket().shutdown(tcp::socket::shutdown_send, ignored);
-    stream_.expires_after(std::chrono::seconds(1));  // one second in all, however much arrives
+    lowest().socket().shutdown(tcp::socket::shutdown_send, ignored);
+    lowest().expires_after(std::chrono::seconds(1));  // one second in all, however much arrives
     drain_.resize(4096);
     linger_read();
   }
   void linger_read() {
-    stream_.async_read_some(net::buffer(drain_), [self = shared_from_this()](beast::error_code ec, size_t) {
+    lowest().async_read_some(net::buffer(drain_), [self = shared_from_this()](beast::error_code ec, size_t) {
       if (ec) return self->on_error({});
       self->linger_read();
     });
@@ -198,12 +231,12 @@ class Session : public std::enable_shared_from_this<Session> {
     if (auto res = framing_response(r)) return send(std::move(*res), false);
     if (shared_.handler.may_block(r)) {
       net::post(shared_.blocking, [self = shared_from_this(), r = std::move(r)]() mutable {
-        HttpResponse res = self->shared_.handler.handle(r);
+        HttpResponse res = self->shared_.handler.handle(std::move(r));
         net::post(self->stream_.get_executor(),
                   [self, res = std::move(res)]() mutable { self->send(std::move(res), self->keep_alive_); });
       });
     } else {
-      send(shared_.handler.handle(r), keep_alive_);
+      send(shared_.handler.handle(std::move(r)), keep_alive_);
     }
   }
 
@@ -215,7 +248,7 @@ class Session : public std::enable_shared_from_this<Session> {
     msg->body() = std::move(res.body);
     msg->keep_alive(keep_alive);
     msg->prepare_payload();
-    stream_.expires_after(secs(shared_.config.write_timeout_s));
+    lowest().expires_after(secs(shared_.config.write_timeout_s));
     http::async_write(stream_, *msg, [self = shared_from_this(), msg](beast::error_code ec, size_t) {
       if (ec) return self->on_error(ec);
       if (msg->need_eof()) return self->linger_close();
@@ -234,7 +267,7 @@ class Session : public std::enable_shared_from_this<Session> {
     stream_res_->keep_alive(false);  // the stream ends the connection
     stream_res_->chunked(true);
     serializer_.emplace(*stream_res_);
-    stream_.expires_after(secs(shared_.config.write_timeout_s));
+    lowest().expires_after(secs(shared_.config.write_timeout_s));
     http::async_write_header(stream_, *serializer_, [self = shared_from_this()](beast::error_code ec, size_t) {
       if (ec) return self->on_error(ec);
       self->pump();
@@ -246,7 +279,7 @@ class Session : public std::enable_shared_from_this<Session> {
     const bool more = events_->poll(out);
     if (!out.empty()) {
       chunk_ = std::move(out);
-      stream_.expires_after(secs(shared_.config.write_timeout_s));
+      lowest().expires_after(secs(shared_.config.write_timeout_s));
       net::async_write(stream_, http::make_chunk(net::buffer(chunk_)),
                        [self = shared_from_this(), more](beast::error_code ec, size_t) {
                          if (ec) return self->on_error(ec);
@@ -263,8 +296,8 @@ class Session : public std::enable_shared_from_this<Session> {
   }
 
   void park() {
-    stream_.expires_never();
-    std::weak_ptr<Session> weak = shared_from_this();
+    lowest().expires_never();
+    std::weak_ptr<Session> weak = this->weak_from_this();
     parked_ = true;
     auto exec = stream_.get_executor();
     if (!waiting_) {
@@ -286,7 +319,7 @@ class Session : public std::enable_shared_from_this<Session> {
       const std::string hb = self->events_->heartbeat();
       if (hb.empty()) return self->pump();
       self->chunk_ = hb;
-      self->stream_.expires_after(secs(self->shared_.config.write_timeout_s));
+      self->lowest().expires_after(secs(self->shared_.config.write_timeout_s));
       net::async_write(self->stream_, http::make_chunk(net::buffer(self->chunk_)),
                        [self](beast::error_code ec2, size_t) {
                          if (ec2) return self->on_error(ec2);
@@ -303,13 +336,13 @@ class Session : public std::enable_shared_from_this<Session> {
   }
 
   void finish_stream() {
-    stream_.expires_after(secs(shared_.config.write_timeout_s));
+    lowest().expires_after(secs(shared_.config.write_timeout_s));
     net::async_write(stream_, http::make_chunk_last(), [self = shared_from_this()](beast::error_code, size_t) {
       self->on_error({});
     });
   }
 
-  beast::tcp_stream stream_;
+  Stream stream_;
   Shared& shared_;
   bool reject_;
   beast::flat_buffer buffer_;
@@ -338,7 +371,24 @@ struct HttpServer::Impl {
         shared{std::move(cfg), handler, metrics, blocking, {}},
         acceptor(ioc),
         accept_backoff(ioc),
-        signals(ioc, SIGINT, SIGTERM) {}
+        signals(ioc, SIGINT, SIGTERM),
+        hangups(ioc, SIGHUP) {
+    if (!shared.config.tls_cert.empty()) {
+      tls.emplace(net::ssl::context::tls_server);
+      tls->set_options(net::ssl::context::default_workarounds | net::ssl::context::no_sslv2 |
+                       net::ssl::context::no_sslv3 | net::ssl::context::no_tlsv1 | net::ssl::context::no_tlsv1_1);
+      tls->use_certificate_chain_file(shared.config.tls_cert);
+      tls->use_private_key_file(shared.config.tls_key, net::ssl::context::pem);
+    }
+  }
+
+  void wait_hangup() {
+    hangups.async_wait([this](beast::error_code ec, int) {
+      if (ec) return;
+      if (on_hangup) on_hangup();
+      wait_hangup();
+    });
+  }
 
   // Declaration order matters: the io_context is destroyed before `shared`, so
   // sessions still queued in it when it dies can update the shared counters.
@@ -357,17 +407,24 @@ struct HttpServer::Impl {
         return;
       }
       const bool reject = shared.connections.load() >= shared.config.max_connections;
-      std::make_shared<Session>(std::move(socket), shared, reject)->run();
+      if (tls) {
+        std::make_shared<Session<beast::ssl_stream<beast::tcp_stream>>>(std::move(socket), &*tls, shared, reject)->run();
+      } else {
+        std::make_shared<Session<beast::tcp_stream>>(std::move(socket), nullptr, shared, reject)->run();
+      }
       if (acceptor.is_open()) accept();
     });
   }
 
   net::thread_pool blocking;
+  std::optional<net::ssl::context> tls;  // before `shared`'s users: sessions hold a reference
   Shared shared;
   net::io_context ioc;
   tcp::acceptor acceptor;
   net::steady_timer accept_backoff;
   net::signal_set signals;
+  net::signal_set hangups;
+  std::function<void()> on_hangup;
   std::vector<std::thread> threads;
   uint16_t port = 0;
   std::optional<net::executor_work_guard<net::io_context::executor_type>> work;
@@ -399,6 +456,11 @@ void HttpServer::on_signal(std::function<void(int)> fn) {
   impl_->signals.async_wait([fn = std::move(fn)](beast::error_code ec, int sig) {
     if (!ec) fn(sig);
   });
+}
+
+void HttpServer::on_hangup(std::function<void()> fn) {
+  impl_->on_hangup = std::move(fn);
+  impl_->wait_hangup();
 }
 
 void HttpServer::stop_accepting() {

@@ -26,6 +26,8 @@ struct HttpServerConfig {
   double write_timeout_s = 30;
   double heartbeat_s = 15;  // comment line on idle event streams
   size_t max_connections = 1024;
+  // Both set: HTTPS (PEM certificate chain and private key); both empty: plain HTTP.
+  std::string tls_cert, tls_key;
 };
 
 class HttpServer {
@@ -40,6 +42,8 @@ class HttpServer {
   uint16_t port() const;
   // Runs `fn` when SIGINT or SIGTERM arrives (on an I/O thread).
   void on_signal(std::function<void(int)> fn);
+  // Runs `fn` on every SIGHUP (on an I/O thread), e.g. to reload the auth file.
+  void on_hangup(std::function<void()> fn);
   void stop_accepting();
   // Waits up to `seconds` for open connections to finish, then stops the I/O threads.
   void stop(double grace_seconds);

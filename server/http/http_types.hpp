@@ -11,6 +11,7 @@
 namespace tally {
 
 class EventStream;
+struct Principal;
 
 struct HttpRequest {
   using Headers = std::vector<std::pair<std::string, std::string>>;
@@ -18,6 +19,8 @@ struct HttpRequest {
   std::string target;  // path and query, e.g. "/v1/jobs?state=running"
   std::vector<std::pair<std::string, std::string>> headers;  // names in lower case
   std::string body;
+  // The caller, set by the request handler's authorize step before any route runs.
+  std::shared_ptr<const Principal> principal;
 
   std::string_view header(std::string_view lower_name) const;
   std::string_view path() const;

@@ -1,6 +1,9 @@
 #include "server/http/listen_address.hpp"
 
+#include <arpa/inet.h>
+
 #include <charconv>
+#include <cstring>
 
 namespace tally {
 
@@ -29,6 +32,14 @@ std::optional<ListenAddress> parse_listen_address(std::string_view text) {
     a.host = std::string(host);
   }
   return a;
+}
+
+bool is_loopback_address(const std::string& host) {
+  in_addr v4{};
+  if (inet_pton(AF_INET, host.c_str(), &v4) == 1) return (ntohl(v4.s_addr) >> 24) == 127;
+  in6_addr v6{};
+  if (inet_pton(AF_INET6, host.c_str(), &v6) == 1) return std::memcmp(&v6, &in6addr_loopback, sizeof v6) == 0;
+  return false;
 }
 
 }  // namespace tally

@@ -13,5 +13,7 @@ struct ListenAddress {
 };
 
 std::optional<ListenAddress> parse_listen_address(std::string_view text);
+// 127.0.0.0/8 or ::1 (literal addresses; "localhost" was already resolved by the parser).
+bool is_loopback_address(const std::string& host);
 
 }  // namespace tally

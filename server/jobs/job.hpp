@@ -20,14 +20,16 @@ namespace tally {
 class Job : public std::enable_shared_from_this<Job> {
  public:
   Job(std::string id, int64_t seq, nlohmann::json spec, int priority, double created_at, uint64_t epoch,
-      size_t event_buffer)
+      size_t event_buffer, std::string owner = {})
       : id_(std::move(id)), seq_(seq), spec_(std::make_shared<const nlohmann::json>(std::move(spec))),
-        priority_(priority), created_at_(created_at), events_(epoch, event_buffer) {}
+        priority_(priority), created_at_(created_at), owner_(std::move(owner)), events_(epoch, event_buffer) {}
 
   const std::string& id() const { return id_; }
   int64_t seq() const { return seq_; }
   const nlohmann::json& spec() const { return *spec_; }
   int priority() const { return priority_; }
+  // The principal that submitted it ("" without access control).
+  const std::string& owner() const { return owner_; }
   double created_at() const { return created_at_; }
   // Thread-safe by itself (its own lock); the event streams read it.
   EventLog& events() const { return events_; }
@@ -44,7 +46,10 @@ class Job : public std::enable_shared_from_this<Job> {
   const std::shared_ptr<const nlohmann::json> spec_;
   const int priority_;
   const double created_at_;
+  const std::string owner_;
   mutable EventLog events_;
+  // The owner's running-jobs quota at submission; guarded by the manager's mutex.
+  uint64_t owner_max_running_ = UINT64_MAX;
 
   mutable std::mutex mu_;
   // --- guarded by mu_ ---

@@ -47,6 +47,7 @@ JobSnapshot Job::snapshot_locked() const {
   s.id = id_;
   s.seq = seq_;
   s.priority = priority_;
+  s.owner = owner_;
   s.spec = spec_;
   s.created_at = created_at_;
   s.started_at = started_at_;
@@ -129,9 +130,10 @@ void JobManager::finish_locked(Job& job, double now) {
            job.error_.empty() ? std::string() : ": " + job.error_);
 }
 
-std::shared_ptr<Job> JobManager::submit(const json& spec, int priority) {
-  std::shared_ptr<const JobDefinition> def = compiler_(spec, config_.limits);  // throws SpecError
-  auto runner = std::make_unique<JobRunner>(def->kernel(), def->stop_rule(), config_.limits.caps());
+std::shared_ptr<Job> JobManager::submit(const json& spec, int priority, const Submitter& who) {
+  const JobLimits& limits = who.limits ? *who.limits : config_.limits;
+  std::shared_ptr<const JobDefinition> def = compiler_(spec, limits);  // throws SpecError
+  auto runner = std::make_unique<JobRunner>(def->kernel(), def->stop_rule(), limits.caps());
   std::shared_ptr<Job> job;
   {
     std::lock_guard lock(mu_);
@@ -140,8 +142,22 @@ std::shared_ptr<Job> JobManager::submit(const json& spec, int priority) {
       throw JobError(JobError::Kind::queue_full,
                      fmt::format("the job queue is full ({} queued, {} running); retry later", queue_.size(), running_));
     }
+    if (who.max_queued != UINT64_MAX || who.max_running != UINT64_MAX) {
+      const auto r = running_by_owner_.find(who.owner);
+      const uint64_t running = r == running_by_owner_.end() ? 0 : r->second;
+      const auto queued = static_cast<uint64_t>(
+          std::count_if(queue_.begin(), queue_.end(), [&](const auto& j) { return j->owner() == who.owner; }));
+      const bool would_wait = running >= who.max_running || running_ >= config_.max_running;
+      if (would_wait && queued >= who.max_queued) {
+        throw JobError(JobError::Kind::quota,
+                       fmt::format("quota max_queued_jobs: \"{}\" already has {} queued and {} running jobs "
+                                   "(max_queued_jobs {}, max_running_jobs {})",
+                                   who.owner, queued, running, who.max_queued, who.max_running));
+      }
+    }
     job = std::make_shared<Job>(new_job_id(), next_seq_++, spec, clamp_priority(priority), unix_now(), epoch_,
-                                config_.event_buffer);
+                                config_.event_buffer, who.owner);
+    job->owner_max_running_ = who.max_running;
     job->def_ = std::move(def);
     job->runner_ = std::move(runner);
   }
@@ -164,10 +180,18 @@ std::shared_ptr<Job> JobManager::submit(const json& spec, int priority) {
 
 void JobManager::start_queued_locked() {
   while (running_ < config_.max_running && !queue_.empty() && !shutting_down_) {
-    // Highest priority first, then submission order.
-    auto it = std::min_element(queue_.begin(), queue_.end(), [](const auto& a, const auto& b) {
-      return a->priority() != b->priority() ? a->priority() > b->priority() : a->seq() < b->seq();
-    });
+    // Highest priority first, then submission order; skipping owners at their
+    // running-jobs quota.
+    auto it = queue_.end();
+    for (auto c = queue_.begin(); c != queue_.end(); ++c) {
+      const auto r = running_by_owner_.find((*c)->owner());
+      if (r != running_by_owner_.end() && r->second >= (*c)->owner_max_running_) continue;
+      if (it == queue_.end() || ((*c)->priority() != (*it)->priority() ? (*c)->priority() > (*it)->priority()
+                                                                       : (*c)->seq() < (*it)->seq())) {
+        it = c;
+      }
+    }
+    if (it == queue_.end()) break;
     std::shared_ptr<Job> job = *it;
     queue_.erase(it);
     PassWork pass;
@@ -190,6 +214,7 @@ void JobManager::start_queued_locked() {
         ej.spec_json = job->spec().dump();
         ej.epoch = epoch_;
         ej.priority = job->priority();
+        ej.owner = job->owner();
       }
     }
     if (pass.empty()) {
@@ -199,13 +224,17 @@ void JobManager::start_queued_locked() {
     }
     log::job(log::Level::debug, job->id(), "running");
     ++running_;
+    ++running_by_owner_[job->owner()];
     executor_->add(std::move(ej), std::move(pass));
   }
 }
 
-void JobManager::job_left_scheduler() {
+void JobManager::job_left_scheduler(const Job& job) {
   std::lock_guard lock(mu_);
   if (running_ > 0) --running_;
+  if (auto it = running_by_owner_.find(job.owner()); it != running_by_owner_.end() && --it->second == 0) {
+    running_by_owner_.erase(it);
+  }
   start_queued_locked();
 }
 
@@ -254,7 +283,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     }
   }
   if (checkpoint) recorder_.persist(*job, true);
-  if (finished) job_left_scheduler();
+  if (finished) job_left_scheduler(*job);
   return next;
 }
 
@@ -269,7 +298,7 @@ void JobManager::on_failed(const std::string& id, const std::string& error) {
     finish_locked(*job, unix_now());
   }
   recorder_.persist(*job, true);
-  job_left_scheduler();
+  job_left_scheduler(*job);
 }
 
 void JobManager::on_cancelled(const std::string& id) {
@@ -283,7 +312,7 @@ void JobManager::on_cancelled(const std::string& id) {
     finish_locked(*job, unix_now());
   }
   recorder_.persist(*job, true);
-  job_left_scheduler();
+  job_left_scheduler(*job);
 }
 
 std::shared_ptr<Job> JobManager::find(const std::string& id) const {
@@ -442,6 +471,7 @@ ManagerStats JobManager::stats() const {
   s.busy_workers = es.busy_workers;
   s.store_failures = recorder_.store_failures();
   s.store_ok = !recorder_.store_problem().has_value();
+  s.cpu_seconds_by_owner = es.cpu_seconds_by_owner;
   return s;
 }
 

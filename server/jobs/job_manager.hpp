@@ -9,6 +9,7 @@
 #include <mutex>
 #include <optional>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -24,7 +25,7 @@ namespace tally {
 
 class JobError : public std::runtime_error {
  public:
-  enum class Kind { not_found, conflict, queue_full, unavailable };
+  enum class Kind { not_found, conflict, queue_full, unavailable, quota };
   JobError(Kind kind, const std::string& what) : std::runtime_error(what), kind_(kind) {}
   Kind kind() const noexcept { return kind_; }
 
@@ -42,6 +43,15 @@ struct ManagerConfig {
   double chunk_target_s = 0.004;
 };
 
+// Who submits a job and within which limits. The default is the anonymous owner
+// with the server's own limits (no access control).
+struct Submitter {
+  std::string owner;
+  uint64_t max_running = UINT64_MAX;  // the owner's jobs computing at once; more wait in the queue
+  uint64_t max_queued = UINT64_MAX;   // the owner's jobs waiting; beyond: JobError quota
+  std::optional<JobLimits> limits;    // per-job limits and caps; nullopt: the server's
+};
+
 struct ManagerStats {
   std::map<std::string, size_t> jobs_by_state;
   size_t queue_depth = 0;
@@ -51,6 +61,7 @@ struct ManagerStats {
   unsigned busy_workers = 0;
   uint64_t store_failures = 0;  // failed saves since start
   bool store_ok = true;         // the last save succeeded
+  std::map<std::string, double> cpu_seconds_by_owner;  // the executor's fair-share accounting
 };
 
 class JobManager {
@@ -63,7 +74,7 @@ class JobManager {
   void recover();
 
   // Throws SpecError (invalid spec) or JobError (queue full, shutting down).
-  std::shared_ptr<Job> submit(const nlohmann::json& spec, int priority = 0);
+  std::shared_ptr<Job> submit(const nlohmann::json& spec, int priority = 0, const Submitter& who = {});
   std::shared_ptr<Job> find(const std::string& id) const;  // null if unknown
   std::vector<std::shared_ptr<Job>> list() const;           // in submission order
   // The job as it is now, taken under its lock (JobError not_found if unknown).
@@ -92,7 +103,7 @@ class JobManager {
   void on_failed(const std::string& id, const std::string& error);
   void on_cancelled(const std::string& id);
   void start_queued_locked();
-  void job_left_scheduler();
+  void job_left_scheduler(const Job& job);
   // Under job.mu_: marks the job finished from its runner, publishes state + end.
   void finish_locked(Job& job, double now);
   void publish_state_locked(Job& job);
@@ -107,6 +118,7 @@ class JobManager {
   std::vector<std::shared_ptr<Job>> order_;   // submission order
   std::vector<std::shared_ptr<Job>> queue_;   // waiting to run
   size_t running_ = 0;
+  std::map<std::string, uint64_t> running_by_owner_;
   int64_t next_seq_ = 1;
   bool shutting_down_ = false;
 

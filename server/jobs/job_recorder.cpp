@@ -28,6 +28,7 @@ bool JobRecorder::persist(Job& job, bool with_checkpoint, bool retry) {
     s.seq = job.seq_;
     s.spec = dump(*job.spec_);
     s.priority = job.priority_;
+    s.owner = job.owner_;
     s.state = std::string(job_status_name(job.status_));
     s.stop_rule = job.runner_ ? dump(stop_rule_to_json(job.runner_->rule())) : std::string("{}");
     s.error = job.error_;
@@ -111,7 +112,8 @@ JobRecorder::Recovered JobRecorder::recover() {
                e.what());
       spec = row.spec;
     }
-    auto job = std::make_shared<Job>(row.id, row.seq, spec, row.priority, row.created_at, out.epoch, event_buffer_);
+    auto job = std::make_shared<Job>(row.id, row.seq, spec, row.priority, row.created_at, out.epoch, event_buffer_,
+                                     row.owner);
     const auto status = parse_job_status(row.state).value_or(JobStatus::failed);
     job->status_ = status;
     job->error_ = row.error;

@@ -14,6 +14,7 @@ struct StoredJob {
   int64_t seq = 0;            // submission order
   std::string spec;           // the job spec as submitted (JSON text)
   int priority = 0;
+  std::string owner;          // submitting principal ("" without access control)
   std::string state;          // queued | running | succeeded | failed | cancelled
   std::string stop_rule;      // current rule (JSON), which extend may have changed
   std::string error;          // failure message, "" if none

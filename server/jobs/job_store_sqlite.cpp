@@ -26,8 +26,19 @@ class SqliteJobStore final : public JobStore {
         " state TEXT NOT NULL, stop_rule TEXT NOT NULL, error TEXT NOT NULL DEFAULT '',"
         " result TEXT NOT NULL DEFAULT '', checkpoint BLOB,"
         " created_at REAL NOT NULL, started_at REAL NOT NULL, finished_at REAL NOT NULL,"
-        " updated_at REAL NOT NULL DEFAULT ((julianday('now') - 2440587.5) * 86400.0))");
+        " updated_at REAL NOT NULL DEFAULT ((julianday('now') - 2440587.5) * 86400.0),"
+        " owner TEXT NOT NULL DEFAULT '')");
     db_.exec("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value INTEGER NOT NULL)");
+    migrate();
+  }
+
+  // Databases written before access control have no owner column: their jobs
+  // belong to the anonymous owner "" (visible to admins only once auth is on).
+  void migrate() {
+    bool has_owner = false;
+    SQLite::Statement q(db_, "PRAGMA table_info(jobs)");
+    while (q.executeStep()) has_owner = has_owner || q.getColumn(1).getString() == "owner";
+    if (!has_owner) db_.exec("ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT ''");
   }
 
   void save(const StoredJob& j) override {
@@ -35,7 +46,7 @@ class SqliteJobStore final : public JobStore {
     SQLite::Transaction tx(db_);
     SQLite::Statement st(db_,
                          "INSERT INTO jobs (id, seq, spec, priority, state, stop_rule, error, result,"
-                         " checkpoint, created_at, started_at, finished_at) VALUES (?,?,?,?,?,?,?,?,?,?,?,?)"
+                         " checkpoint, created_at, started_at, finished_at, owner) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)"
                          " ON CONFLICT(id) DO UPDATE SET state=excluded.state, stop_rule=excluded.stop_rule,"
                          " error=excluded.error, result=excluded.result,"
                          " checkpoint=COALESCE(excluded.checkpoint, jobs.checkpoint),"
@@ -57,6 +68,7 @@ class SqliteJobStore final : public JobStore {
     st.bind(10, j.created_at);
     st.bind(11, j.started_at);
     st.bind(12, j.finished_at);
+    st.bind(13, j.owner);
     st.exec();
     tx.commit();
   }
@@ -66,7 +78,7 @@ class SqliteJobStore final : public JobStore {
     std::vector<StoredJob> out;
     SQLite::Statement q(db_,
                         "SELECT id, seq, spec, priority, state, stop_rule, error, result, checkpoint,"
-                        " created_at, started_at, finished_at FROM jobs ORDER BY seq");
+                        " created_at, started_at, finished_at, owner FROM jobs ORDER BY seq");
     while (q.executeStep()) {
       StoredJob j;
       j.id = q.getColumn(0).getString();
@@ -84,6 +96,7 @@ class SqliteJobStore final : public JobStore {
       j.created_at = q.getColumn(9).getDouble();
       j.started_at = q.getColumn(10).getDouble();
       j.finished_at = q.getColumn(11).getDouble();
+      j.owner = q.getColumn(12).getString();
       out.push_back(std::move(j));
     }
     return out;

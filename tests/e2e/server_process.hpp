@@ -30,9 +30,13 @@ class ServerProcess {
   // SIGTERM and wait; returns the exit status (-1 on timeout, then SIGKILL).
   int terminate(double timeout_s = 20);
   void kill9();
+  // Sends `sig` (e.g. SIGHUP) to the running server.
+  void signal(int sig);
   bool running() const { return pid_ > 0; }
   uint16_t port() const { return port_; }
   HttpClient client(double timeout_s = 30) const;
+  // A client for this server with credentials; `tls`: https with the given CA file.
+  HttpClient client(ClientSecurity security, bool tls = false, double timeout_s = 30) const;
   std::string log() const;
 
  private:

@@ -99,6 +99,18 @@ void ServerProcess::kill9() {
   pid_ = -1;
 }
 
+void ServerProcess::signal(int sig) {
+  if (pid_ > 0) ::kill(pid_, sig);
+}
+
+HttpClient ServerProcess::client(ClientSecurity security, bool tls, double timeout_s) const {
+  HttpUrl u;
+  u.host = "127.0.0.1";
+  u.port = std::to_string(port_);
+  u.tls = tls;
+  return HttpClient(u, timeout_s, std::move(security));
+}
+
 HttpClient ServerProcess::client(double timeout_s) const {
   HttpUrl u;
   u.host = "127.0.0.1";

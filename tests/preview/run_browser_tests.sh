@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
-# ctest entry for the browser tests: run_browser_tests.sh PATH/TO/tally-server
+# ctest entry for the browser tests: run_browser_tests.sh PATH/TO/tally-server [TEST_FILE]
+# (TEST_FILE defaults to browser.test.mjs; auth_browser.test.mjs is the access-control one)
 # Installs playwright-core from package-lock.json into tests/preview/node_modules
 # when missing. Exits 77 (ctest SKIP) only when node, npm or chromium cannot be had.
 set -u
 here=$(cd "$(dirname "$0")" && pwd)
-server=${1:?usage: run_browser_tests.sh PATH/TO/tally-server}
+server=${1:?usage: run_browser_tests.sh PATH/TO/tally-server [TEST_FILE]}
+test_file=${2:-browser.test.mjs}
 chromium=${CHROMIUM:-/usr/bin/chromium}
 
 if ! command -v node >/dev/null 2>&1; then
@@ -21,4 +23,4 @@ if [ ! -f "$here/node_modules/playwright-core/package.json" ]; then
     echo "SKIP: npm ci could not install playwright-core"; exit 77; }
 fi
 export TALLY_SERVER="$server" CHROMIUM="$chromium"
-cd "$here" && exec node --test --test-concurrency=1 browser.test.mjs
+cd "$here" && exec node --test --test-concurrency=1 "$test_file"

@@ -138,7 +138,12 @@ TEST(HttpUrl, Parses) {
   ASSERT_TRUE(u);
   EXPECT_EQ(u->port, "80");
   EXPECT_EQ(u->base_path, "/tally");
-  EXPECT_FALSE(parse_http_url("https://x"));
+  EXPECT_FALSE(u->tls);
+  u = parse_http_url("https://x");
+  ASSERT_TRUE(u);
+  EXPECT_TRUE(u->tls);
+  EXPECT_EQ(u->port, "443");
+  EXPECT_FALSE(parse_http_url("ftp://x"));
   EXPECT_FALSE(parse_http_url("127.0.0.1:8080"));
 }
 
