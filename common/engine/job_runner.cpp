@@ -62,6 +62,11 @@ uint64_t JobRunner::next_pass_samples() const {
     const double fit = std::max(static_cast<double>(s.block_samples), rate * left * 1.05);
     if (fit < static_cast<double>(n)) n = static_cast<uint64_t>(fit);
   }
+  if (s.sample_quantum > 1) {
+    const uint64_t q = s.sample_quantum;
+    const uint64_t up = (std::max<uint64_t>(n, 1) + q - 1) / q * q;
+    if (limit <= state_.samples || up <= limit - state_.samples) n = up;
+  }
   return std::max<uint64_t>(n, 1);
 }
 

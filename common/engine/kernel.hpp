@@ -80,6 +80,9 @@ struct PassSchedule {
   uint64_t first_pass_samples = 4096;  // pass k draws first * 2^k, up to the cap
   uint64_t max_pass_samples = 1u << 22;
   uint64_t block_samples = 4096;  // samples per block (the unit of parallel work)
+  // Pass sizes are rounded up to a multiple of this (unless a sample limit forbids), e.g.
+  // K so that K randomized-QMC replicates grow together.
+  uint64_t sample_quantum = 1;
 };
 
 class Kernel {
