@@ -6,8 +6,10 @@
 //   * RMSE over all pixels and channels against a reference (sobol, ref_spp, another
 //     seed; its own estimated variance is subtracted), averaged over `seeds` runs, for
 //     spp = 8 .. 256, and the log-log slope of RMSE vs spp (least squares);
-//   * time to reach the RMSE that independent sampling reaches at 16 and 256 spp
-//     (interpolated in log-log on each sampler's RMSE-time curve) and the ratio.
+//   * the spp each sampler needs for the RMSE independent sampling reaches at 16 and 256
+//     spp (log-log interpolation), times its time per sample (fastest of three
+//     interleaved 96x72 x 64 spp renders), against independent's: the time-to-RMSE
+//     speed-up.
 // The samplers' runs are interleaved (for each spp and seed: independent, then each K),
 // so the ratios come from one run under the same load.
 //
@@ -119,14 +121,14 @@ double slope(const std::vector<double>& x, const std::vector<double>& y) {
   return sxy / sxx;
 }
 
-// Time at which the curve (t_i, e_i) (decreasing e) reaches error `target`, log-log
-// interpolation; extrapolated along the last segment if beyond.
-double time_to(const std::vector<double>& t, const std::vector<double>& e, double target) {
+// spp at which the curve (spp_i, e_i) reaches error `target` (log-log interpolation,
+// extrapolated along the nearest segment outside the range).
+double spp_to(const std::vector<double>& spp, const std::vector<double>& e, double target) {
   size_t i = 0;
   while (i + 2 < e.size() && e[i + 1] > target) ++i;
   const double a = std::log(e[i]), b = std::log(e[i + 1]);
   const double f = (std::log(target) - a) / (b - a);
-  return std::exp(std::log(t[i]) + f * (std::log(t[i + 1]) - std::log(t[i])));
+  return std::exp(std::log(spp[i]) + f * (std::log(spp[i + 1]) - std::log(spp[i])));
 }
 
 }  // namespace
@@ -151,12 +153,11 @@ int main(int argc, char** argv) {
     for (int depth : {1, 4}) {
       const Run ref = render(sc.scene, w, h, depth, "sobol", 8, ref_spp, 999);
       // [sampler label] -> per spp: mean rmse, mean seconds
-      std::map<std::string, std::vector<double>> err, sec;
+      std::map<std::string, std::vector<double>> err;
       std::vector<std::string> labels = {"independent"};
       for (uint32_t k : ks) labels.push_back("sobol K=" + std::to_string(k));
       for (const auto& l : labels) {
         err[l].assign(spps.size(), 0.0);
-        sec[l].assign(spps.size(), 0.0);
       }
       for (size_t i = 0; i < spps.size(); ++i) {
         for (int s = 0; s < seeds; ++s) {
@@ -165,33 +166,36 @@ int main(int argc, char** argv) {
             const uint32_t k = ind ? 1 : static_cast<uint32_t>(std::stoul(l.substr(8)));
             const Run r = render(sc.scene, w, h, depth, ind ? "independent" : "sobol", k, spps[i], 1 + static_cast<uint64_t>(s));
             err[l][i] += rmse(r, ref) / seeds;
-            sec[l][i] += r.seconds / seeds;
           }
         }
       }
-      std::printf("\n%s, max_depth %d (reference %.2fs)\n  %-14s", sc.name.c_str(), depth, ref.seconds, "spp");
+      // Time per sample: 96x72 at 64 spp, three interleaved rounds, the fastest of each.
+      std::map<std::string, double> tps;
+      for (int round = 0; round < 3; ++round) {
+        for (const auto& l : labels) {
+          const bool ind = l == "independent";
+          const uint32_t k = ind ? 1 : static_cast<uint32_t>(std::stoul(l.substr(8)));
+          const Run r = render(sc.scene, 96, 72, depth, ind ? "independent" : "sobol", k, 64, 77);
+          const double t = r.seconds / (96.0 * 72.0 * 64.0);
+          tps[l] = round == 0 ? t : std::min(tps[l], t);
+        }
+      }
+      std::printf("\n%s, max_depth %d (reference %.2fs)\n  %-14s", sc.name.c_str(), depth, ref.seconds, "RMSE at spp");
       for (uint64_t spp : spps) std::printf(" %10llu", static_cast<unsigned long long>(spp));
-      std::printf("   slope(8-256)  t(ind@16)  t(ind@256)  speed-up@16  speed-up@256\n");
+      std::printf("   slope   ns/sample  spp to ind@16  ind@256   time-to-RMSE speed-up @16  @256\n");
       std::vector<double> x(spps.begin(), spps.end());
       const auto& ei = err["independent"];
-      const auto& ti = sec["independent"];
       for (const auto& l : labels) {
         for (size_t i = 0; csv != nullptr && i < spps.size(); ++i) {
           std::fprintf(csv, "%s,%d,%s,%llu,%.6e,%.6e\n", sc.name.c_str(), depth, l.c_str(),
-                       static_cast<unsigned long long>(spps[i]), err[l][i], sec[l][i]);
+                       static_cast<unsigned long long>(spps[i]), err[l][i], tps[l] * spps[i] * w * h);
         }
+        const double n16 = spp_to(x, err[l], ei[1]), n256 = spp_to(x, err[l], ei.back());
         std::printf("  %-14s", l.c_str());
         for (double e : err[l]) std::printf(" %10.3e", e);
-        const double t16 = time_to(sec[l], err[l], ei[1]);
-        const double t256 = time_to(sec[l], err[l], ei.back());
-        std::printf("   %8.3f     %8.3fs  %8.3fs   %8.2fx   %8.2fx\n", slope(x, err[l]), t16, t256, ti[1] / t16,
-                    ti.back() / t256);
+        std::printf("  %6.3f  %9.0f  %13.1f  %7.1f   %24.2fx  %5.2fx\n", slope(x, err[l]), 1e9 * tps[l], n16, n256,
+                    16.0 * tps["independent"] / (n16 * tps[l]), 256.0 * tps["independent"] / (n256 * tps[l]));
       }
-      std::printf("  %-14s", "seconds");
-      for (double t : ti) std::printf(" %10.3f", t);
-      std::printf("   (independent; sobol K=8:");
-      for (double t : sec["sobol K=8"]) std::printf(" %.3f", t);
-      std::printf(")\n");
     }
   }
   if (csv != nullptr) std::fclose(csv);

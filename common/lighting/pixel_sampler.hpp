@@ -40,14 +40,22 @@ class SobolSample {
   static uint64_t replicate_key(uint64_t stream_key_value, uint32_t replicate) noexcept {
     return mix64(stream_key_value ^ mix64(0x5b0b01ULL + replicate));
   }
+  // Both coordinates of a pair are computed together (they share the index shuffle)
+  // and the last pair is kept: the path tracer asks for 2p and 2p + 1 in a row.
   double uniform(uint32_t dim) const noexcept {
-    const uint64_t pair_key = mix64(key_ + (static_cast<uint64_t>(dim >> 1) + 1) * kGolden64);
-    return sobol_burley_2d(pair_key, index_, dim & 1u);
+    const uint32_t pair = dim >> 1;
+    if (pair != cached_pair_) {
+      sobol_burley_pair(mix64(key_ + (static_cast<uint64_t>(pair) + 1) * kGolden64), index_, cached_);
+      cached_pair_ = pair;
+    }
+    return cached_[dim & 1u];
   }
 
  private:
   uint64_t key_;
   uint64_t index_;
+  mutable uint32_t cached_pair_ = ~0u;  // a per-sample object, never shared between threads
+  mutable double cached_[2] = {0, 0};
 };
 
 }  // namespace tally

@@ -26,6 +26,7 @@
 //
 // The per-coordinate cost is a handful of multiplies (no tables beyond 32 words).
 #include <array>
+#include <cstddef>
 #include <cstdint>
 
 #include "common/rng/counter_rng.hpp"
@@ -35,11 +36,10 @@ namespace tally {
 namespace sobol_burley {
 
 constexpr uint32_t reverse_bits(uint32_t x) noexcept {
-  x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
-  x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
+  x = __builtin_bswap32(x);
   x = ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);
-  x = ((x >> 8) & 0x00ff00ffu) | ((x & 0x00ff00ffu) << 8);
-  return (x >> 16) | (x << 16);
+  x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
+  return ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
 }
 
 // Burley's improved Laine-Karras hash: a bijection of 32-bit words whose output bit k
@@ -58,17 +58,19 @@ constexpr uint32_t owen_scramble(uint32_t x, uint32_t seed) noexcept {
   return reverse_bits(laine_karras(reverse_bits(x), seed));
 }
 
-// Generator matrix columns of Sobol' dimension 1 (Pascal's triangle mod 2).
-constexpr std::array<uint32_t, 32> dim1_directions() noexcept {
+// Generator matrix columns of Sobol' dimension 1 (Pascal's triangle mod 2), and the same
+// bit-reversed.
+constexpr std::array<uint32_t, 32> dim1_directions(bool reversed) noexcept {
   std::array<uint32_t, 32> v{};
   uint32_t c = 1u << 31;
   for (int j = 0; j < 32; ++j) {
-    v[static_cast<size_t>(j)] = c;
+    v[static_cast<std::size_t>(j)] = reversed ? reverse_bits(c) : c;
     c ^= c >> 1;
   }
   return v;
 }
-inline constexpr std::array<uint32_t, 32> kDim1 = dim1_directions();
+inline constexpr std::array<uint32_t, 32> kDim1 = dim1_directions(false);
+inline constexpr std::array<uint32_t, 32> kDim1Reversed = dim1_directions(true);
 
 constexpr uint32_t sobol0(uint32_t index) noexcept { return reverse_bits(index); }
 constexpr uint32_t sobol1(uint32_t index) noexcept {
@@ -78,24 +80,34 @@ constexpr uint32_t sobol1(uint32_t index) noexcept {
   }
   return x;
 }
+// reverse_bits(sobol1(index)).
+constexpr uint32_t sobol1_reversed(uint32_t index) noexcept {
+  uint32_t x = 0;
+  for (uint32_t j = 0; index != 0; index >>= 1, ++j) {
+    if (index & 1u) x ^= kDim1Reversed[j];
+  }
+  return x;
+}
 
 }  // namespace sobol_burley
 
-// Coordinate `component` (0 or 1) of point `index` of the 2-D sequence keyed by
-// `pair_key` (any 64-bit hash of seed, pixel, replicate and pair), in [0, 1).
-// Indices >= 2^32 start an independent sequence per block of 2^32.
-inline double sobol_burley_2d(uint64_t pair_key, uint64_t index, uint32_t component) noexcept {
+// Point `index` of the 2-D sequence keyed by `pair_key` (a 64-bit hash of seed, pixel,
+// replicate and pair): uv[0], uv[1] in [0, 1). Indices >= 2^32 start an independent
+// sequence per block of 2^32. Equal to
+//   owen(sobol0(j'), s_x), owen(sobol1(j'), s_y) with j' = owen(index, s_shuffle),
+// computed with the reversals folded (sobol0 is a reversal itself).
+inline void sobol_burley_pair(uint64_t pair_key, uint64_t index, double* uv) noexcept {
   using namespace sobol_burley;
-  const uint64_t key = index >> 32 ? mix64(pair_key ^ mix64(index >> 32)) : pair_key;
-  const auto shuffle_seed = static_cast<uint32_t>(key);
-  const uint64_t k2 = mix64(key + (component + 1) * kGolden64);
-  const auto scramble_seed = static_cast<uint32_t>(k2);
-  const uint32_t j = owen_scramble(static_cast<uint32_t>(index), shuffle_seed);
-  const uint32_t x = owen_scramble(component == 0 ? sobol0(j) : sobol1(j), scramble_seed);
-  // Below the 32 Sobol' bits each point is alone in its cell: 21 uniform bits hashed
-  // from the scrambled prefix complete the nested scramble to double resolution.
-  const uint64_t low = SampleRng::mum(k2 ^ x, 0xe7037ed1a0b428dbULL ^ (k2 >> 32)) >> 43;
-  return static_cast<double>((static_cast<uint64_t>(x) << 21) | low) * 0x1.0p-53;
+  const uint64_t h = index >> 32 ? mix64(pair_key ^ mix64(index >> 32)) : pair_key;
+  const uint64_t h2 = mix64(h ^ 0x2545f4914f6cdd1dULL);
+  const uint32_t j = owen_scramble(static_cast<uint32_t>(index), static_cast<uint32_t>(h));
+  const uint32_t x = reverse_bits(laine_karras(j, static_cast<uint32_t>(h >> 32)));
+  const uint32_t y = reverse_bits(laine_karras(sobol1_reversed(j), static_cast<uint32_t>(h2)));
+  // Below the 32 Sobol' bits each point is alone in its cell: 21 uniform bits per
+  // coordinate hashed from the scrambled prefixes complete the nested scramble.
+  const uint64_t low = SampleRng::mum(h2 ^ ((static_cast<uint64_t>(x) << 32) | y), 0xe7037ed1a0b428dbULL);
+  uv[0] = static_cast<double>((static_cast<uint64_t>(x) << 21) | (low >> 43)) * 0x1.0p-53;
+  uv[1] = static_cast<double>((static_cast<uint64_t>(y) << 21) | (low & 0x1fffffu)) * 0x1.0p-53;
 }
 
 }  // namespace tally

@@ -125,19 +125,18 @@ void expect_image_coverage(const std::string& estimator, uint64_t spp, int seeds
 }
 
 TEST(QmcCoverage, ExactPixelValuesAreRight) {
-  // The reference itself: Gauss-Legendre agrees with a 200x200 midpoint rule (error
-  // ~ 1e-5 of the pixel's variation) on every pixel of an 8x8 image.
-  constexpr int w = 8, h = 8, m = 200;
+  // The reference itself has converged: 10- and 20-point Gauss-Legendre agree to 1e-11.
+  constexpr int w = 8, h = 8;
   const std::vector<double> a = exact_pixels(w, h);
+  using GL = boost::math::quadrature::gauss<double, 20>;
   for (int y = 0; y < h; ++y) {
     for (int x = 0; x < w; ++x) {
-      double sum = 0;
-      for (int j = 0; j < m; ++j) {
-        for (int i = 0; i < m; ++i) sum += radiance_through(w, h, x + (i + 0.5) / m, y + (j + 0.5) / m);
-      }
+      const double b = GL::integrate(
+          [&](double v) { return GL::integrate([&](double u) { return radiance_through(w, h, x + u, y + v); }, 0.0, 1.0); },
+          0.0, 1.0);
       const double v = a[static_cast<size_t>(y * w + x)];
       EXPECT_GT(v, 1e-3);
-      EXPECT_NEAR(v, sum / (m * m), 1e-5 * v) << x << "," << y;
+      EXPECT_NEAR(v, b, 1e-11 * v) << x << "," << y;
     }
   }
 }
@@ -198,12 +197,12 @@ TEST(QmcCoverage, PointErrorTargetsStopWithTheTrueErrorWithinTarget) {
   // Jobs of one point each (cycling through the 8 points), light_area and mis, stopped by
   // rel_error: the target is set so that jobs stop after one to three passes (the first
   // pass alone does not reach it). Every job reports target_met; the exact value is
-  // within the target of the estimate for >= 93% of them (>= 95% expected), and within the job's final 95%
-  // interval (which optional stopping could bias) for 0.90-0.99 of them (N = 300:
-  // sd 0.0126; 0.90 is 4 sd below 0.95).
+  // within the target of the estimate for >= 90% of them (>= 95% expected), and within the job's final 95%
+  // interval (which optional stopping could bias) for 0.90-0.99 of them (N = 200:
+  // sd 0.015; 0.90 is 3.2 sd below 0.95, a false-failure rate < 1e-3 per estimator).
   for (const auto& [est, target] : {std::pair<std::string, double>{"light_area", 1e-5}, {"mis", 1.5e-4}}) {
     uint64_t within = 0, covered = 0, total = 0, passes = 0;
-    for (uint64_t s = 0; s < 300; ++s) {
+    for (uint64_t s = 0; s < 200; ++s) {
       const size_t k = s % 8;
       const JobRun r = run_spec(point_query_spec(5000 + s, 0, {est}, {{"rel_error", target}}, k, 1));
       ASSERT_EQ(r.runner->stop_reason(), StopReason::error_target);
@@ -222,7 +221,7 @@ TEST(QmcCoverage, PointErrorTargetsStopWithTheTrueErrorWithinTarget) {
                 "interval for %.4f of %llu jobs\n",
                 est.c_str(), target, static_cast<double>(passes) / static_cast<double>(total), f, c,
                 static_cast<unsigned long long>(total));
-    EXPECT_GE(f, 0.93) << est;
+    EXPECT_GE(f, 0.90) << est;
     EXPECT_GE(c, 0.90) << est;
     EXPECT_LE(c, 0.99) << est;
   }
