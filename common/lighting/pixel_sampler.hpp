@@ -40,22 +40,22 @@ class SobolSample {
   static uint64_t replicate_key(uint64_t stream_key_value, uint32_t replicate) noexcept {
     return mix64(stream_key_value ^ mix64(0x5b0b01ULL + replicate));
   }
-  // Both coordinates of a pair are computed together (they share the index shuffle)
-  // and the last pair is kept: the path tracer asks for 2p and 2p + 1 in a row.
+  // The shuffled index of the last pair is kept: the path tracer asks for 2p and 2p + 1
+  // in a row, and a coordinate nobody asks for (e.g. roulette) is never computed.
   double uniform(uint32_t dim) const noexcept {
     const uint32_t pair = dim >> 1;
     if (pair != cached_pair_) {
-      sobol_burley_pair(mix64(key_ + (static_cast<uint64_t>(pair) + 1) * kGolden64), index_, cached_);
+      point_ = SobolBurleyPoint(mix64(key_ + (static_cast<uint64_t>(pair) + 1) * kGolden64), index_);
       cached_pair_ = pair;
     }
-    return cached_[dim & 1u];
+    return point_.coordinate(dim & 1u);
   }
 
  private:
   uint64_t key_;
   uint64_t index_;
   mutable uint32_t cached_pair_ = ~0u;  // a per-sample object, never shared between threads
-  mutable double cached_[2] = {0, 0};
+  mutable SobolBurleyPoint point_;
 };
 
 }  // namespace tally
