@@ -520,6 +520,7 @@ if os.path.exists(SAMPLER_CSV):
 
     sampler_plot.plot(SAMPLER_CSV, os.path.join(DATA, "sampler_rmse_time.png"))
     out.append(sampler_plot.section(SAMPLER_CSV, f"![sampler_rmse_time.png]({REL}/sampler_rmse_time.png)"))
+    head.append(sampler_plot.headline(SAMPLER_CSV))
 
 # ---------------------------------------------------------------- write
 with open(REPORT, "w") as fh:

@@ -197,8 +197,8 @@ Estimate JobRunner::headline() const {
   e.variance = h->std_error * h->std_error * static_cast<double>(std::max<uint64_t>(1, e.n));
   e.rel_error = h->mean != 0.0 ? h->std_error / std::fabs(h->mean) : kInf;
   e.confidence = rule_.confidence;
-  // Many independent channels: the normal limit.
-  const double z = critical_value(rule_.confidence, std::numeric_limits<uint64_t>::max());
+  // Many independent channels: the normal limit, unless the kernel says otherwise.
+  const double z = critical_value(rule_.confidence, h->critical_n);
   e.ci_lo = h->mean - z * h->std_error;
   e.ci_hi = h->mean + z * h->std_error;
   return e;

@@ -74,6 +74,9 @@ struct ErrorSummary {
 struct Headline {
   double mean = 0.0;
   double std_error = 0.0;  // of `mean`
+  // Sample count for critical_value() (n - 1 degrees of freedom); the default is the
+  // normal limit. K for an error from K randomized-QMC replicates.
+  uint64_t critical_n = UINT64_MAX;
 };
 
 struct PassSchedule {

@@ -43,6 +43,12 @@ PassSchedule PointKernel::schedule() const {
   return s;
 }
 
+std::optional<Headline> PointKernel::headline(const JobState& state) const {
+  const ReplicatedEstimate e = estimate(state, 0, 0, 0);
+  return Headline{e.mean, e.has_error() ? e.std_error : std::numeric_limits<double>::quiet_NaN(),
+                  std::max<uint64_t>(e.critical_n, 2)};
+}
+
 ErrorSummary PointKernel::error_summary(const JobState& state, double confidence) const {
   constexpr double inf = std::numeric_limits<double>::infinity();
   ErrorSummary worst;

@@ -36,6 +36,8 @@ class PointKernel final : public Kernel {
   void run_block(const Block& block, BlockResult& out) const override;
   // The worst (estimator, point, rgb) estimate, its error from the replicates.
   ErrorSummary error_summary(const JobState& state, double confidence) const override;
+  // Progress shows estimator 0 at point 0 (red), replicates combined.
+  std::optional<Headline> headline(const JobState& state) const override;
 
   size_t channel(size_t estimator, size_t point, int rgb, uint32_t replicate = 0) const {
     return ((estimator * points_.size() + point) * k_ + replicate) * 3 + static_cast<size_t>(rgb);
