@@ -8,13 +8,13 @@
 #include <future>
 
 #include "common/jobs/job_factory.hpp"
-#include "server/cpu_quota.hpp"
-#include "server/http_server.hpp"
-#include "server/job_manager.hpp"
-#include "server/job_store.hpp"
-#include "server/listen_address.hpp"
-#include "server/metrics.hpp"
-#include "server/request_handler.hpp"
+#include "server/executor/cpu_quota.hpp"
+#include "server/http/http_server.hpp"
+#include "server/jobs/job_manager.hpp"
+#include "server/jobs/job_store.hpp"
+#include "server/http/listen_address.hpp"
+#include "server/api/metrics.hpp"
+#include "server/api/request_handler.hpp"
 
 #if __has_include("common/image/image_io.hpp")
 #include "common/image/image_io.hpp"
