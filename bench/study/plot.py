@@ -536,6 +536,18 @@ if os.path.exists(eta) and ETA:
                "target needs lands within a factor of 2 of what the real run takes, on several integrands "
                "and a lighting job.\n")
 
+# ---------------------------------------------------------------- image samplers
+# bench/sampler_bench writes sampler_convergence.csv (not part of tally-study: it needs a
+# few minutes of its own); its section is kept whenever the CSV is there.
+SAMPLER_CSV = os.path.join(DATA, "sampler_convergence.csv")
+if os.path.exists(SAMPLER_CSV):
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+    import sampler_plot  # noqa: E402
+
+    sampler_plot.plot(SAMPLER_CSV, os.path.join(DATA, "sampler_rmse_time.png"))
+    out.append(sampler_plot.section(SAMPLER_CSV, f"![sampler_rmse_time.png]({REL}/sampler_rmse_time.png)"))
+    head.append(sampler_plot.headline(SAMPLER_CSV))
+
 # ---------------------------------------------------------------- write
 with open(REPORT, "w") as fh:
     fh.write("# What accuracy costs in time\n\n")

@@ -65,6 +65,11 @@ uint64_t JobRunner::next_pass_samples() const {
     const double fit = std::max(static_cast<double>(s.block_samples), rate * left * 1.05);
     if (fit < static_cast<double>(n)) n = static_cast<uint64_t>(fit);
   }
+  if (s.sample_quantum > 1) {
+    const uint64_t q = s.sample_quantum;
+    const uint64_t up = (std::max<uint64_t>(n, 1) + q - 1) / q * q;
+    if (limit <= state_.samples || up <= limit - state_.samples) n = up;
+  }
   return std::max<uint64_t>(n, 1);
 }
 
@@ -193,8 +198,8 @@ Estimate JobRunner::headline() const {
   e.variance = h->std_error * h->std_error * static_cast<double>(std::max<uint64_t>(1, e.n));
   e.rel_error = h->mean != 0.0 ? h->std_error / std::fabs(h->mean) : kInf;
   e.confidence = rule_.confidence;
-  // Many independent channels: the normal limit.
-  const double z = critical_value(rule_.confidence, std::numeric_limits<uint64_t>::max());
+  // Many independent channels: the normal limit, unless the kernel says otherwise.
+  const double z = critical_value(rule_.confidence, h->critical_n);
   e.ci_lo = h->mean - z * h->std_error;
   e.ci_hi = h->mean + z * h->std_error;
   return e;

@@ -51,12 +51,18 @@ struct ErrorSummary {
 struct Headline {
   double mean = 0.0;
   double std_error = 0.0;  // of `mean`
+  // Sample count for critical_value() (n - 1 degrees of freedom); the default is the
+  // normal limit. K for an error from K randomized-QMC replicates.
+  uint64_t critical_n = UINT64_MAX;
 };
 
 struct PassSchedule {
   uint64_t first_pass_samples = 4096;  // pass k draws first * 2^k, up to the cap
   uint64_t max_pass_samples = 1u << 22;
   uint64_t block_samples = 4096;  // samples per block (the unit of parallel work)
+  // Pass sizes are rounded up to a multiple of this (unless a sample limit forbids), e.g.
+  // K so that K randomized-QMC replicates grow together.
+  uint64_t sample_quantum = 1;
 };
 
 class Kernel {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <type_traits>
 
 #include "common/lighting/embree_device.hpp"
 #include "common/stats/confidence.hpp"
@@ -27,7 +28,8 @@ struct CriticalCache {
 }  // namespace
 
 ImageKernel::ImageKernel(std::shared_ptr<const CompiledScene> scene, PathSettings settings, uint64_t seed,
-                         int tile_size, uint64_t max_pass_spp, std::optional<AdaptiveSettings> adaptive)
+                         int tile_size, uint64_t max_pass_spp, std::optional<AdaptiveSettings> adaptive,
+                         SamplerSettings sampler)
     : scene_(std::move(scene)),
       settings_(settings),
       seed_(seed),
@@ -37,13 +39,15 @@ ImageKernel::ImageKernel(std::shared_ptr<const CompiledScene> scene, PathSetting
       tiles_x_((width_ + tile_size - 1) / tile_size),
       tiles_y_((height_ + tile_size - 1) / tile_size),
       max_pass_spp_(max_pass_spp),
-      adaptive_(adaptive) {
+      adaptive_(adaptive),
+      sampler_(sampler),
+      k_(sampler.k()) {
   tile_first_.resize(tile_count() + 1);
   size_t ch = 0;
   for (uint32_t t = 0; t < tile_count(); ++t) {
     tile_first_[t] = ch;
     const TileRect r = tile_rect(t);
-    ch += 3 * static_cast<size_t>(r.w) * static_cast<size_t>(r.h);
+    ch += 3 * static_cast<size_t>(k_) * static_cast<size_t>(r.w) * static_cast<size_t>(r.h);
   }
   tile_first_[tile_count()] = ch;
   const Camera& c = *scene_->scene.camera;
@@ -61,6 +65,13 @@ PassSchedule ImageKernel::schedule() const {
   s.max_pass_samples = max_pass_spp_;
   // About 16k paths per block: a 32x32 tile gets 16 spp per block.
   s.block_samples = std::max<uint64_t>(1, 16384 / static_cast<uint64_t>(tile_ * tile_));
+  if (k_ > 1) {
+    // Every pass and block gives each replicate the same number of points.
+    s.first_pass_samples = k_;
+    s.max_pass_samples = std::max<uint64_t>(k_, max_pass_spp_ / k_ * k_);
+    s.block_samples = std::max<uint64_t>(1, s.block_samples / k_) * k_;
+    s.sample_quantum = k_;
+  }
   return s;
 }
 
@@ -78,23 +89,46 @@ size_t ImageKernel::pixel_channel(int x, int y) const {
   const int tx = x / tile_, ty = y / tile_;
   const uint32_t t = static_cast<uint32_t>(ty * tiles_x_ + tx);
   const TileRect r = tile_rect(t);
-  return tile_first_[t] + 3 * (static_cast<size_t>(y - r.y) * static_cast<size_t>(r.w) + static_cast<size_t>(x - r.x));
+  return tile_first_[t] +
+         3 * static_cast<size_t>(k_) * (static_cast<size_t>(y - r.y) * static_cast<size_t>(r.w) + static_cast<size_t>(x - r.x));
+}
+
+ReplicatedEstimate ImageKernel::pixel_estimate(const JobState& state, size_t ch, size_t c) const {
+  return combine_replicates(&state.channels[ch + c], 3, k_);
 }
 
 void ImageKernel::run_block(const Block& block, BlockResult& out) const {
+  if (sampler_.kind == SamplerKind::independent) {
+    run_pixels<SampleRng>(block, out);
+  } else {
+    run_pixels<SobolSample>(block, out);
+  }
+}
+
+template <class Sample>
+void ImageKernel::run_pixels(const Block& block, BlockResult& out) const {
   const TileRect r = tile_rect(block.partition);
   out.first_channel = static_cast<uint32_t>(tile_first_[block.partition]);
-  out.tallies.assign(3 * static_cast<size_t>(r.w) * static_cast<size_t>(r.h), Tally{});
+  out.tallies.assign(3 * static_cast<size_t>(k_) * static_cast<size_t>(r.w) * static_cast<size_t>(r.h), Tally{});
   const PathTracer& tracer = *scene_->tracer;
-  std::vector<double> v[3];
-  for (auto& a : v) a.reserve(block.sample_count);
+  std::vector<std::vector<double>> v(3 * static_cast<size_t>(k_));  // [replicate * 3 + rgb]
+  for (auto& a : v) a.reserve(block.sample_count / k_ + 1);
+  std::vector<uint64_t> rep_keys(k_);
   const double inv_w = 1.0 / width_, inv_h = 1.0 / height_;
   for (int y = r.y; y < r.y + r.h; ++y) {
     for (int x = r.x; x < r.x + r.w; ++x) {
       const uint64_t key = stream_key(seed_, static_cast<uint64_t>(y) * static_cast<uint64_t>(width_) + static_cast<uint64_t>(x));
+      for (uint32_t q = 0; q < k_; ++q) rep_keys[q] = SobolSample::replicate_key(key, q);
       for (auto& a : v) a.clear();
       for (uint64_t i = block.first_sample; i < block.first_sample + block.sample_count; ++i) {
-        const SampleRng rng(key, i);
+        const uint32_t rep = static_cast<uint32_t>(i % k_);
+        const Sample rng = [&] {
+          if constexpr (std::is_same_v<Sample, SampleRng>) {
+            return SampleRng(key, i);
+          } else {
+            return SobolSample(rep_keys[rep], i / k_);
+          }
+        }();
         const double sx = (2.0 * (x + rng.uniform(0)) * inv_w - 1.0) * tan_half_ * aspect_;
         const double sy = (1.0 - 2.0 * (y + rng.uniform(1)) * inv_h) * tan_half_;
         const Vec3 d = normalize(cam_fwd_ + cam_right_ * sx + cam_up_ * sy);
@@ -104,12 +138,13 @@ void ImageKernel::run_block(const Block& block, BlockResult& out) const {
           out.counters.add(Counter::nonfinite);
           continue;
         }
-        v[0].push_back(L.x);
-        v[1].push_back(L.y);
-        v[2].push_back(L.z);
+        v[3 * rep].push_back(L.x);
+        v[3 * rep + 1].push_back(L.y);
+        v[3 * rep + 2].push_back(L.z);
       }
-      const size_t base = 3 * (static_cast<size_t>(y - r.y) * static_cast<size_t>(r.w) + static_cast<size_t>(x - r.x));
-      for (int c = 0; c < 3; ++c) out.tallies[base + static_cast<size_t>(c)] = Tally::from_batch(v[c].data(), v[c].size());
+      const size_t base =
+          3 * static_cast<size_t>(k_) * (static_cast<size_t>(y - r.y) * static_cast<size_t>(r.w) + static_cast<size_t>(x - r.x));
+      for (size_t c = 0; c < v.size(); ++c) out.tallies[base + c] = Tally::from_batch(v[c].data(), v[c].size());
     }
   }
   if (auto err = take_embree_error()) {
@@ -122,6 +157,7 @@ void ImageKernel::run_block(const Block& block, BlockResult& out) const {
 }
 
 double ImageKernel::image_mean(const JobState& state) const {
+  // Replicates of a pixel are equal in size (or within one sample): the plain average.
   double sum = 0;
   for (const Tally& t : state.channels) sum += t.mean;
   return state.channels.empty() ? 0.0 : sum / static_cast<double>(state.channels.size());
@@ -132,10 +168,10 @@ double ImageKernel::pixel_rel_error(const JobState& state, size_t ch, double con
   thread_local CriticalCache critical;
   double half = 0, mean = 0;
   for (size_t c = 0; c < 3; ++c) {
-    const Tally& t = state.channels[ch + c];
-    if (t.n < 2) return std::numeric_limits<double>::infinity();
-    half += critical(confidence, t.n) * std::sqrt(t.variance() / static_cast<double>(t.n));
-    mean += std::fabs(t.mean);
+    const ReplicatedEstimate e = pixel_estimate(state, ch, c);
+    if (!e.has_error()) return std::numeric_limits<double>::infinity();
+    half += critical(confidence, e.critical_n) * e.std_error;
+    mean += std::fabs(e.mean);
   }
   return half / (mean + 3 * delta);
 }
@@ -146,7 +182,7 @@ std::vector<uint32_t> ImageKernel::active_partitions(const JobState& state) cons
   std::vector<uint32_t> active;
   for (uint32_t t = 0; t < tile_count(); ++t) {
     bool need = state.partition_samples[t] < adaptive_->min_spp;
-    for (size_t ch = tile_first_[t]; !need && ch < tile_first_[t + 1]; ch += 3) {
+    for (size_t ch = tile_first_[t]; !need && ch < tile_first_[t + 1]; ch += 3 * static_cast<size_t>(k_)) {
       need = pixel_rel_error(state, ch, 0.95, delta) > adaptive_->rel_error;
     }
     if (need) active.push_back(t);
@@ -161,21 +197,29 @@ ErrorSummary ImageKernel::error_summary(const JobState& state, double confidence
   CriticalCache critical;
   double sum_h = 0, sum_r = 0;
   uint64_t n_min = std::numeric_limits<uint64_t>::max();
-  for (const Tally& t : state.channels) {
-    if (t.n < 2) return {inf, inf, std::numeric_limits<double>::quiet_NaN(), mean};
-    const double half = critical(confidence, t.n) * std::sqrt(t.variance() / static_cast<double>(t.n));
-    sum_h += half;
-    sum_r += half / (std::fabs(t.mean) + delta);
-    n_min = std::min(n_min, t.n);
+  size_t count = 0;
+  for (size_t ch = 0; ch < state.channels.size(); ch += 3 * static_cast<size_t>(k_)) {
+    for (size_t c = 0; c < 3; ++c) {
+      const ReplicatedEstimate e = pixel_estimate(state, ch, c);
+      if (!e.has_error()) return {inf, inf, std::numeric_limits<double>::quiet_NaN(), mean};
+      const double half = critical(confidence, e.critical_n) * e.std_error;
+      sum_h += half;
+      sum_r += half / (std::fabs(e.mean) + delta);
+      n_min = std::min(n_min, e.n);
+      ++count;
+    }
   }
-  const double count = static_cast<double>(state.channels.size());
+  if (count == 0) return {inf, inf, std::numeric_limits<double>::quiet_NaN(), mean};
   ErrorSummary e;
-  e.abs_error = sum_h / count;
-  e.rel_error = sum_r / count;
+  e.abs_error = sum_h / static_cast<double>(count);
+  e.rel_error = sum_r / static_cast<double>(count);
   // sigma such that z sigma / sqrt(n) = abs_error, and mean such that abs/mean = rel:
   // the engine's 1/sqrt(n) prediction of the samples still needed is then exact for
-  // both kinds of target.
-  e.sigma = e.abs_error * std::sqrt(static_cast<double>(n_min)) / critical_value(confidence, n_min);
+  // both kinds of target. With replicates the critical value is fixed (K - 1 dof) and
+  // the engine's z is the normal one; under RQMC the error falls faster than 1/sqrt(n),
+  // so the prediction errs on the side of more samples.
+  e.sigma = e.abs_error * std::sqrt(static_cast<double>(n_min)) /
+            critical_value(confidence, k_ > 1 ? std::numeric_limits<uint64_t>::max() : n_min);
   e.mean = e.rel_error > 0 ? e.abs_error / e.rel_error : mean;
   return e;
 }
@@ -184,12 +228,17 @@ std::optional<Headline> ImageKernel::headline(const JobState& state) const {
   // Pixels are estimated independently: the variance of the average is the sum of the
   // channels' squared standard errors over count^2.
   double sum = 0.0, var = 0.0;
-  for (const Tally& t : state.channels) {
-    sum += t.mean;
-    if (t.n > 1) var += t.variance() / static_cast<double>(t.n);
+  size_t count = 0;
+  for (size_t ch = 0; ch < state.channels.size(); ch += 3 * static_cast<size_t>(k_)) {
+    for (size_t c = 0; c < 3; ++c) {
+      const ReplicatedEstimate e = pixel_estimate(state, ch, c);
+      sum += e.mean;
+      if (e.has_error()) var += e.std_error * e.std_error;
+      ++count;
+    }
   }
-  const double count = static_cast<double>(std::max<size_t>(1, state.channels.size()));
-  return Headline{sum / count, std::sqrt(var) / count};
+  const double n = static_cast<double>(std::max<size_t>(1, count));
+  return Headline{sum / n, std::sqrt(var) / n};
 }
 
 ImageSnapshot ImageKernel::snapshot(const JobState& state, const TileRect& rect) const {
@@ -209,11 +258,11 @@ ImageSnapshot ImageKernel::snapshot(const JobState& state, const TileRect& rect)
       const size_t ch = pixel_channel(s.x0 + x, s.y0 + y);
       const size_t i = static_cast<size_t>(y) * static_cast<size_t>(s.width) + static_cast<size_t>(x);
       for (size_t c = 0; c < 3; ++c) {
-        const Tally& t = state.channels[ch + c];
-        s.rgb[3 * i + c] = static_cast<float>(t.mean);
-        s.stderr_rgb[3 * i + c] = t.n > 1 ? static_cast<float>(t.std_error()) : 0.0f;
+        const ReplicatedEstimate e = pixel_estimate(state, ch, c);
+        s.rgb[3 * i + c] = static_cast<float>(e.mean);
+        s.stderr_rgb[3 * i + c] = e.has_error() ? static_cast<float>(e.std_error) : 0.0f;
+        if (c == 0) s.samples[i] = static_cast<float>(e.n);
       }
-      s.samples[i] = static_cast<float>(state.channels[ch].n);
     }
   }
   return s;

@@ -4,8 +4,12 @@
 // + 3 * tile pixels), its pixels row-major inside the tile, RGB interleaved), so a block
 // (one tile x a range of samples per pixel) fills one contiguous channel range.
 // "Samples" of the job are samples per pixel: pass k draws min(2^k, max_pass_spp) spp.
-// Pixel (x, y), sample i uses SampleRng(stream_key(seed, y * width + x), i): dimensions
-// 0-1 jitter the pixel, the path uses 2 onwards.
+// Pixel (x, y), sample i uses the job's sampler (common/lighting/pixel_sampler.hpp) on
+// stream_key(seed, y * width + x): dimensions 0-1 jitter the pixel, the path uses 2
+// onwards. With K replicates (the sobol sampler) each pixel has K x 3 channels,
+// replicate-major (replicate r of channel c at pixel_channel + 3 r + c); sample i goes to
+// replicate i mod K. A pixel's value and standard error combine its replicates
+// (common/stats/replicates.hpp): every reader goes through pixel_estimate().
 //
 // Error summary (what stop rules on images look at): per pixel, the half-width h of the
 // confidence interval of each channel, and r = h / (|mean| + delta) with
@@ -20,8 +24,11 @@
 #include <vector>
 
 #include "common/engine/image_source.hpp"
+#include "common/engine/job_state.hpp"
 #include "common/engine/kernel.hpp"
 #include "common/lighting/compiled_scene.hpp"
+#include "common/lighting/pixel_sampler.hpp"
+#include "common/stats/replicates.hpp"
 
 namespace tally {
 
@@ -33,10 +40,13 @@ struct AdaptiveSettings {
 class ImageKernel final : public Kernel, public ImageSource {
  public:
   ImageKernel(std::shared_ptr<const CompiledScene> scene, PathSettings settings, uint64_t seed,
-              int tile_size, uint64_t max_pass_spp, std::optional<AdaptiveSettings> adaptive);
+              int tile_size, uint64_t max_pass_spp, std::optional<AdaptiveSettings> adaptive,
+              SamplerSettings sampler = {SamplerKind::independent, 1});
 
   // Kernel
-  size_t channel_count() const override { return 3 * static_cast<size_t>(width_) * static_cast<size_t>(height_); }
+  size_t channel_count() const override {
+    return 3 * static_cast<size_t>(k_) * static_cast<size_t>(width_) * static_cast<size_t>(height_);
+  }
   uint32_t partition_count() const override { return tile_count(); }
   PassSchedule schedule() const override;
   std::vector<uint32_t> active_partitions(const JobState& state) const override;
@@ -53,11 +63,17 @@ class ImageKernel final : public Kernel, public ImageSource {
   ImageSnapshot snapshot(const JobState& state, const TileRect& rect) const override;
   using ImageSource::snapshot;
 
-  size_t pixel_channel(int x, int y) const;  // first of the pixel's 3 channels
+  size_t pixel_channel(int x, int y) const;  // first of the pixel's 3 K channels
   int tile_size() const { return tile_; }
+  uint32_t replicates() const { return k_; }
+  const SamplerSettings& sampler() const { return sampler_; }
+  // Channel c (0-2) of the pixel whose first channel is `ch`: value and standard error.
+  ReplicatedEstimate pixel_estimate(const JobState& state, size_t ch, size_t c) const;
 
  private:
   double pixel_rel_error(const JobState& state, size_t ch, double z_conf, double delta) const;
+  template <class Sample>
+  void run_pixels(const Block& block, BlockResult& out) const;
   double image_mean(const JobState& state) const;
 
   std::shared_ptr<const CompiledScene> scene_;
@@ -66,6 +82,8 @@ class ImageKernel final : public Kernel, public ImageSource {
   int width_, height_, tile_, tiles_x_, tiles_y_;
   uint64_t max_pass_spp_;
   std::optional<AdaptiveSettings> adaptive_;
+  SamplerSettings sampler_;
+  uint32_t k_;
   std::vector<size_t> tile_first_;
   Vec3 cam_pos_, cam_fwd_, cam_right_, cam_up_;
   double tan_half_ = 0, aspect_ = 1;

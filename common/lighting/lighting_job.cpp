@@ -51,30 +51,34 @@ class LightingJob final : public JobDefinition {
         for (size_t e = 0; e < points_->strategies().size(); ++e) {
           nlohmann::json mean, se, var, lo, hi;
           double var_sum = 0;
+          uint64_t n = 0;
           for (int c = 0; c < 3; ++c) {
-            const Tally& t = st.channels[points_->channel(e, k, c)];
-            const Interval ci = t.n > 1 ? confidence_interval(t, conf) : Interval{};
+            // "variance" is n se^2, the variance of the estimate per sample: the sample
+            // variance for independent samples, the replicates' spread under RQMC.
+            const ReplicatedEstimate t = points_->estimate(st, e, k, c);
+            const double h = t.has_error() ? t.half_width(conf) : 0.0;
             mean.push_back(t.mean);
-            se.push_back(t.n > 1 ? t.std_error() : 0.0);
-            var.push_back(t.n > 1 ? t.variance() : 0.0);
-            lo.push_back(ci.lo);
-            hi.push_back(ci.hi);
-            var_sum += t.n > 1 ? t.variance() : 0.0;
+            se.push_back(t.has_error() ? t.std_error : 0.0);
+            var.push_back(t.effective_variance());
+            lo.push_back(t.mean - h);
+            hi.push_back(t.mean + h);
+            var_sum += t.effective_variance();
+            n = t.n;
           }
           const double tps = points_->seconds_per_sample(e);
           const double sigma2 = var_sum / 3.0;
           nlohmann::json o = {{"mean", mean}, {"std_error", se}, {"variance", var},
                               {"ci_lo", lo}, {"ci_hi", hi},
-                              {"samples", st.channels[points_->channel(e, k, 0)].n},
+                              {"samples", n},
                               {"seconds_per_sample", tps}};
-          // Efficiency 1 / (sigma^2 t): sigma^2 the mean of the RGB variances.
+          // Efficiency 1 / (sigma^2 t): sigma^2 the mean of the RGB variances of the estimate.
           o["efficiency"] = sigma2 > 0 && tps > 0 ? nlohmann::json(1.0 / (sigma2 * tps)) : nlohmann::json(nullptr);
           est[name_of(points_->strategies()[e])] = o;
         }
         pts.push_back({{"index", k}, {"p", vec_json(points_->points()[k].world_p)}, {"estimators", est}});
       }
       r["points"] = pts;
-      r["channel_layout"] = "((estimator * points) + point) * 3 + rgb";
+      r["channel_layout"] = "(((estimator * points) + point) * replicates + replicate) * 3 + rgb";
     }
     if (image_) {
       uint64_t lo = std::numeric_limits<uint64_t>::max(), hi = 0;
@@ -87,7 +91,7 @@ class LightingJob final : public JobDefinition {
                     {"tile_size", image_->tile_size()}, {"tiles", image_->tile_count()},
                     {"spp_min", lo}, {"spp_max", hi},
                     {"mean_abs_error", e.abs_error}, {"mean_rel_error", e.rel_error},
-                    {"channel_layout", "tile-major; pixels row-major within a tile; rgb interleaved"}};
+                    {"channel_layout", "tile-major; pixels row-major within a tile; replicate-major then rgb within a pixel"}};
     }
     return r;
   }
@@ -124,6 +128,22 @@ class LightingJob final : public JobDefinition {
   nlohmann::json plan_json_;
 };
 
+// "sampler": "sobol" (default) | "independent"; "replicates": K (sobol only, 2..256).
+SamplerSettings parse_sampler(SpecReader& root) {
+  SamplerSettings s;
+  const std::string kind = root.enumeration_or("sampler", "sobol", {"sobol", "independent"});
+  s.kind = kind == "independent" ? SamplerKind::independent : SamplerKind::sobol;
+  s.replicates = kDefaultReplicates;
+  if (root.has("replicates")) {
+    if (s.kind == SamplerKind::independent) {
+      throw SpecError(root.pointer_of("replicates"), "needs \"sampler\": \"sobol\" (independent samples need no replicates)");
+    }
+    s.replicates = static_cast<uint32_t>(root.integer("replicates", 2, 256));
+  }
+  if (s.kind == SamplerKind::independent) s.replicates = 1;
+  return s;
+}
+
 std::vector<Strategy> parse_estimators(SpecReader& root) {
   std::vector<Strategy> out;
   const nlohmann::json* j = root.find("estimators");
@@ -159,6 +179,7 @@ std::unique_ptr<JobDefinition> compile_lighting_job(const nlohmann::json& spec, 
   SpecReader scene_reader = root.object("scene");
   Scene scene = parse_scene(scene_reader, limits);
   const std::vector<Strategy> strategies = parse_estimators(root);
+  const SamplerSettings sampler = parse_sampler(root);
   {
     SpecReader stop = root.object("stop");
     job->stop_ = parse_stop_rule(stop, limits);
@@ -185,7 +206,7 @@ std::unique_ptr<JobDefinition> compile_lighting_job(const nlohmann::json& spec, 
     const nlohmann::json& pj = q.at("points");
     const std::string pp = q.pointer_of("points");
     if (!pj.is_array() || pj.empty()) throw SpecError(pp, "must be a non-empty array of points");
-    const size_t max_points = std::min<size_t>(65536, limits.max_channels / (3 * strategies.size()));
+    const size_t max_points = std::min<size_t>(65536, limits.max_channels / (3 * strategies.size() * sampler.k()));
     if (pj.size() > max_points) throw SpecError(pp, fmt::format("too many points (limit {})", max_points));
     for (size_t i = 0; i < pj.size(); ++i) {
       SpecReader pr(pj[i], json_pointer_append(pp, i));
@@ -202,9 +223,10 @@ std::unique_ptr<JobDefinition> compile_lighting_job(const nlohmann::json& spec, 
     if (!scene.camera) throw SpecError("/scene/camera", "is required for image queries");
     if (strategies.size() != 1) throw SpecError("/estimators", "an image query takes exactly one estimator");
     const uint64_t pixels = static_cast<uint64_t>(scene.camera->width) * static_cast<uint64_t>(scene.camera->height);
-    if (3 * pixels > limits.max_channels) {
-      throw SpecError("/scene/camera/resolution", fmt::format("{} pixels need {} channels; the limit is {}", pixels,
-                                                              3 * pixels, limits.max_channels));
+    if (3 * sampler.k() * pixels > limits.max_channels) {
+      throw SpecError("/scene/camera/resolution", fmt::format("{} pixels need {} channels ({} replicates); the limit is {}",
+                                                              pixels, 3 * sampler.k() * pixels, sampler.k(),
+                                                              limits.max_channels));
     }
     tile_size = static_cast<int>(q.integer_or("tile_size", 32, 4, 256));
     max_pass_spp = q.integer_or("max_pass_spp", 64, 1, 1 << 16);
@@ -235,6 +257,10 @@ std::unique_ptr<JobDefinition> compile_lighting_job(const nlohmann::json& spec, 
                        {"max_depth", max_depth},
                        {"russian_roulette", rr},
                        {"plan", plan_effects},
+                       {"sampler", {{"type", sampler.kind == SamplerKind::independent ? "independent" : "sobol"},
+                                    {"replicates", sampler.k()},
+                                    {"error_bars", sampler.k() > 1 ? "spread of the replicate means, Student t with replicates - 1 dof"
+                                                                   : "sample variance, Student t with n - 1 dof"}}},
                        {"scene", {{"shapes", cs->scene.shapes.size()},
                                   {"triangles", triangles},
                                   {"sampled_lights", cs->lights->sampled_count()},
@@ -255,9 +281,9 @@ std::unique_ptr<JobDefinition> compile_lighting_job(const nlohmann::json& spec, 
       pts.push_back(qp);
     }
     const size_t npts = pts.size();
-    auto k = std::make_shared<PointKernel>(cs, std::move(pts), strategies, max_depth, rr, job->seed_);
+    auto k = std::make_shared<PointKernel>(cs, std::move(pts), strategies, max_depth, rr, job->seed_, sampler);
     pj["channels"] = k->channel_count();
-    pj["channel_layout"] = "((estimator * points) + point) * 3 + rgb";
+    pj["channel_layout"] = "(((estimator * points) + point) * replicates + replicate) * 3 + rgb";
     pj["points"] = npts;
     pj["pass_schedule"] = {{"block_samples", k->schedule().block_samples},
                            {"first_pass_samples", k->schedule().first_pass_samples},
@@ -266,12 +292,12 @@ std::unique_ptr<JobDefinition> compile_lighting_job(const nlohmann::json& spec, 
     job->kernel_ = k;
   } else {
     auto k = std::make_shared<ImageKernel>(cs, PathSettings{strategies[0], max_depth, rr}, job->seed_, tile_size,
-                                           max_pass_spp, adaptive);
+                                           max_pass_spp, adaptive, sampler);
     pj["channels"] = k->channel_count();
-    pj["channel_layout"] = "tile-major; pixels row-major within a tile; rgb interleaved";
+    pj["channel_layout"] = "tile-major; pixels row-major within a tile; replicate-major then rgb within a pixel";
     pj["image"] = {{"width", k->width()}, {"height", k->height()}, {"tile_size", tile_size},
                    {"tiles", k->tile_count()}};
-    pj["pass_schedule"] = {{"spp_first_pass", 1}, {"spp_per_pass_cap", max_pass_spp},
+    pj["pass_schedule"] = {{"spp_first_pass", k->schedule().first_pass_samples}, {"spp_per_pass_cap", k->schedule().max_pass_samples},
                            {"spp_per_block", k->schedule().block_samples}};
     pj["error_summary"] = "mean over channels of the CI half-width (abs) and of half-width / (|mean| + 1e-3 image mean) (rel)";
     if (adaptive) pj["adaptive"] = {{"rel_error", adaptive->rel_error}, {"min_spp", adaptive->min_spp}};

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include "common/lighting/pixel_sampler.hpp"
 #include "common/lighting/ray_offset.hpp"
 
 namespace tally {
@@ -23,8 +24,8 @@ double power_heuristic(double a, double b) {
 
 }  // namespace
 
-Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const SampleRng& rng, uint32_t dim0,
-                          Counters& c) const {
+template <class Rng>
+Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint32_t dim0, Counters& c) const {
   Rgb L{};
   Rgb beta{1, 1, 1};
   const bool nee = s.strategy == Strategy::light_area || s.strategy == Strategy::mis;
@@ -63,7 +64,8 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const SampleRng& rng,
       }
       if (nee && !lights_.empty()) {
         c.add(Counter::light_samples);
-        const LightSample ls = lights_.sample(v.p, v.n, rng.uniform(d0), rng.uniform(d0 + 1), rng.uniform(d0 + 2));
+        const LightSample ls = lights_.sample(v.p, v.n, rng.uniform(d0 + kDimLightChoice), rng.uniform(d0 + kDimLightPoint),
+                                                rng.uniform(d0 + kDimLightPoint + 1));
         const double cos_i = dot(v.n, ls.wi);
         if (ls.pdf > 0 && !is_black(ls.le) && cos_i > 0) {
           const Rgb f = bsdf_eval(m, v.n, v.wo, ls.wi);
@@ -98,7 +100,7 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const SampleRng& rng,
     const bool more_vertices = bounce + 1 < s.max_depth && plan_.indirect;
     const bool gathers = s.strategy != Strategy::light_area || m.is_delta();
     if (!gathers && !more_vertices) break;
-    const DirectionSample ds = sample_direction(s.strategy, m, v.n, v.wo, {rng.uniform(d0 + 3), rng.uniform(d0 + 4)});
+    const DirectionSample ds = sample_direction(s.strategy, m, v.n, v.wo, {rng.uniform(d0 + kDimDirection), rng.uniform(d0 + kDimDirection + 1)});
     c.add(ds.delta ? Counter::specular_events : Counter::bsdf_samples);
     if (!(ds.pdf > 0) || (is_black(ds.weight) && !plan_.full)) break;
     const Rgb beta_next = beta * ds.weight;
@@ -144,7 +146,7 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const SampleRng& rng,
     beta = beta_next;
     if (s.russian_roulette && bounce + 1 >= 2) {
       const double q = std::clamp(max_component(beta), 0.05, 1.0);
-      if (rng.uniform(d0 + 5) >= q) {
+      if (rng.uniform(d0 + kDimRoulette) >= q) {
         c.add(Counter::roulette_terminations);
         break;
       }
@@ -157,8 +159,9 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const SampleRng& rng,
   return L;
 }
 
-Rgb PathTracer::camera(const Vec3& o, const Vec3& d, const PathSettings& s, const SampleRng& rng,
-                       uint32_t dim0, Counters& c) const {
+template <class Rng>
+Rgb PathTracer::camera(const Vec3& o, const Vec3& d, const PathSettings& s, const Rng& rng, uint32_t dim0,
+                       Counters& c) const {
   c.add(Counter::camera_rays);
   const std::optional<Hit> hit = accel_.intersect(o, d, kInf);
   if (!hit) {
@@ -178,5 +181,12 @@ Rgb PathTracer::camera(const Vec3& o, const Vec3& d, const PathSettings& s, cons
   L += reflected(Vertex{hit->p, n, -d, scene_.shapes[hit->shape].material}, s, rng, dim0, c);
   return L;
 }
+
+template Rgb PathTracer::reflected<SampleRng>(Vertex, const PathSettings&, const SampleRng&, uint32_t, Counters&) const;
+template Rgb PathTracer::reflected<SobolSample>(Vertex, const PathSettings&, const SobolSample&, uint32_t, Counters&) const;
+template Rgb PathTracer::camera<SampleRng>(const Vec3&, const Vec3&, const PathSettings&, const SampleRng&, uint32_t,
+                                           Counters&) const;
+template Rgb PathTracer::camera<SobolSample>(const Vec3&, const Vec3&, const PathSettings&, const SobolSample&, uint32_t,
+                                             Counters&) const;
 
 }  // namespace tally

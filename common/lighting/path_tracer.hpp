@@ -9,8 +9,10 @@
 //                       ray; BSDF-sampled bounces carry indirect light only
 //   mis                 one light sample and one BSDF sample, power heuristic (beta=2)
 // Point/directional lights are added deterministically by every strategy; a mirror is
-// always followed in its one direction. Random numbers: dimension 6k..6k+5 at the
-// k-th vertex (light choice, light point x2, direction x2, roulette).
+// always followed in its one direction. Random numbers: dimensions dim0 + 6k .. + 5 at
+// the k-th vertex: light choice, roulette, light point x2, direction x2 -- three 2-D
+// pairs (dim0 is even), see common/lighting/pixel_sampler.hpp. `Rng` is SampleRng
+// (independent) or SobolSample (RQMC); both are instantiated in path_tracer.cpp.
 #include <cstdint>
 
 #include "common/engine/counters.hpp"
@@ -41,12 +43,15 @@ class PathTracer {
       : scene_(scene), accel_(accel), lights_(lights), plan_(plan) {}
 
   // Reflected radiance at v towards v.wo (without v's own emission).
-  Rgb reflected(Vertex v, const PathSettings& s, const SampleRng& rng, uint32_t dim0, Counters& c) const;
+  template <class Rng>
+  Rgb reflected(Vertex v, const PathSettings& s, const Rng& rng, uint32_t dim0, Counters& c) const;
   // Radiance along a camera ray (o, unit d); uses dimensions from dim0.
-  Rgb camera(const Vec3& o, const Vec3& d, const PathSettings& s, const SampleRng& rng, uint32_t dim0,
-             Counters& c) const;
+  template <class Rng>
+  Rgb camera(const Vec3& o, const Vec3& d, const PathSettings& s, const Rng& rng, uint32_t dim0, Counters& c) const;
 
   static constexpr uint32_t kDimsPerVertex = 6;
+  // Offsets inside a vertex's dimensions.
+  static constexpr uint32_t kDimLightChoice = 0, kDimRoulette = 1, kDimLightPoint = 2, kDimDirection = 4;
 
  private:
   const Scene& scene_;

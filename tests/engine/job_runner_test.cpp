@@ -21,6 +21,41 @@ class UniformValues final : public Kernel {
   }
 };
 
+// The same with passes in multiples of 8 (as K randomized-QMC replicates need).
+class QuantizedUniformValues final : public Kernel {
+ public:
+  size_t channel_count() const override { return 1; }
+  PassSchedule schedule() const override {
+    PassSchedule s{1000, 64000, 496};
+    s.sample_quantum = 8;
+    return s;
+  }
+  void run_block(const Block& b, BlockResult& out) const override { UniformValues().run_block(b, out); }
+};
+
+TEST(JobRunner, PassesAreMultiplesOfTheSampleQuantumUnlessALimitCuts) {
+  StopRule rule;
+  rule.abs_error = 1e-3;  // passes aimed at the predicted need: arbitrary sizes before rounding
+  JobRunner r(std::make_shared<QuantizedUniformValues>(), rule, JobCaps{});
+  std::vector<uint64_t> sizes;
+  LocalRunOptions o;
+  uint64_t last = 0;
+  o.on_pass = [&](const JobRunner& j) {
+    sizes.push_back(j.state().samples - last);
+    last = j.state().samples;
+  };
+  run_local(r, o);
+  EXPECT_EQ(r.stop_reason(), StopReason::error_target);
+  ASSERT_GT(sizes.size(), 2u);
+  for (uint64_t n : sizes) EXPECT_EQ(n % 8, 0u) << n;
+  // A sample limit wins over the quantum: the job stops exactly there.
+  StopRule cap;
+  cap.max_samples = 12345;
+  JobRunner c(std::make_shared<QuantizedUniformValues>(), cap, JobCaps{});
+  run_local(c, 2);
+  EXPECT_EQ(c.state().samples, 12345u);
+}
+
 TEST(JobRunner, MaxSamplesStopsExactly) {
   StopRule rule;
   rule.max_samples = 12345;

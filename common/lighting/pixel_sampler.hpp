@@ -1,0 +1,61 @@
+#pragma once
+// Which random numbers a pixel (or query point) sample uses.
+//
+//   independent  SampleRng(stream_key(seed, pixel), i): every uniform independent.
+//   sobol        K replicates (independent randomizations) of a shuffled, Owen-scrambled
+//                2-D Sobol' sequence per dimension pair (common/sampling/sobol_burley.hpp).
+//                Sample i of a pixel belongs to replicate r = i mod K as its point
+//                j = i div K; dimensions 2p and 2p+1 are the two coordinates of pair p.
+//
+// Dimension layout (common/lighting/path_tracer.hpp): pair 0 = the pixel jitter (images);
+// then per path vertex three pairs: (light choice, roulette), (light point u, v),
+// (direction u, v). Every quantity a 2-D sampling routine maps to a point on the light
+// or a direction therefore gets one well-stratified 2-D pair of its own.
+//
+// Everything is a pure function of (seed, pixel, sample index): any thread count,
+// worker count or resume gives the same bits.
+#include <cstdint>
+
+#include "common/rng/counter_rng.hpp"
+#include "common/sampling/sobol_burley.hpp"
+
+namespace tally {
+
+enum class SamplerKind { independent, sobol };
+
+struct SamplerSettings {
+  SamplerKind kind = SamplerKind::sobol;
+  uint32_t replicates = 8;  // K; always 1 for independent
+  uint32_t k() const { return kind == SamplerKind::independent ? 1u : replicates; }
+};
+
+inline constexpr uint32_t kDefaultReplicates = 8;
+
+// The random numbers of point `index` of one replicate of the Sobol sampler; the same
+// interface as SampleRng (uniform(dim) in [0, 1)).
+class SobolSample {
+ public:
+  SobolSample(uint64_t replicate_key, uint64_t index) noexcept : key_(replicate_key), index_(index) {}
+  // Key of replicate r of a pixel/point stream.
+  static uint64_t replicate_key(uint64_t stream_key_value, uint32_t replicate) noexcept {
+    return mix64(stream_key_value ^ mix64(0x5b0b01ULL + replicate));
+  }
+  // The shuffled index of the last pair is kept: the path tracer asks for 2p and 2p + 1
+  // in a row, and a coordinate nobody asks for (e.g. roulette) is never computed.
+  double uniform(uint32_t dim) const noexcept {
+    const uint32_t pair = dim >> 1;
+    if (pair != cached_pair_) {
+      point_ = SobolBurleyPoint(mix64(key_ + (static_cast<uint64_t>(pair) + 1) * kGolden64), index_);
+      cached_pair_ = pair;
+    }
+    return point_.coordinate(dim & 1u);
+  }
+
+ private:
+  uint64_t key_;
+  uint64_t index_;
+  mutable uint32_t cached_pair_ = ~0u;  // a per-sample object, never shared between threads
+  mutable SobolBurleyPoint point_;
+};
+
+}  // namespace tally

@@ -1,0 +1,76 @@
+#pragma once
+// Error bars of randomized quasi-Monte Carlo: K independent randomizations
+// ("replicates") of one low-discrepancy point set, each tallied in its own channel.
+//
+// Inside a replicate the samples are not independent (they are stratified), so a
+// replicate's own sample variance says nothing about the error of its mean (it
+// overstates it by a scene-dependent factor). Across replicates the means are
+// independent and identically distributed unbiased estimates, so
+//   estimate = (1/K) sum_r mean_r,   se^2 = sum_r (mean_r - estimate)^2 / (K (K - 1)),
+// and (estimate - I) / se is Student t with K - 1 degrees of freedom when the replicate
+// means are close to normal (each is an average of many points). With K = 1 this is the
+// ordinary independent-sample estimate: mean and std_error of the one tally.
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <limits>
+
+#include "common/stats/confidence.hpp"
+#include "common/stats/tally.hpp"
+
+namespace tally {
+
+struct ReplicatedEstimate {
+  double mean = 0.0;
+  double std_error = std::numeric_limits<double>::quiet_NaN();  // of `mean`; NaN if unknown
+  uint64_t n = 0;             // samples in all replicates
+  uint64_t critical_n = 0;    // pass to critical_value(): K for K > 1 (K - 1 dof), else n
+  bool has_error() const noexcept { return std::isfinite(std::fabs(std_error)); }
+  // Per-sample variance that gives this std_error at n samples: n se^2 (equal to the
+  // sample variance for independent samples). Efficiencies 1/(sigma^2 t) use it, so
+  // estimators and samplers compare fairly.
+  double effective_variance() const noexcept {
+    return has_error() ? static_cast<double>(n) * std_error * std_error : 0.0;
+  }
+  double half_width(double confidence) const { return critical_value(confidence, critical_n) * std_error; }
+};
+
+// Replicate r of the channel is tallies[r * stride].
+inline ReplicatedEstimate combine_replicates(const Tally* tallies, size_t stride, uint32_t replicates) noexcept {
+  ReplicatedEstimate e;
+  if (replicates <= 1) {
+    const Tally& t = tallies[0];
+    e.mean = t.mean;
+    e.n = t.n;
+    e.critical_n = t.n;
+    if (t.n > 1) e.std_error = t.std_error();
+    return e;
+  }
+  double sum = 0.0;
+  bool all = true;
+  for (uint32_t r = 0; r < replicates; ++r) {
+    const Tally& t = tallies[r * stride];
+    sum += t.mean;
+    e.n += t.n;
+    all = all && t.n > 0;
+  }
+  e.critical_n = replicates;
+  if (!all) {  // early on: the pooled mean of what there is, no error bar yet
+    Tally pooled;
+    for (uint32_t r = 0; r < replicates; ++r) pooled.merge(tallies[r * stride]);
+    e.mean = pooled.mean;
+    return e;
+  }
+  e.mean = sum / replicates;
+  {
+    double ss = 0.0;
+    for (uint32_t r = 0; r < replicates; ++r) {
+      const double d = tallies[r * stride].mean - e.mean;
+      ss += d * d;
+    }
+    e.std_error = std::sqrt(ss / (static_cast<double>(replicates) * (replicates - 1)));
+  }
+  return e;
+}
+
+}  // namespace tally
