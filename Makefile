@@ -28,9 +28,10 @@ configure: deps $(BUILD)/build.ninja
 build: configure
 	cmake --build $(BUILD) -j $(JOBS)
 
-# Everything CI runs: the suite, then the sanitized unit tests, then each fuzzer
-# for FUZZ_SECONDS.
-test: test-fast sanitize fuzz
+# What CI runs (.ci/run): the whole suite. The sanitizer tree and the fuzzers below are
+# separate targets: they have not yet completed a run on the 2-core CI machine (see
+# tests/fuzz/README.md), so they are not part of CI until they have.
+test: test-fast
 
 test-fast: build
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS) --timeout 900
