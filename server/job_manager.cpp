@@ -115,7 +115,9 @@ JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compil
                         double wall) { return on_pass_done(id, done, std::move(results), wall); };
   cb.cancelled = [this](const std::string& id) { on_cancelled(id); };
   cb.failed = [this](const std::string& id, const std::string& error) { on_failed(id, error); };
-  executor_ = std::make_unique<InProcessExecutor>(config_.workers, std::move(cb), config_.chunk_target_s);
+  executor_ = config_.make_executor
+                  ? config_.make_executor(std::move(cb))
+                  : std::make_unique<InProcessExecutor>(config_.workers, std::move(cb), config_.chunk_target_s);
 }
 
 JobManager::~JobManager() { executor_->stop(); }
@@ -133,6 +135,11 @@ json JobManager::engine_json_locked(const Job& job) const {
 }
 
 json JobManager::status_json(Job& job, uint64_t* version) const {
+  // What the executor says about the job (cluster mode: blocks pending / in flight,
+  // or why it waits), asked before taking the job's lock.
+  const std::optional<std::string> waiting = executor_->waiting_reason(job.id);
+  std::optional<ExecutorStats::JobBlocks> blocks;
+  if (const ExecutorStats es = executor_->stats(); es.blocks_by_job.count(job.id)) blocks = es.blocks_by_job.at(job.id);
   std::lock_guard lock(job.mu);
   if (version) *version = job.version;
   json j = engine_json_locked(job);
@@ -143,6 +150,10 @@ json JobManager::status_json(Job& job, uint64_t* version) const {
   j["plan"] = job.def ? job.def->plan() : json(nullptr);
   if (job.runner) j["stop_rule"] = stop_rule_to_json(job.runner->rule());
   if (!job.error.empty()) j["error_message"] = job.error;
+  if (job.status == JobStatus::running && waiting) j["waiting_reason"] = *waiting;
+  if (job.status == JobStatus::running && blocks) {
+    j["blocks"] = {{"pending", blocks->pending}, {"in_flight", blocks->in_flight}, {"redelivered", blocks->redelivered}};
+  }
   const double now = unix_now();
   const double end = job.finished_at > 0 ? job.finished_at : now;
   j["timing"] = {{"created_at", time_json(job.created_at)},

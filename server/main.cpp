@@ -8,6 +8,8 @@
 #include <future>
 
 #include "common/jobs/job_factory.hpp"
+#include "server/cluster/cluster_http.hpp"
+#include "server/cluster/redis_executor.hpp"
 #include "server/cpu_quota.hpp"
 #include "server/http_server.hpp"
 #include "server/job_manager.hpp"
@@ -59,6 +61,16 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--event-buffer", mc.event_buffer, "events kept per job for Last-Event-ID resume")->capture_default_str();
   app.add_option("--pilot-seconds", hc.pilot_seconds, "length of the validate pilot run")->capture_default_str();
+  std::string redis_url;
+  double lease_s = 30.0;
+  unsigned max_deliveries = 3;
+  app.add_option("--redis", redis_url,
+                 "cluster mode: blocks are computed by tally-worker processes through this Redis "
+                 "(redis://[[user]:password@]host:port[/db] or unix:///path); the server computes nothing itself");
+  app.add_option("--lease", lease_s, "cluster mode: seconds before a silent worker's block is reclaimed")
+      ->capture_default_str();
+  app.add_option("--max-deliveries", max_deliveries,
+                 "cluster mode: failed deliveries of one block that fail its job")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   const auto addr = parse_listen_address(listen);
@@ -76,6 +88,29 @@ int main(int argc, char** argv) {
   hc.images.png = [](const ImageSnapshot& s) { return encode_png(s); };
 #endif
 
+  cluster::RedisExecutor* cluster_executor = nullptr;
+  if (!redis_url.empty()) {
+    cluster::RedisExecutorConfig rc;
+    try {
+      rc.url = cluster::parse_redis_url(redis_url);
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "tally-server: --redis: {}\n", e.what());
+      return 2;
+    }
+    if (!(lease_s >= 0.1) || max_deliveries < 1) {
+      fmt::print(stderr, "tally-server: --lease must be >= 0.1 s and --max-deliveries >= 1\n");
+      return 2;
+    }
+    rc.lease = std::chrono::milliseconds(static_cast<long long>(lease_s * 1000.0));
+    rc.max_failures = max_deliveries;
+    rc.asset_dir = mc.limits.asset_dir;
+    mc.make_executor = [rc, &cluster_executor](ExecutorCallbacks cb) {
+      auto ex = std::make_unique<cluster::RedisExecutor>(rc, std::move(cb));
+      cluster_executor = ex.get();
+      return std::unique_ptr<Executor>(std::move(ex));
+    };
+  }
+
   try {
     auto store = open_sqlite_store(data_dir);
     Metrics metrics;
@@ -83,6 +118,10 @@ int main(int argc, char** argv) {
       return compile_job(spec, limits);
     });
     manager.recover();
+    if (cluster_executor) {
+      hc.workers = [cluster_executor] { return cluster::workers_json(*cluster_executor); };
+      hc.extra_metrics = [cluster_executor] { return cluster::cluster_metrics(*cluster_executor); };
+    }
     RequestHandler handler(manager, metrics, hc);
     HttpServer server(http, handler, metrics);
     std::promise<int> signalled;
@@ -93,8 +132,14 @@ int main(int argc, char** argv) {
       std::ofstream(tmp) << port << "\n";
       std::filesystem::rename(tmp, port_file);
     }
-    fmt::print("tally-server listening on http://{}:{} ({} workers, data in {})\n", http.address, port, mc.workers,
-               std::filesystem::absolute(data_dir).string());
+    if (cluster_executor) {
+      fmt::print("tally-server listening on http://{}:{} (cluster mode: workers through {}, data in {})\n",
+                 http.address, port, cluster_executor->config().url.display(),
+                 std::filesystem::absolute(data_dir).string());
+    } else {
+      fmt::print("tally-server listening on http://{}:{} ({} workers, data in {})\n", http.address, port, mc.workers,
+                 std::filesystem::absolute(data_dir).string());
+    }
     std::fflush(stdout);
 
     const int sig = signalled.get_future().get();

@@ -79,6 +79,7 @@ void RequestHandler::add_routes() {
   });
   router_.add("GET", "/readyz", [this](const HttpRequest&, const PathParams&) {
     if (!ready_ || manager_.shutting_down()) throw HttpError(503, "the server is not ready (starting or shutting down)");
+    if (auto why = manager_.executor_not_ready()) throw HttpError(503, "the server is not ready: " + *why);
     HttpResponse r;
     r.set_header("Content-Type", "text/plain; charset=utf-8");
     r.body = "ready\n";
@@ -88,6 +89,15 @@ void RequestHandler::add_routes() {
     HttpResponse r;
     r.set_header("Content-Type", "text/plain; version=0.0.4; charset=utf-8");
     r.body = metrics_.render(manager_.stats());
+    if (config_.extra_metrics) r.body += config_.extra_metrics();
+    return r;
+  });
+  router_.add("GET", "/v1/workers", [this](const HttpRequest&, const PathParams&) {
+    HttpResponse r;
+    r.set_header("Content-Type", "application/json");
+    const json j = config_.workers ? config_.workers() : json{{"executor", "in_process"}, {"workers", json::array()}};
+    r.body = j.dump();
+    r.body.push_back('\n');
     return r;
   });
   router_.add("GET", "/v1/openapi.json", [](const HttpRequest&, const PathParams&) {

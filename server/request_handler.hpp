@@ -25,6 +25,9 @@ struct HandlerConfig {
   double pilot_seconds = 0.3;
   unsigned max_concurrent_pilots = 2;
   ImageEncoders images;  // empty functions: the image routes answer 501
+  // Cluster mode: GET /v1/workers body and extra /metrics lines (server/cluster/cluster_http.hpp).
+  std::function<nlohmann::json()> workers;
+  std::function<std::string()> extra_metrics;
 };
 
 class RequestHandler {
