@@ -291,6 +291,7 @@ void RedisExecutor::publish(Job& job) {
     for (const auto& w : workers_) threads += w.threads;
     if (job.block_seconds > 0) k = static_cast<size_t>(std::clamp(0.02 / job.block_seconds, 1.0, 4096.0));
     k = std::min(k, std::max<size_t>(1, (n + 2 * std::max(1u, threads) - 1) / (2 * std::max(1u, threads))));
+    k = std::clamp<size_t>(k, 1, std::max<size_t>(1, cfg_.max_entry_blocks));
     job.entry_blocks = k;
   }
   std::vector<std::pair<std::string, std::string>> entries;  // first slot, blocks

@@ -32,6 +32,7 @@ struct RedisExecutorConfig {
   unsigned max_failures = 3;               // failed deliveries of one block that fail its job
   std::string asset_dir;                   // where the specs' OBJ files are read from
   size_t digest_passes = 16;               // passes whose result digests stay for late duplicates
+  size_t max_entry_blocks = 4096;          // cap on blocks per stream entry (benchmarks set 1)
 };
 
 struct WorkerInfo {
