@@ -2,6 +2,7 @@
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -101,6 +102,9 @@ int main(int argc, char** argv) {
       fmt::print(stderr, "tally-server: --lease must be >= 0.1 s and --max-deliveries >= 1\n");
       return 2;
     }
+    // hiredis writes to its socket with write(2): a Redis that went away must be an
+    // error the coordinator handles (jobs pause), not a SIGPIPE that ends the server.
+    std::signal(SIGPIPE, SIG_IGN);
     rc.lease = std::chrono::milliseconds(static_cast<long long>(lease_s * 1000.0));
     rc.max_failures = max_deliveries;
     rc.asset_dir = mc.limits.asset_dir;

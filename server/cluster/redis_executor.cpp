@@ -236,7 +236,7 @@ void RedisExecutor::step() {
   } else if (!notified.empty()) {
     poll(notified);
   }
-  if (now - last_refresh_ >= std::chrono::seconds(1)) {
+  if (now - last_refresh_ >= std::chrono::milliseconds(500)) {
     last_refresh_ = now;
     refresh();
   }

@@ -117,7 +117,7 @@ class Worker {
         if (conn) log(fmt::format("heartbeat: {}", e.what()));
         conn.reset();
       }
-      const auto period = std::clamp(lease() / 3, std::chrono::milliseconds(100), std::chrono::milliseconds(5000));
+      const auto period = std::clamp(lease() / 3, std::chrono::milliseconds(100), std::chrono::milliseconds(1000));
       const auto until = Clock::now() + period;
       while (!stop_ && Clock::now() < until) std::this_thread::sleep_for(20ms);
     }

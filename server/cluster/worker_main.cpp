@@ -49,6 +49,8 @@ int main(int argc, char** argv) {
   sa.sa_handler = on_signal;
   ::sigaction(SIGTERM, &sa, nullptr);
   ::sigaction(SIGINT, &sa, nullptr);
+  // A write to a connection Redis closed (restart) must be an error, not process death.
+  ::signal(SIGPIPE, SIG_IGN);
   fmt::print("tally-worker {} ({} threads) on {}\n", cfg.name, cfg.threads, cfg.url.display());
   std::fflush(stdout);
   const int rc = cluster::run_worker(cfg, g_stop);

@@ -125,6 +125,13 @@ TEST(Cluster, ThreeWorkersMatchInProcessBitsAndPixels) {
   EXPECT_EQ(exr_pixels(c, b, tmp.path), expected_pixels);
 
   // Every worker took part and is listed with its fields; no block was stored twice.
+  // (Counts are refreshed twice a second, heartbeats every second: wait for both.)
+  wait_until([&] {
+    const json w = get_json(c, "/v1/workers");
+    bool all = w.at("workers").size() == 3;
+    for (const json& x : w.at("workers")) all = all && x.at("blocks_done").get<uint64_t>() > 0;
+    return all && w.at("results").at("first") == w.at("results").at("blocks_merged");
+  }, 10, "the worker registry and result counts to catch up");
   const json w = get_json(c, "/v1/workers");
   ASSERT_EQ(w.at("workers").size(), 3u);
   for (const json& x : w.at("workers")) {
@@ -194,6 +201,7 @@ TEST(Cluster, KilledAndStalledWorkersStillBitIdentical) {
   b.resume();
   const json s = wait_state(c, id, "succeeded", 120);
   EXPECT_EQ(s.at("bits"), expected);
+  std::this_thread::sleep_for(1200ms);  // the counts are refreshed twice a second
   const json r = metrics_counts(c);
   EXPECT_EQ(r.at("first"), r.at("blocks_merged")) << r.dump();  // no block merged (or stored) twice
   EXPECT_GE(r.at("duplicates_equal").get<uint64_t>(), 1u) << r.dump() << b.log();  // the late result, compared
@@ -239,9 +247,10 @@ TEST(Cluster, RedisRestartMidJobRepublishesAndUnreachableRedisPauses) {
   // Unreachable: /readyz says why, the job is paused (not failed) and says so.
   wait_until([&] { return c.request("GET", "/readyz").status == 503; }, 10, "/readyz to fail");
   EXPECT_NE(c.request("GET", "/readyz").body.find("redis unreachable"), std::string::npos);
-  const json paused = get_json(c, "/v1/jobs/" + id);
-  EXPECT_EQ(paused.at("state"), "running");
-  EXPECT_NE(paused.value("waiting_reason", "").find("redis unreachable"), std::string::npos) << paused.dump();
+  wait_until([&] { return get_json(c, "/v1/jobs/" + id).value("waiting_reason", "").find("redis unreachable") !=
+                          std::string::npos; },
+             5, "the job's status to say it is paused");
+  EXPECT_EQ(get_json(c, "/v1/jobs/" + id).at("state"), "running");
   std::this_thread::sleep_for(1s);
   redis.start();  // empty: no streams, no groups, no results
   wait_until([&] { return c.request("GET", "/readyz").status == 200; }, 20, "/readyz to recover");
@@ -283,7 +292,7 @@ TEST(Cluster, CancelAndExtendAcrossTheCluster) {
 
 TEST(Cluster, NoWorkerMeansTheJobWaitsAndLateWorkersTakePart) {
   TempDir tmp;
-  const json spec = disk_spec(200'000'000, 13);
+  const json spec = disk_spec(400'000'000, 13);
   const json expected = local_bits(spec);
   RedisServer redis(tmp.path);
   ServerProcess server(tmp.path / "data", cluster_flags(redis));
@@ -300,14 +309,18 @@ TEST(Cluster, NoWorkerMeansTheJobWaitsAndLateWorkersTakePart) {
   wait_until([&] { return get_json(c, "/v1/jobs/" + id).at("samples").get<uint64_t>() > 20'000'000; }, 60,
              "progress with one worker");
   WorkerProcess late(redis.url(), "late", tmp.path);  // joins a job in flight
+  wait_until([&] { return live_workers(c) == 2; }, 20, "the late worker to register");
+  ASSERT_EQ(get_json(c, "/v1/jobs/" + id).at("state"), "running") << "the job ended before the late worker joined";
   const json s = wait_state(c, id, "succeeded", 120);
   EXPECT_EQ(s.at("bits"), expected);
   EXPECT_FALSE(s.contains("waiting_reason"));
-  bool late_worked = false;
-  for (const json& w : get_json(c, "/v1/workers").at("workers")) {
-    if (w.at("name") == "late") late_worked = w.at("blocks_done").get<uint64_t>() > 0;
-  }
-  EXPECT_TRUE(late_worked) << get_json(c, "/v1/workers").dump();
+  // The late worker took part (its heartbeat reports its blocks within a second).
+  EXPECT_NO_THROW(wait_until([&] {
+    for (const json& w : get_json(c, "/v1/workers").at("workers")) {
+      if (w.at("name") == "late" && w.at("blocks_done").get<uint64_t>() > 0) return true;
+    }
+    return false;
+  }, 5, "the late worker's blocks")) << get_json(c, "/v1/workers").dump();
 }
 
 TEST(Cluster, BlockFailingOnEveryWorkerFailsTheJobAfterNDeliveries) {
@@ -333,9 +346,10 @@ TEST(Cluster, BlockFailingOnEveryWorkerFailsTheJobAfterNDeliveries) {
   EXPECT_NE(msg.find("the worker refused the spec"), std::string::npos) << msg;
   EXPECT_NE(msg.find("/domain"), std::string::npos) << msg;
   EXPECT_NE(msg.find("failed on worker strict"), std::string::npos) << msg;
-  const json r = metrics_counts(c);
-  EXPECT_GE(r.at("failed_deliveries").get<uint64_t>(), 4u);
-  EXPECT_EQ(r.at("first"), 0);
+  EXPECT_NO_THROW(wait_until([&] { return metrics_counts(c).at("failed_deliveries").get<uint64_t>() >= 4; }, 5,
+                             "four failed deliveries counted"))
+      << metrics_counts(c).dump();
+  EXPECT_EQ(metrics_counts(c).at("first"), 0);
 }
 
 }  // namespace
