@@ -282,28 +282,42 @@ void RedisExecutor::publish(Job& job) {
   for (const RValue& k : conn_->cmd({"HKEYS", r}).elems) have.insert(static_cast<size_t>(k.as_int()));
   conn_->cmd({"DEL", s});
   conn_->cmd({"XGROUP", "CREATE", s, kGroup, "$", "MKSTREAM"});
-  // k consecutive blocks per entry: ~20 ms of work each (from what workers measured),
-  // yet at least two entries per live worker thread so the pass spreads.
-  size_t k = 1;
+  // Entry sizes by guided self-scheduling: each entry takes 1/(2T) of what is left (T:
+  // live worker threads), at most ~20 ms and at least ~2 ms of work (from the workers'
+  // measured time per block), so a pass starts with few big entries and ends with
+  // small ones, and the last worker to finish waits for little.
+  size_t k_max = 1, k_min = 1, threads = 1;
   {
     std::lock_guard lock(mu_);
-    unsigned threads = 0;
-    for (const auto& w : workers_) threads += w.threads;
-    if (job.block_seconds > 0) k = static_cast<size_t>(std::clamp(0.02 / job.block_seconds, 1.0, 4096.0));
-    k = std::min(k, std::max<size_t>(1, (n + 2 * std::max(1u, threads) - 1) / (2 * std::max(1u, threads))));
-    k = std::clamp<size_t>(k, 1, std::max<size_t>(1, cfg_.max_entry_blocks));
-    job.entry_blocks = k;
+    unsigned t = 0;
+    for (const auto& w : workers_) t += w.threads;
+    threads = std::max(1u, t);
+    if (job.block_seconds > 0) {
+      k_max = static_cast<size_t>(std::clamp(0.02 / job.block_seconds, 1.0, 4096.0));
+      k_min = static_cast<size_t>(std::clamp(0.002 / job.block_seconds, 1.0, 4096.0));
+    }
+    k_max = std::clamp<size_t>(k_max, 1, std::max<size_t>(1, cfg_.max_entry_blocks));
+    k_min = std::min(k_min, k_max);
   }
+  size_t missing = n - std::min(n, have.size());
   std::vector<std::pair<std::string, std::string>> entries;  // first slot, blocks
+  size_t largest = 0;
   for (size_t i = 0; i < n;) {
     if (have.count(i)) {
       ++i;
       continue;
     }
+    const size_t k = std::clamp((missing + 2 * threads - 1) / (2 * threads), k_min, k_max);
     std::string bytes;
     const size_t first = i;
     while (i < n && i - first < k && !have.count(i)) bytes += encode_block(job.pass.blocks[i++]);
+    missing -= i - first;
+    largest = std::max(largest, i - first);
     entries.emplace_back(std::to_string(first), std::move(bytes));
+  }
+  {
+    std::lock_guard lock(mu_);
+    job.entry_blocks = std::max<size_t>(1, largest);
   }
   for (const auto& [first, bytes] : entries) conn_->append({"XADD", s, "*", "b", bytes, "s", first});
   for (size_t i = 0; i < entries.size(); ++i) {
