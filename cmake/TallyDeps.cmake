@@ -6,6 +6,7 @@ find_package(muparser REQUIRED)
 find_package(CLI11 REQUIRED)
 find_package(Boost 1.74 REQUIRED)
 find_package(SQLiteCpp REQUIRED)
+find_package(spdlog REQUIRED)
 find_package(embree 3 REQUIRED)
 # Debian's OpenImageIO CMake config insists on the command-line tools of
 # openimageio-tools; pkg-config needs only the library.

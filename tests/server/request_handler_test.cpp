@@ -6,7 +6,7 @@
 #include <set>
 
 #include "client/sse_parser.hpp"
-#include "server/event_stream.hpp"
+#include "server/http/event_stream.hpp"
 #include "server_test_support.hpp"
 
 namespace tally::test {

@@ -8,10 +8,10 @@
 #include <thread>
 
 #include "fake_job.hpp"
-#include "server/job_manager.hpp"
-#include "server/job_store.hpp"
-#include "server/metrics.hpp"
-#include "server/request_handler.hpp"
+#include "server/jobs/job_manager.hpp"
+#include "server/jobs/job_store.hpp"
+#include "server/api/metrics.hpp"
+#include "server/api/request_handler.hpp"
 
 namespace tally::test {
 

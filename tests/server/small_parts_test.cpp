@@ -7,12 +7,12 @@
 #include "client/http_client.hpp"
 #include "client/remote_commands.hpp"
 #include "client/sse_parser.hpp"
-#include "server/cpu_quota.hpp"
-#include "server/event_log.hpp"
-#include "server/json_depth.hpp"
-#include "server/listen_address.hpp"
-#include "server/problem.hpp"
-#include "server/router.hpp"
+#include "server/executor/cpu_quota.hpp"
+#include "server/jobs/event_log.hpp"
+#include "server/api/json_depth.hpp"
+#include "server/http/listen_address.hpp"
+#include "server/api/problem.hpp"
+#include "server/api/router.hpp"
 
 namespace tally {
 namespace {

@@ -1,0 +1,39 @@
+#pragma once
+// Prometheus text exposition for GET /metrics: request counts and latency
+// histograms by route, plus job gauges from the manager.
+#include <array>
+#include <atomic>
+#include <map>
+#include <mutex>
+#include <string>
+#include <tuple>
+
+#include "server/jobs/job_manager.hpp"
+
+namespace tally {
+
+class Metrics {
+ public:
+  static constexpr std::array<double, 12> kBuckets = {0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025,
+                                                      0.05,   0.1,   0.25,   0.5,   1.0,  2.5};
+
+  void observe(const std::string& route, const std::string& method, int status, double seconds);
+  std::atomic<int64_t> connections{0};
+  std::atomic<int64_t> streams{0};
+  std::atomic<uint64_t> rejected_connections{0};
+  std::atomic<uint64_t> timeouts{0};
+
+  std::string render(const ManagerStats& jobs) const;
+
+ private:
+  struct Histogram {
+    std::array<uint64_t, kBuckets.size()> counts{};
+    uint64_t count = 0;
+    double sum = 0;
+  };
+  mutable std::mutex mu_;
+  std::map<std::tuple<std::string, std::string, int>, uint64_t> requests_;
+  std::map<std::pair<std::string, std::string>, Histogram> latency_;
+};
+
+}  // namespace tally

@@ -1,0 +1,70 @@
+#pragma once
+// Turns an HttpRequest into an HttpResponse: routing, content negotiation, JSON
+// parsing with a depth pre-scan, and the one place that maps failures (SpecError,
+// JobError, HttpError) to statuses and problem+json bodies. No sockets here.
+#include <atomic>
+#include <functional>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "common/engine/image_source.hpp"
+#include "server/http/http_types.hpp"
+#include "server/jobs/job_manager.hpp"
+#include "server/api/metrics.hpp"
+#include "server/api/router.hpp"
+
+namespace tally {
+
+struct ImageEncoders {
+  std::function<std::string(const ImageSnapshot&, const nlohmann::json& metadata)> exr;
+  std::function<std::string(const ImageSnapshot&)> png;
+};
+
+struct HandlerConfig {
+  size_t max_json_depth = 64;
+  double pilot_seconds = 0.3;
+  unsigned max_concurrent_pilots = 2;
+  ImageEncoders images;  // empty functions: the image routes answer 501
+  // Cluster mode: GET /v1/workers body and extra /metrics lines (server/cluster/cluster_http.hpp).
+  std::function<nlohmann::json()> workers;
+  std::function<std::string()> extra_metrics;
+};
+
+class RequestHandler {
+ public:
+  RequestHandler(JobManager& manager, Metrics& metrics, HandlerConfig config);
+
+  HttpResponse handle(const HttpRequest& request);
+  // True for requests that may take long (compile, pilot, image encode): the
+  // session runs them off the I/O threads.
+  bool may_block(const HttpRequest& request) const;
+  const Router& router() const { return router_; }
+  void set_ready(bool ready) { ready_ = ready; }
+
+ private:
+  void add_routes();
+  nlohmann::json parse_json_body(const HttpRequest& request) const;
+  std::shared_ptr<Job> job_or_404(const std::string& id) const;
+
+  HttpResponse post_job(const HttpRequest&, const PathParams&);
+  HttpResponse list_jobs(const HttpRequest&, const PathParams&);
+  HttpResponse get_job(const HttpRequest&, const PathParams&);
+  HttpResponse delete_job(const HttpRequest&, const PathParams&);
+  HttpResponse extend_job(const HttpRequest&, const PathParams&);
+  HttpResponse validate_job(const HttpRequest&, const PathParams&);
+  HttpResponse job_events(const HttpRequest&, const PathParams&);
+  HttpResponse job_tile(const HttpRequest&, const PathParams&);
+  HttpResponse job_image(const HttpRequest&, const PathParams&, bool exr);
+
+  JobManager& manager_;
+  Metrics& metrics_;
+  HandlerConfig config_;
+  Router router_;
+  std::atomic<bool> ready_{true};
+  std::atomic<unsigned> pilots_{0};
+};
+
+// The OpenAPI 3.1 document (docs/openapi.json, embedded at build time).
+const std::string& openapi_document();
+
+}  // namespace tally

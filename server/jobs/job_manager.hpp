@@ -1,0 +1,129 @@
+#pragma once
+// Owns every job: admission (running set + bounded queue), the scheduler's pass
+// callbacks (commit, events, checkpoints), cancel/extend, recovery from the store
+// and shutdown. Knows nothing about HTTP: failures are JobError, mapped to
+// statuses by the request handler.
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "common/engine/job_definition.hpp"
+#include "server/jobs/job.hpp"
+#include "server/jobs/job_store.hpp"
+#include "server/executor/executor.hpp"
+
+namespace tally {
+
+using JobCompiler = std::function<std::unique_ptr<JobDefinition>(const nlohmann::json&, const JobLimits&)>;
+
+class JobError : public std::runtime_error {
+ public:
+  enum class Kind { not_found, conflict, queue_full, unavailable };
+  JobError(Kind kind, const std::string& what) : std::runtime_error(what), kind_(kind) {}
+  Kind kind() const noexcept { return kind_; }
+
+ private:
+  Kind kind_;
+};
+
+struct ManagerConfig {
+  unsigned workers = 1;
+  JobLimits limits;
+  JobCaps caps;
+  size_t max_running = 16;   // jobs sharing the workers at once
+  size_t max_queued = 256;   // jobs waiting for a running slot
+  double checkpoint_interval_s = 0.5;
+  size_t event_buffer = 1024;
+  double chunk_target_s = 0.004;
+  // Builds the executor (e.g. cluster mode's RedisExecutor); unset: the in-process
+  // worker pool with `workers` threads.
+  std::function<std::unique_ptr<Executor>(ExecutorCallbacks)> make_executor;
+};
+
+struct ManagerStats {
+  std::map<std::string, size_t> jobs_by_state;
+  size_t queue_depth = 0;
+  double samples_per_second = 0;  // sum over running jobs
+  uint64_t samples_total = 0;     // computed by the workers since start
+  unsigned workers = 0;
+  unsigned busy_workers = 0;
+};
+
+class JobManager {
+ public:
+  JobManager(ManagerConfig config, JobStore& store, JobCompiler compiler);
+  ~JobManager();
+
+  // Loads the store: finished jobs are served as stored, unfinished ones resume
+  // from their last checkpoint. Call once, before serving.
+  void recover();
+
+  // Throws SpecError (invalid spec) or JobError (queue full, shutting down).
+  std::shared_ptr<Job> submit(const nlohmann::json& spec, int priority = 0);
+  std::shared_ptr<Job> find(const std::string& id) const;  // null if unknown
+  std::vector<std::shared_ptr<Job>> list() const;           // in submission order
+  // Queued: cancelled at once; running: at the next chunk boundary. JobError on
+  // unknown id (not_found) or a finished job (conflict).
+  std::shared_ptr<Job> cancel(const std::string& id);
+  // Reopens a finished job with a new rule. JobError: not_found, conflict.
+  std::shared_ptr<Job> extend(const std::string& id, const StopRule& rule);
+
+  // The GET /v1/jobs/{id} document (cached until the job changes).
+  std::string status_body(Job& job) const;
+  // `version`, if given, receives the job version the document was built from.
+  nlohmann::json status_json(Job& job, uint64_t* version = nullptr) const;
+  nlohmann::json summary_json(Job& job) const;  // the short form GET /v1/jobs lists
+  // Events a new or resuming watcher starts with: state + progress (+ end).
+  std::vector<Event> snapshot_events(Job& job) const;
+
+  // Stop computing, checkpoint every unfinished job, end every event stream.
+  void shutdown();
+  bool shutting_down() const;
+  ManagerStats stats() const;
+  const ManagerConfig& config() const { return config_; }
+  const JobCompiler& compiler() const { return compiler_; }
+  uint64_t epoch() const { return epoch_; }
+  // Why the executor cannot compute (e.g. Redis unreachable), for /readyz.
+  std::optional<std::string> executor_not_ready() const { return executor_->not_ready_reason(); }
+
+ private:
+  PassWork on_pass_done(const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
+                        double wall);
+  void on_failed(const std::string& id, const std::string& error);
+  void on_cancelled(const std::string& id);
+  void start_queued_locked();
+  void job_left_scheduler();
+  // Under job.mu: marks the job finished from its runner, publishes state + end.
+  void finish_locked(Job& job, double now);
+  void publish_state_locked(Job& job);
+  void persist(Job& job, bool with_checkpoint);
+  nlohmann::json engine_json_locked(const Job& job) const;
+
+  ManagerConfig config_;
+  JobStore& store_;
+  JobCompiler compiler_;
+  uint64_t epoch_ = 1;
+
+  mutable std::mutex mu_;
+  std::map<std::string, std::shared_ptr<Job>> jobs_;
+  std::vector<std::shared_ptr<Job>> order_;   // submission order
+  std::vector<std::shared_ptr<Job>> queue_;   // waiting to run
+  size_t running_ = 0;
+  int64_t next_seq_ = 1;
+  bool shutting_down_ = false;
+
+  std::unique_ptr<Executor> executor_;  // last: its workers call back into us
+};
+
+// RFC 3339 UTC timestamp with milliseconds, or null for 0.
+nlohmann::json time_json(double unix_seconds);
+double unix_now();
+// Bits of channel 0's mean and M2 as hex, for exact comparisons by clients.
+nlohmann::json tally_bits_json(const JobState& state);
+
+}  // namespace tally

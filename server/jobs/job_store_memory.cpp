@@ -1,0 +1,45 @@
+// The in-memory JobStore: tests, and runs that need no persistence.
+#include <algorithm>
+#include <map>
+#include <mutex>
+
+#include "server/jobs/job_store.hpp"
+
+namespace tally {
+
+namespace {
+
+class MemoryJobStore final : public JobStore {
+ public:
+  void save(const StoredJob& j) override {
+    std::lock_guard lock(mu_);
+    auto [it, inserted] = jobs_.try_emplace(j.id, j);
+    if (!inserted) {
+      auto keep = it->second.checkpoint;
+      it->second = j;
+      if (!j.checkpoint) it->second.checkpoint = std::move(keep);
+    }
+  }
+  std::vector<StoredJob> load_all() override {
+    std::lock_guard lock(mu_);
+    std::vector<StoredJob> out;
+    for (const auto& [id, j] : jobs_) out.push_back(j);
+    std::sort(out.begin(), out.end(), [](const StoredJob& a, const StoredJob& b) { return a.seq < b.seq; });
+    return out;
+  }
+  uint64_t next_epoch() override {
+    std::lock_guard lock(mu_);
+    return ++epoch_;
+  }
+
+ private:
+  std::mutex mu_;
+  std::map<std::string, StoredJob> jobs_;
+  uint64_t epoch_ = 0;
+};
+
+}  // namespace
+
+std::unique_ptr<JobStore> make_memory_store() { return std::make_unique<MemoryJobStore>(); }
+
+}  // namespace tally

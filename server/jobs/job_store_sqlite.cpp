@@ -1,0 +1,113 @@
+#include <SQLiteCpp/SQLiteCpp.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <mutex>
+
+#include "server/jobs/job_store.hpp"
+
+namespace tally {
+
+namespace {
+
+class SqliteJobStore final : public JobStore {
+ public:
+  explicit SqliteJobStore(const std::string& path)
+      : db_(path, SQLite::OPEN_READWRITE | SQLite::OPEN_CREATE | SQLite::OPEN_FULLMUTEX) {
+    db_.exec("PRAGMA journal_mode=WAL");
+    // NORMAL is durable against a crashed or killed process (not power loss) and
+    // far cheaper than FULL; checkpoints are small and frequent.
+    db_.exec("PRAGMA synchronous=NORMAL");
+    db_.exec("PRAGMA busy_timeout=5000");
+    db_.exec(
+        "CREATE TABLE IF NOT EXISTS jobs ("
+        " id TEXT PRIMARY KEY, seq INTEGER NOT NULL, spec TEXT NOT NULL, priority INTEGER NOT NULL,"
+        " state TEXT NOT NULL, stop_rule TEXT NOT NULL, error TEXT NOT NULL DEFAULT '',"
+        " result TEXT NOT NULL DEFAULT '', checkpoint BLOB,"
+        " created_at REAL NOT NULL, started_at REAL NOT NULL, finished_at REAL NOT NULL,"
+        " updated_at REAL NOT NULL DEFAULT ((julianday('now') - 2440587.5) * 86400.0))");
+    db_.exec("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value INTEGER NOT NULL)");
+  }
+
+  void save(const StoredJob& j) override {
+    std::lock_guard lock(mu_);
+    SQLite::Transaction tx(db_);
+    SQLite::Statement st(db_,
+                         "INSERT INTO jobs (id, seq, spec, priority, state, stop_rule, error, result,"
+                         " checkpoint, created_at, started_at, finished_at) VALUES (?,?,?,?,?,?,?,?,?,?,?,?)"
+                         " ON CONFLICT(id) DO UPDATE SET state=excluded.state, stop_rule=excluded.stop_rule,"
+                         " error=excluded.error, result=excluded.result,"
+                         " checkpoint=COALESCE(excluded.checkpoint, jobs.checkpoint),"
+                         " started_at=excluded.started_at, finished_at=excluded.finished_at,"
+                         " updated_at=(julianday('now') - 2440587.5) * 86400.0");
+    st.bind(1, j.id);
+    st.bind(2, static_cast<int64_t>(j.seq));
+    st.bind(3, j.spec);
+    st.bind(4, j.priority);
+    st.bind(5, j.state);
+    st.bind(6, j.stop_rule);
+    st.bind(7, j.error);
+    st.bind(8, j.result);
+    if (j.checkpoint) {
+      st.bind(9, j.checkpoint->data(), static_cast<int>(j.checkpoint->size()));
+    } else {
+      st.bind(9);  // NULL: keep the stored checkpoint
+    }
+    st.bind(10, j.created_at);
+    st.bind(11, j.started_at);
+    st.bind(12, j.finished_at);
+    st.exec();
+    tx.commit();
+  }
+
+  std::vector<StoredJob> load_all() override {
+    std::lock_guard lock(mu_);
+    std::vector<StoredJob> out;
+    SQLite::Statement q(db_,
+                        "SELECT id, seq, spec, priority, state, stop_rule, error, result, checkpoint,"
+                        " created_at, started_at, finished_at FROM jobs ORDER BY seq");
+    while (q.executeStep()) {
+      StoredJob j;
+      j.id = q.getColumn(0).getString();
+      j.seq = q.getColumn(1).getInt64();
+      j.spec = q.getColumn(2).getString();
+      j.priority = q.getColumn(3).getInt();
+      j.state = q.getColumn(4).getString();
+      j.stop_rule = q.getColumn(5).getString();
+      j.error = q.getColumn(6).getString();
+      j.result = q.getColumn(7).getString();
+      const SQLite::Column cp = q.getColumn(8);
+      if (!cp.isNull()) {
+        j.checkpoint = std::string(static_cast<const char*>(cp.getBlob()), static_cast<size_t>(cp.getBytes()));
+      }
+      j.created_at = q.getColumn(9).getDouble();
+      j.started_at = q.getColumn(10).getDouble();
+      j.finished_at = q.getColumn(11).getDouble();
+      out.push_back(std::move(j));
+    }
+    return out;
+  }
+
+  uint64_t next_epoch() override {
+    std::lock_guard lock(mu_);
+    SQLite::Transaction tx(db_);
+    db_.exec("INSERT INTO meta (key, value) VALUES ('epoch', 1)"
+             " ON CONFLICT(key) DO UPDATE SET value = value + 1");
+    const int64_t e = db_.execAndGet("SELECT value FROM meta WHERE key = 'epoch'").getInt64();
+    tx.commit();
+    return static_cast<uint64_t>(e);
+  }
+
+ private:
+  std::mutex mu_;
+  SQLite::Database db_;
+};
+
+}  // namespace
+
+std::unique_ptr<JobStore> open_sqlite_store(const std::string& data_dir) {
+  std::filesystem::create_directories(data_dir);
+  return std::make_unique<SqliteJobStore>((std::filesystem::path(data_dir) / "tally.db").string());
+}
+
+}  // namespace tally
