@@ -589,11 +589,26 @@ void RedisExecutor::refresh() {
     conn_->append({"XPENDING", p.s, kGroup});
     conn_->append({"HGET", p.jk, "redelivered"});
     conn_->append({"HLEN", p.r});
+    conn_->append({"XPENDING", p.s, kGroup, "-", "+", "50"});
   }
+  // Entries delivered again and again without a result: the workers that took them died
+  // or stalled each time (a crash on that block, not a thrown error). Give up on the job
+  // rather than loop forever; one delivery more than --max-deliveries allows one stall.
+  std::vector<std::pair<std::string, std::string>> crashed;
   for (const Probe& p : probes) {
     const RValue pend = conn_->get_reply();
     const RValue red = conn_->get_reply();
     const RValue stored = conn_->get_reply();
+    const RValue detail = conn_->get_reply();
+    for (const RValue& e : detail.elems) {
+      if (e.elems.size() < 4 || e.elems[3].type != RValue::Type::integer) continue;
+      if (static_cast<uint64_t>(e.elems[3].integer) > static_cast<uint64_t>(cfg_.max_failures) + 1) {
+        crashed.emplace_back(p.id, fmt::format("an entry of blocks was delivered {} times and no worker finished it "
+                                               "(last held by {}): the workers crash or stall on it",
+                                               e.elems[3].integer, e.elems[1].str));
+        break;
+      }
+    }
     uint64_t inflight = 0;
     if (pend.is_array() && !pend.elems.empty() && pend.elems[0].type == RValue::Type::integer) {
       inflight = static_cast<uint64_t>(pend.elems[0].integer);
@@ -610,7 +625,7 @@ void RedisExecutor::refresh() {
     b.pending = p.n > done + b.in_flight ? p.n - done - b.in_flight : 0;
     flight[p.id] = b;
   }
-  std::lock_guard lock(mu_);
+  std::unique_lock lock(mu_);
   workers_ = std::move(ws);
   if (c.is_array() && c.elems.size() == 5) {
     auto v = [&](size_t i) -> uint64_t {
@@ -630,6 +645,11 @@ void RedisExecutor::refresh() {
     auto it = flight.find(id);
     if (it == flight.end()) continue;
     j->blocks = it->second;
+  }
+  lock.unlock();
+  for (const auto& [id, error] : crashed) {
+    fmt::print(stderr, "tally-server: job {}: {}\n", id, error);
+    leave(id, true, error);
   }
 }
 

@@ -149,7 +149,8 @@ TEST(Cluster, ThreeWorkersMatchInProcessBitsAndPixels) {
 
   // Per-pass streams and results are deleted once merged: nothing of the jobs is left.
   auto rc = redis.connect();
-  EXPECT_EQ(rc.cmd({"KEYS", "tally:[sprf]:*"}).elems.size(), 0u);
+  EXPECT_EQ(rc.cmd({"KEYS", "tally:[sprfd]:*"}).elems.size(), 0u);
+  EXPECT_EQ(rc.cmd({"KEYS", "tally:job:*"}).elems.size(), 0u);
   EXPECT_EQ(rc.cmd({"SCARD", "tally:active"}).as_int(), 0);
 }
 
