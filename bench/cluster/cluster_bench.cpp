@@ -148,6 +148,7 @@ void ceiling(const std::string& url, size_t max_entry_blocks, size_t passes, siz
 
 int main(int argc, char** argv) {
   const int rounds = argc > 1 ? std::atoi(argv[1]) : 5;
+  const std::string only = argc > 2 ? argv[2] : "";  // "reclaim": part 3 alone
   TempDir tmp;
   const fs::path sock = tmp.path / "r.sock";
   const pid_t redis = spawn({"redis-server", "--port", "0", "--unixsocket", sock.string(), "--save", "", "--appendonly",
@@ -158,6 +159,7 @@ int main(int argc, char** argv) {
   int rc = 0;
   std::vector<pid_t> pids;
   try {
+    if (only.empty()) {
     // 1. Overhead at equal cores.
     ServerProcess in_process(tmp.path / "a", {"--checkpoint-interval", "0.5"});
     ServerProcess cluster(tmp.path / "b", {"--redis", url, "--checkpoint-interval", "0.5"});
@@ -182,6 +184,7 @@ int main(int argc, char** argv) {
     ceiling(url1, 4096, 10, 20000);
     reap(pids.back());
     pids.pop_back();
+    }
 
     // 3. Reclaim latency after kill -9, lease 1 s.
     const std::string url2 = url + "?db=2";
@@ -192,8 +195,12 @@ int main(int argc, char** argv) {
     HttpClient cc = reclaim.client();
     const std::string id = submit(cc, disk_spec(2'000'000'000ULL, 3));
     cluster::RedisConn rconn(cluster::parse_redis_url(url2));
+    // Under way (entries of ~20 ms), then freeze the victim while it holds an entry and
+    // kill it: the entry is certainly held at the kill.
+    while (get_json(cc, "/v1/jobs/" + id).at("samples").get<uint64_t>() < 50'000'000) std::this_thread::sleep_for(20ms);
     std::string stream, entry;
     for (int i = 0; i < 2000 && entry.empty(); ++i) {
+      ::kill(victim, SIGSTOP);
       for (const auto& s : rconn.cmd({"SMEMBERS", "tally:active"}).elems) {
         try {
           for (const auto& e : rconn.cmd({"XPENDING", s.str, "w", "-", "+", "100"}).elems) {
@@ -205,7 +212,10 @@ int main(int argc, char** argv) {
         } catch (const std::exception&) {
         }
       }
-      if (entry.empty()) std::this_thread::sleep_for(5ms);
+      if (entry.empty()) {
+        ::kill(victim, SIGCONT);
+        std::this_thread::sleep_for(3ms);
+      }
     }
     if (entry.empty()) throw std::runtime_error("the victim never held an entry");
     reap(victim);

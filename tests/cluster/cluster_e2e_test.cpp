@@ -15,6 +15,7 @@
 #include "cluster_process.hpp"
 #include "common/engine/local_executor.hpp"
 #include "common/jobs/job_factory.hpp"
+#include "server/cluster/assets.hpp"
 #include "server_process.hpp"
 
 namespace tally::e2e {
@@ -26,8 +27,8 @@ namespace fs = std::filesystem;
 
 // The bits `GET /v1/jobs/{id}` reports, from a run of the spec in this process.
 // `extend_to` > 0: then extended to that many samples, like POST .../extend.
-json local_bits(const json& spec, uint64_t extend_to = 0) {
-  const auto def = compile_job(spec, JobLimits{});
+json local_bits(const json& spec, uint64_t extend_to = 0, const JobLimits& limits = {}) {
+  const auto def = compile_job(spec, limits);
   JobRunner runner(def->kernel(), def->stop_rule(), JobCaps{});
   run_local(runner, 2);
   if (extend_to > 0) {
@@ -352,6 +353,36 @@ TEST(Cluster, BlockFailingOnEveryWorkerFailsTheJobAfterNDeliveries) {
                              "four failed deliveries counted"))
       << metrics_counts(c).dump();
   EXPECT_EQ(metrics_counts(c).at("first"), 0);
+}
+
+TEST(Cluster, ObjAssetsReachWorkersWithoutASharedDirectory) {
+  TempDir tmp;
+  const fs::path assets = tmp.path / "assets";
+  fs::create_directories(assets / "meshes");
+  const std::string obj = "v -0.5 -0.5 1.5\nv -0.5 0.5 1.5\nv 0.5 0.5 1.5\nv 0.5 -0.5 1.5\nf 1 2 3\nf 1 3 4\n";
+  std::ofstream(assets / "meshes" / "lamp.obj") << obj;
+  json spec = lighting_image_spec(4);
+  spec["scene"]["camera"]["resolution"] = {32, 24};
+  spec["scene"]["shapes"].push_back({{"type", "mesh"}, {"obj", "meshes/lamp.obj"}, {"material", "lamp"}});
+  JobLimits limits;
+  limits.asset_dir = assets.string();
+  const json expected = local_bits(spec, 0, limits);
+
+  RedisServer redis(tmp.path);
+  std::vector<std::string> flags = cluster_flags(redis);
+  flags.insert(flags.end(), {"--asset-dir", assets.string()});
+  ServerProcess server(tmp.path / "data", flags);
+  // The workers have no --asset-dir and their own cache: the file can only come through Redis.
+  WorkerProcess w1(redis.url(), "w1", tmp.path, 1, {"--cache-dir", (tmp.path / "cache1").string()});
+  HttpClient c = server.client();
+  wait_until([&] { return live_workers(c) == 1; }, 20, "a worker");
+  const std::string id = submit(c, spec);
+  const json s = wait_state(c, id, "succeeded", 60);
+  EXPECT_EQ(s.at("bits"), expected);
+  auto rc = redis.connect();
+  const std::string sha = cluster::sha256_hex(obj);
+  EXPECT_EQ(rc.cmd({"GET", "tally:asset:" + sha}).str, obj);  // content-addressed
+  EXPECT_TRUE(fs::exists(tmp.path / "cache1" / "blobs" / sha));
 }
 
 }  // namespace
