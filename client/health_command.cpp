@@ -7,6 +7,7 @@
 #include <string>
 
 #include "client/exit_codes.hpp"
+#include "client/api_request.hpp"
 #include "client/http_client.hpp"
 
 namespace tally {
@@ -14,7 +15,7 @@ namespace tally {
 namespace {
 
 struct HealthOptions {
-  std::string server = "http://127.0.0.1:8080";
+  std::string server = kDefaultServer;
   std::string path = "/readyz";
   double timeout_s = 3.0;
   bool quiet = false;

@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "client/exit_codes.hpp"
+#include "client/api_request.hpp"
 #include "client/http_client.hpp"
 #include "client/sse_parser.hpp"
 #include "client/tev_bridge.hpp"
@@ -34,10 +35,10 @@ struct PreviewFailure {
 }
 
 json get_json(HttpClient& c, const std::string& target) {
-  const ClientResponse r = c.request("GET", target);
-  if (r.status == 404) fail(exit_code::usage, fmt::format("{}: not found", target));
-  if (r.status != 200) fail(exit_code::connection, fmt::format("GET {} answered {}: {}", target, r.status, r.body));
-  return json::parse(r.body);
+  return tally::get_json(c, target, [&](const ClientResponse& r) {
+    if (r.status == 404) fail(exit_code::usage, fmt::format("{}: not found", target));
+    fail(exit_code::connection, fmt::format("GET {} answered {}: {}", target, r.status, r.body));
+  });
 }
 
 // "host:port", "[v6]:port".

@@ -7,10 +7,12 @@
 #include <CLI/CLI.hpp>
 #include <string>
 
+#include "client/api_request.hpp"
+
 namespace tally {
 
 struct PreviewOptions {
-  std::string server = "http://127.0.0.1:8080";
+  std::string server = kDefaultServer;
   std::string job_id;
   std::string tev = "127.0.0.1:14158";  // HOST:PORT ([v6]:PORT too)
   std::string image_name;               // default "tally-<job id>"

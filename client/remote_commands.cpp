@@ -10,6 +10,7 @@
 #include <thread>
 
 #include "client/exit_codes.hpp"
+#include "client/api_request.hpp"
 #include "client/http_client.hpp"
 #include "client/progress_display.hpp"
 #include "client/sse_parser.hpp"
@@ -19,8 +20,6 @@ namespace tally {
 using nlohmann::json;
 
 namespace {
-
-constexpr const char* kDefaultServer = "http://127.0.0.1:8080";
 
 struct RemoteOptions {
   std::string server = kDefaultServer;
@@ -41,16 +40,7 @@ HttpClient make_client(const RemoteOptions& o) {
 }
 
 [[noreturn]] void fail_response(const ClientResponse& r) {
-  std::string detail = r.body;
-  try {
-    const json p = json::parse(r.body);
-    detail = p.value("detail", r.body);
-    if (p.contains("pointer") && !p["pointer"].get<std::string>().empty()) {
-      detail = p["pointer"].get<std::string>() + ": " + detail;
-    }
-  } catch (const std::exception&) {
-  }
-  while (!detail.empty() && detail.back() == '\n') detail.pop_back();
+  const std::string detail = problem_detail(r);
   fmt::print(stderr, "tally: server answered {}: {}\n", r.status, detail);
   // The request was wrong (bad spec, unknown job, wrong state): usage. Else: server trouble.
   const bool ours = r.status == 400 || r.status == 404 || r.status == 405 || r.status == 409 || r.status == 413 ||
@@ -59,9 +49,7 @@ HttpClient make_client(const RemoteOptions& o) {
 }
 
 json get_json(HttpClient& c, const std::string& target) {
-  const ClientResponse r = c.request("GET", target);
-  if (r.status != 200) fail_response(r);
-  return json::parse(r.body);
+  return tally::get_json(c, target, [](const ClientResponse& r) { fail_response(r); });
 }
 
 std::string read_spec(const std::string& path) {

@@ -13,7 +13,7 @@
 #include "client/exit_codes.hpp"
 #include "common/engine/local_executor.hpp"
 #include "common/jobs/job_factory.hpp"
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "common/protocol/status_json.hpp"
 
 namespace tally {

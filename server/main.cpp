@@ -11,6 +11,7 @@
 #include "common/jobs/job_factory.hpp"
 #include "server/cluster/cluster_http.hpp"
 #include "server/cluster/redis_executor.hpp"
+#include "common/log/log.hpp"
 #include "server/executor/cpu_quota.hpp"
 #include "server/http/http_server.hpp"
 #include "server/jobs/job_manager.hpp"
@@ -55,13 +56,20 @@ int main(int argc, char** argv) {
   app.add_option("--max-queued", mc.max_queued, "jobs waiting for a running slot (then 503)")->capture_default_str();
   app.add_option("--max-dimensions", mc.limits.max_dimensions, "per-job cap: integration dimensions")->capture_default_str();
   app.add_option("--max-channels", mc.limits.max_channels, "per-job cap: channels")->capture_default_str();
-  app.add_option("--max-samples", mc.caps.max_samples, "per-job cap: samples")->capture_default_str();
-  app.add_option("--max-seconds", mc.caps.max_seconds, "per-job cap: compute seconds")->capture_default_str();
+  app.add_option("--max-samples", mc.limits.max_samples, "per-job cap: samples")->capture_default_str();
+  app.add_option("--max-seconds", mc.limits.max_seconds, "per-job cap: compute seconds")->capture_default_str();
   app.add_option("--max-pixels", mc.limits.max_pixels, "per-job cap: image pixels")->capture_default_str();
   app.add_option("--checkpoint-interval", mc.checkpoint_interval_s, "least seconds between a job's checkpoints")
       ->capture_default_str();
   app.add_option("--event-buffer", mc.event_buffer, "events kept per job for Last-Event-ID resume")->capture_default_str();
   app.add_option("--pilot-seconds", hc.pilot_seconds, "length of the validate pilot run")->capture_default_str();
+  std::string log_level = "info", log_format = "text";
+  app.add_option("--log-level", log_level, "debug, info, warn, error or off")
+      ->check(CLI::IsMember({"debug", "info", "warn", "error", "off"}))
+      ->capture_default_str();
+  app.add_option("--log-format", log_format, "text or json (one object per line)")
+      ->check(CLI::IsMember({"text", "json"}))
+      ->capture_default_str();
   std::string redis_url;
   double lease_s = 30.0;
   unsigned max_deliveries = 3;
@@ -73,17 +81,16 @@ int main(int argc, char** argv) {
   app.add_option("--max-deliveries", max_deliveries,
                  "cluster mode: failed deliveries of one block that fail its job")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
+  log::configure(*log::parse_level(log_level), *log::parse_format(log_format));
 
   const auto addr = parse_listen_address(listen);
   if (!addr) {
-    fmt::print(stderr, "tally-server: --listen must be host:port, got \"{}\"\n", listen);
+    log::error("--listen must be host:port, got \"{}\"", listen);
     return 2;
   }
   http.address = addr->host;
   http.port = addr->port;
   mc.workers = workers > 0 ? workers : default_worker_count();
-  mc.limits.max_samples = mc.caps.max_samples;
-  mc.limits.max_seconds = mc.caps.max_seconds;
 #ifdef TALLY_HAVE_IMAGE_IO
   hc.images.exr = [](const ImageSnapshot& s, const nlohmann::json& meta) { return encode_exr(s, meta); };
   hc.images.png = [](const ImageSnapshot& s) { return encode_png(s); };
@@ -95,11 +102,11 @@ int main(int argc, char** argv) {
     try {
       rc.url = cluster::parse_redis_url(redis_url);
     } catch (const std::exception& e) {
-      fmt::print(stderr, "tally-server: --redis: {}\n", e.what());
+      log::error("--redis: {}", e.what());
       return 2;
     }
     if (!(lease_s >= 0.1) || max_deliveries < 1) {
-      fmt::print(stderr, "tally-server: --lease must be >= 0.1 s and --max-deliveries >= 1\n");
+      log::error("--lease must be >= 0.1 s and --max-deliveries >= 1");
       return 2;
     }
     // hiredis writes to its socket with write(2): a Redis that went away must be an
@@ -145,17 +152,23 @@ int main(int argc, char** argv) {
                  std::filesystem::absolute(data_dir).string());
     }
     std::fflush(stdout);
+    if (cluster_executor) {
+      log::info("listening on {}:{} (cluster mode through {}, data in {})", http.address, port,
+                cluster_executor->config().url.display(), std::filesystem::absolute(data_dir).string());
+    } else {
+      log::info("listening on {}:{} ({} workers, data in {})", http.address, port, mc.workers,
+                std::filesystem::absolute(data_dir).string());
+    }
 
     const int sig = signalled.get_future().get();
-    fmt::print("tally-server: signal {}: checkpointing jobs and shutting down\n", sig);
-    std::fflush(stdout);
+    log::info("signal {}: checkpointing jobs and shutting down", sig);
     server.stop_accepting();
     handler.set_ready(false);
     manager.shutdown();  // checkpoints unfinished jobs, ends every event stream
     server.stop(2.0);
     return 0;
   } catch (const std::exception& e) {
-    fmt::print(stderr, "tally-server: {}\n", e.what());
+    log::error("{}", e.what());
     return 1;
   }
 }

@@ -11,23 +11,10 @@
 #include "common/engine/image_source.hpp"
 #include "common/engine/job_runner.hpp"
 #include "common/engine/kernel.hpp"
+#include "common/engine/limits.hpp"
 #include "common/engine/stop_rule.hpp"
 
 namespace tally {
-
-// Hard limits on what one job may ask for, configured by whoever runs jobs. A spec
-// over a limit is refused up front (SpecError naming the field), never half-run.
-struct JobLimits {
-  size_t max_dimensions = 64;
-  size_t max_channels = size_t{1} << 24;
-  uint64_t max_samples = 100'000'000'000ULL;
-  double max_seconds = 3600.0;
-  size_t max_expression_length = 4096;
-  uint64_t max_pixels = 4096ULL * 4096ULL;
-  uint64_t max_quadrature_points = 1ULL << 26;
-  size_t max_table_size = 1 << 20;  // tabulated densities, inline meshes
-  std::string asset_dir;            // OBJ files for lighting scenes; empty = none allowed
-};
 
 class JobDefinition {
  public:

@@ -1,5 +1,8 @@
 #include "common/engine/job_runner.hpp"
 
+#include "common/engine/check.hpp"
+#include "common/engine/forecast.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <fmt/format.h>
@@ -67,7 +70,7 @@ uint64_t JobRunner::next_pass_samples() const {
 
 std::vector<Block> JobRunner::plan_pass() {
   if (finished()) return {};
-  if (!pending_.empty()) throw std::logic_error("plan_pass called twice without commit_pass");
+  TALLY_CHECK_MSG(pending_.empty(), "plan_pass called twice without commit_pass");
   const uint64_t n = next_pass_samples();
   const uint64_t block = std::max<uint64_t>(1, kernel_->schedule().block_samples);
   pass_input_ = kernel_->pass_input(state_);
@@ -87,10 +90,7 @@ std::vector<Block> JobRunner::plan_pass() {
 }
 
 void JobRunner::commit_pass(std::vector<BlockResult>&& results, double wall_seconds) {
-  if (results.size() != pending_.size()) {
-    throw std::logic_error(fmt::format("commit_pass: {} results for {} blocks", results.size(),
-                                       pending_.size()));
-  }
+  TALLY_CHECK_EQ(results.size(), pending_.size());  // one result per planned block
   for (size_t i = 0; i < results.size(); ++i) {
     BlockResult& r = results[i];
     for (size_t c = 0; c < r.tallies.size(); ++c) {
@@ -160,7 +160,7 @@ void JobRunner::fail(std::string message) {
 }
 
 void JobRunner::extend(const StopRule& rule) {
-  if (reason_ == StopReason::failed) throw std::logic_error("a failed job cannot be extended");
+  TALLY_CHECK_MSG(reason_ != StopReason::failed, "a failed job cannot be extended");
   rule_ = rule;
   reason_ = StopReason::none;
   pending_.clear();
@@ -223,20 +223,29 @@ bool JobRunner::heavy_tail() const {
 
 std::optional<Prediction> JobRunner::prediction() const {
   if (!rule_.has_error_target() || state_.samples < 2) return std::nullopt;
-  const ErrorSummary e = error();
-  if (!std::isfinite(e.sigma)) return std::nullopt;
-  double need = kInf;
-  if (rule_.abs_error > 0) need = std::min(need, samples_for_half_width(e.sigma, rule_.abs_error, rule_.confidence));
-  if (rule_.rel_error > 0 && e.mean != 0.0) {
-    need = std::min(need, samples_for_half_width(e.sigma, rule_.rel_error * std::fabs(e.mean),
-                                                 rule_.confidence));
-  }
+  const Forecast f =
+      forecast(rule_, caps_, error(), state_.samples, state_.compute_seconds, samples_per_second());
+  if (!f.error_target) return std::nullopt;
   Prediction p;
-  p.samples_needed = need;
-  p.samples_remaining = std::max(0.0, need - static_cast<double>(state_.samples));
+  p.samples_needed = f.samples_needed;
+  p.samples_remaining = std::max(0.0, f.samples_needed - static_cast<double>(state_.samples));
   const double rate = samples_per_second();
   p.seconds_remaining = rate > 0 ? p.samples_remaining / rate : kInf;
   return p;
+}
+
+double JobRunner::eta_seconds() const {
+  if (finished()) return 0.0;
+  const Forecast f =
+      forecast(rule_, caps_, error(), state_.samples, state_.compute_seconds, samples_per_second());
+  double eta = f.rule_seconds();
+  // The error target's forecast needs σ from at least two samples.
+  if (f.error_target && state_.samples < 2) {
+    eta = kInf;
+    if (f.max_samples) eta = std::min(eta, f.max_samples->seconds);
+    if (f.time_budget) eta = std::min(eta, f.time_budget->seconds);
+  }
+  return eta;
 }
 
 std::vector<CostPoint> JobRunner::cost_curve(const std::vector<double>& rel_levels) const {

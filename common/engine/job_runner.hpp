@@ -11,15 +11,10 @@
 
 #include "common/engine/job_state.hpp"
 #include "common/engine/kernel.hpp"
+#include "common/engine/limits.hpp"
 #include "common/engine/stop_rule.hpp"
 
 namespace tally {
-
-// Hard per-job caps set by whoever runs the job (server configuration, CLI).
-struct JobCaps {
-  uint64_t max_samples = 100'000'000'000ULL;
-  double max_seconds = 3600.0;
-};
 
 struct Estimate {
   uint64_t n = 0;
@@ -81,6 +76,9 @@ class JobRunner {
   std::optional<double> tail_alpha() const;
   bool heavy_tail() const;
   std::optional<Prediction> prediction() const;
+  // Seconds until the rule fires (error target, max_samples or time budget), from
+  // the one forecast (common/engine/forecast.hpp); +inf when unknown.
+  double eta_seconds() const;
   std::vector<CostPoint> cost_curve(const std::vector<double>& rel_levels) const;
   std::vector<std::string> warnings() const;
 

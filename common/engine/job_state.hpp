@@ -6,7 +6,7 @@
 #include <vector>
 
 #include "common/engine/counters.hpp"
-#include "common/engine/kernel.hpp"
+#include "common/engine/sample_stats.hpp"
 #include "common/stats/tail_index.hpp"
 #include "common/stats/tally.hpp"
 

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "common/engine/counters.hpp"
+#include "common/engine/sample_stats.hpp"
 #include "common/stats/tail_index.hpp"
 #include "common/stats/tally.hpp"
 
@@ -23,33 +24,6 @@ struct Block {
   uint64_t first_sample = 0;
   uint64_t sample_count = 0;
   uint32_t partition = 0;  // kernel-defined, e.g. an image tile; 0 for dense kernels
-};
-
-// Importance weights seen by a block, for the effective sample size
-// ESS = (sum w)^2 / sum w^2 (Kish).
-struct WeightStats {
-  double sum_w = 0.0;
-  double sum_w2 = 0.0;
-  void add(double w) noexcept {
-    sum_w += w;
-    sum_w2 += w * w;
-  }
-  void merge(const WeightStats& o) noexcept {
-    sum_w += o.sum_w;
-    sum_w2 += o.sum_w2;
-  }
-  bool empty() const noexcept { return sum_w2 == 0.0; }
-  double ess() const noexcept { return sum_w2 > 0 ? sum_w * sum_w / sum_w2 : 0.0; }
-  friend bool operator==(const WeightStats&, const WeightStats&) = default;
-};
-
-// The first sample whose value could not be used (NaN/Inf), with where it happened.
-struct SampleFault {
-  uint64_t sample_index = 0;
-  uint32_t channel = 0;
-  double value = 0.0;
-  std::vector<double> point;  // the integration point or pixel coordinates
-  std::string message;
 };
 
 struct BlockResult {

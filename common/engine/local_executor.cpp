@@ -34,21 +34,22 @@ bool run_blocks(const Kernel& kernel, const std::vector<Block>& blocks, unsigned
   return !(cancel != nullptr && cancel->load());
 }
 
-void run_local(JobRunner& runner, const LocalRunOptions& options) {
+bool run_local(JobRunner& runner, const LocalRunOptions& options) {
   std::vector<BlockResult> results;
-  while (!runner.finished()) {
+  while (!runner.finished() && (!options.keep_going || options.keep_going())) {
     const std::vector<Block> blocks = runner.plan_pass();
     if (blocks.empty()) break;
     const auto t0 = std::chrono::steady_clock::now();
     if (!run_blocks(runner.kernel(), blocks, options.threads, results, options.cancel, runner.pass_input())) {
       runner.cancel();
-      break;
+      return false;
     }
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     runner.commit_pass(std::move(results), dt);
     results = {};
     if (options.on_pass) options.on_pass(runner);
   }
+  return true;
 }
 
 unsigned available_cpus() {

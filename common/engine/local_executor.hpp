@@ -20,10 +20,14 @@ bool run_blocks(const Kernel& kernel, const std::vector<Block>& blocks, unsigned
 struct LocalRunOptions {
   unsigned threads = 1;
   std::function<void(const JobRunner&)> on_pass;  // after every committed pass
-  const std::atomic<bool>* cancel = nullptr;
+  const std::atomic<bool>* cancel = nullptr;      // raised: the pass in flight is dropped, the runner cancelled
+  std::function<bool()> keep_going;               // asked before each new pass (the pilot's clock)
 };
 
-void run_local(JobRunner& runner, const LocalRunOptions& options);
+// The one local pass loop (`tally run`, tests, the study, the validate pilot):
+// plan, run the blocks on `threads` threads, commit, until the runner finishes or
+// `keep_going` says stop. Returns false if `cancel` cut a pass.
+bool run_local(JobRunner& runner, const LocalRunOptions& options);
 inline void run_local(JobRunner& runner, unsigned threads) {
   LocalRunOptions o;
   o.threads = threads;

@@ -9,7 +9,7 @@
 #include "common/integrate/estimators.hpp"
 #include "common/integrate/genz.hpp"
 #include "common/integrate/integrand.hpp"
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "common/protocol/stop_rule_json.hpp"
 #include "common/sampling/ball_simplex.hpp"
 

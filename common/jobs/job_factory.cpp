@@ -3,7 +3,7 @@
 #include <fmt/format.h>
 
 #include "common/integrate/integration_job.hpp"
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "common/lighting/lighting_job.hpp"
 
 namespace tally {

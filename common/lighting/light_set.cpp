@@ -1,6 +1,6 @@
 #include "common/lighting/light_set.hpp"
 
-#include "common/lighting/scene_json.hpp"
+#include "common/lighting/scene_bounds.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -6,7 +6,7 @@
 #include <functional>
 #include <limits>
 
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "common/lighting/compiled_scene.hpp"
 #include "common/lighting/image_kernel.hpp"
 #include "common/lighting/point_kernel.hpp"

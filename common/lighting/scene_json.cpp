@@ -297,20 +297,6 @@ Scene parse_scene(SpecReader& r, const JobLimits& limits) {
   return scene;
 }
 
-SceneBounds scene_bounds(const Scene& scene) {
-  constexpr double inf = std::numeric_limits<double>::infinity();
-  SceneBounds b{{inf, inf, inf}, {-inf, -inf, -inf}};
-  auto grow = [&](const Vec3& p, double r) {
-    b.lo = {std::min(b.lo.x, p.x - r), std::min(b.lo.y, p.y - r), std::min(b.lo.z, p.z - r)};
-    b.hi = {std::max(b.hi.x, p.x + r), std::max(b.hi.y, p.y + r), std::max(b.hi.z, p.z + r)};
-  };
-  for (const Shape& s : scene.shapes) {
-    for (const Vec3& v : s.vertices) grow(v, 0.0);
-    if (s.type == ShapeType::sphere || s.type == ShapeType::disk) grow(s.center, s.radius);
-  }
-  return b;
-}
-
 void localize_scene(Scene& scene) {
   const SceneBounds b = scene_bounds(scene);
   const Vec3 origin = b.empty() ? Vec3{} : (b.lo + b.hi) * 0.5;

@@ -6,9 +6,10 @@
 #include <filesystem>
 #include <string>
 
-#include "common/engine/job_definition.hpp"
-#include "common/json/spec_reader.hpp"
+#include "common/engine/limits.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "common/lighting/scene.hpp"
+#include "common/lighting/scene_bounds.hpp"
 
 namespace tally {
 
@@ -28,12 +29,5 @@ std::filesystem::path resolve_asset(const std::string& asset_dir, const std::str
 // Moves the scene into its local frame (see scene.hpp) and returns the translation.
 void localize_scene(Scene& scene);
 
-// Axis-aligned bounds of every shape (vertices, sphere and disk extents); empty when
-// lo.x > hi.x (a scene without shapes).
-struct SceneBounds {
-  Vec3 lo, hi;
-  bool empty() const { return lo.x > hi.x; }
-};
-SceneBounds scene_bounds(const Scene& scene);
 
 }  // namespace tally

@@ -4,14 +4,19 @@
 
 namespace tally {
 
-StopRule parse_stop_rule(SpecReader& stop, const JobLimits& limits) {
+StopRule parse_stop_rule(SpecReader& stop, const JobLimits& limits, const StopRule* keep) {
   StopRule r;
   r.max_samples = stop.integer_or("max_samples", 0, 1, limits.max_samples);
   r.time_budget_s = stop.number_or("time_budget_s", 0.0, 1e-3, limits.max_seconds);
   r.abs_error = stop.number_or("abs_error", 0.0, 1e-300, 1e300);
   r.rel_error = stop.number_or("rel_error", 0.0, 1e-12, 1e3);
-  r.confidence = stop.number_or("confidence", 0.95, 0.5, 0.999999);
-  r.min_samples = stop.integer_or("min_samples", 1000, 2, limits.max_samples);
+  if (keep) {
+    r.confidence = keep->confidence;
+    r.min_samples = keep->min_samples;
+  } else {
+    r.confidence = stop.number_or("confidence", 0.95, 0.5, 0.999999);
+    r.min_samples = stop.integer_or("min_samples", 1000, 2, limits.max_samples);
+  }
   stop.finish();
   if (r.max_samples == 0 && r.time_budget_s == 0.0 && !r.has_error_target()) {
     throw SpecError(stop.pointer(),

@@ -3,12 +3,18 @@
 //   {"max_samples": N, "time_budget_s": T, "abs_error": e, "rel_error": r,
 //    "confidence": 0.95, "min_samples": 1000}
 // At least one rule is required; whichever fires first stops the job.
-#include "common/engine/job_definition.hpp"
-#include "common/json/spec_reader.hpp"
+// The one reader of stop rules: a spec's "stop", a stored rule, and the body of
+// POST /v1/jobs/{id}/extend (which passes `keep`: the job's rule, whose
+// confidence and min_samples stay and may not be set by the body).
+#include <nlohmann/json.hpp>
+
+#include "common/engine/limits.hpp"
+#include "common/engine/stop_rule.hpp"
+#include "common/protocol/spec_reader.hpp"
 
 namespace tally {
 
-StopRule parse_stop_rule(SpecReader& stop, const JobLimits& limits);
+StopRule parse_stop_rule(SpecReader& stop, const JobLimits& limits, const StopRule* keep = nullptr);
 nlohmann::json stop_rule_to_json(const StopRule& rule);
 
 }  // namespace tally

@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include "common/protocol/job_json.hpp"
 #include "server/jobs/job_manager.hpp"
 
 namespace tally {
@@ -13,20 +14,32 @@ std::string format_event(const Event& e, StreamFormat format) {
   return fmt::format("id: {}\nevent: {}\ndata: {}\n\n", e.id, e.type, e.data);
 }
 
+std::vector<Event> snapshot_events(const JobSnapshot& job) {
+  const auto dump = [](const nlohmann::json& j) {
+    return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+  };
+  const uint64_t id = job.last_event_id;
+  std::vector<Event> out;
+  out.push_back(Event{id, "state", dump(state_event_json(job.status, job.runner.get(), job.error, false))});
+  if (job.runner && job.runner->state().passes > 0) {
+    out.push_back(Event{id, "progress", dump(progress_event_json(*job.runner))});
+  }
+  if (is_terminal(job.status)) {
+    out.push_back(Event{id, "end", dump(state_event_json(job.status, job.runner.get(), job.error, true))});
+  }
+  return out;
+}
+
 JobEventStream::JobEventStream(std::shared_ptr<Job> job, const JobManager& manager, StreamFormat format,
                                std::optional<uint64_t> last_event_id)
     : job_(std::move(job)), manager_(manager), format_(format) {
   if (last_event_id) {
-    const EventLog::Read r = job_->events.read_after(*last_event_id, 0);
+    const EventLog::Read r = job_->events().read_after(*last_event_id, 0);
     if (!r.gap) {
       cursor_ = *last_event_id;
-      bool terminal;
-      {
-        std::lock_guard lock(job_->mu);
-        terminal = is_terminal(job_->status);
-      }
+      const bool terminal = is_terminal(manager_.snapshot(*job_).status);
       // Resuming after the end of a finished job: repeat the end, don't hang.
-      if (terminal && job_->events.last_id() == cursor_) take_snapshot();
+      if (terminal && job_->events().last_id() == cursor_) take_snapshot();
       return;
     }
   }
@@ -34,8 +47,8 @@ JobEventStream::JobEventStream(std::shared_ptr<Job> job, const JobManager& manag
 }
 
 void JobEventStream::take_snapshot() {
-  pending_ = manager_.snapshot_events(*job_);
-  cursor_ = pending_.empty() ? job_->events.last_id() : pending_.front().id;
+  pending_ = snapshot_events(manager_.snapshot(*job_));
+  cursor_ = pending_.empty() ? job_->events().last_id() : pending_.front().id;
 }
 
 bool JobEventStream::emit(const Event& e, std::string& out) {
@@ -57,7 +70,7 @@ bool JobEventStream::poll(std::string& out) {
     }
   }
   for (int round = 0; round < 2; ++round) {
-    const EventLog::Read r = job_->events.read_after(cursor_, 256);
+    const EventLog::Read r = job_->events().read_after(cursor_, 256);
     if (r.gap) {
       // This watcher fell behind the replay buffer: start over from a snapshot.
       take_snapshot();
@@ -86,7 +99,7 @@ void JobEventStream::on_ready(std::function<void()> wake) {
     wake();
     return;
   }
-  if (!job_->events.wait(cursor_, wake)) wake();
+  if (!job_->events().wait(cursor_, wake)) wake();
 }
 
 std::string JobEventStream::heartbeat() const { return format_ == StreamFormat::sse ? ": keep-alive\n\n" : ""; }

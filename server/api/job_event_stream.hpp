@@ -14,10 +14,14 @@ namespace tally {
 
 class Job;
 class JobManager;
+struct JobSnapshot;
 
 enum class StreamFormat { sse, ndjson };
 
 std::string format_event(const Event& e, StreamFormat format);
+// What a new or resuming watcher starts with: state + progress (+ end), built
+// from one snapshot by the protocol layer's builders.
+std::vector<Event> snapshot_events(const JobSnapshot& job);
 
 class JobEventStream final : public EventStream {
  public:

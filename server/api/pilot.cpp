@@ -8,8 +8,8 @@
 #include <stop_token>
 #include <thread>
 
+#include "common/engine/forecast.hpp"
 #include "common/engine/local_executor.hpp"
-#include "common/stats/confidence.hpp"
 
 namespace tally {
 
@@ -35,19 +35,11 @@ json run_pilot(const JobDefinition& job, const PilotOptions& options) {
     cv.wait_until(lock, st, hard, [] { return false; });
     if (!st.stop_requested()) cancel = true;
   });
-  bool cut = false;
-  std::vector<BlockResult> results;
-  while (!runner.finished() && clock::now() < soft) {
-    const std::vector<Block> blocks = runner.plan_pass();
-    if (blocks.empty()) break;
-    const auto p0 = clock::now();
-    if (!run_blocks(runner.kernel(), blocks, options.threads, results, &cancel, runner.pass_input())) {
-      cut = true;
-      break;
-    }
-    runner.commit_pass(std::move(results), std::chrono::duration<double>(clock::now() - p0).count());
-    results = {};
-  }
+  LocalRunOptions run;
+  run.threads = options.threads;
+  run.cancel = &cancel;
+  run.keep_going = [&] { return clock::now() < soft; };
+  const bool cut = !run_local(runner, run);
   watchdog.request_stop();
   const double elapsed = std::chrono::duration<double>(clock::now() - t0).count();
 
@@ -71,32 +63,23 @@ json run_pilot(const JobDefinition& job, const PilotOptions& options) {
   const double job_rate = rate * std::max(1u, options.parallelism) / std::max(1u, options.threads);
   pilot["job_samples_per_second"] = job_rate;
   if (s.passes > 0 && rate > 0) {
-    const double inf = std::numeric_limits<double>::infinity();
-    double best_s = inf;
+    // The one forecast, for a job that starts from zero at the job's rate.
+    const Forecast f = forecast(rule, options.caps, err, 0, 0.0, job_rate);
+    double best_s = std::numeric_limits<double>::infinity();
     std::string fires;
     json by_rule = json::object();
-    auto consider = [&](const char* name, double samples, double seconds) {
-      by_rule[name] = {{"samples", finite_or_null(samples)}, {"seconds", finite_or_null(seconds)}};
-      if (seconds < best_s) {
-        best_s = seconds;
+    auto consider = [&](const char* name, const std::optional<RuleForecast>& rf) {
+      if (!rf) return;
+      by_rule[name] = {{"samples", finite_or_null(rf->samples)}, {"seconds", finite_or_null(rf->seconds)}};
+      if (rf->seconds < best_s) {
+        best_s = rf->seconds;
         fires = name;
       }
     };
-    if (rule.has_error_target() && std::isfinite(err.sigma)) {
-      double need = inf;
-      if (rule.abs_error > 0) need = std::min(need, samples_for_half_width(err.sigma, rule.abs_error, rule.confidence));
-      if (rule.rel_error > 0 && err.mean != 0.0) {
-        need = std::min(need, samples_for_half_width(err.sigma, rule.rel_error * std::fabs(err.mean), rule.confidence));
-      }
-      need = std::max(need, static_cast<double>(rule.min_samples));
-      consider("error_target", need, need / job_rate);
-    }
-    if (rule.max_samples > 0) {
-      consider("max_samples", static_cast<double>(rule.max_samples), static_cast<double>(rule.max_samples) / job_rate);
-    }
-    if (rule.time_budget_s > 0) consider("time_budget", rule.time_budget_s * job_rate, rule.time_budget_s);
-    const double cap_s = std::min(options.caps.max_seconds, static_cast<double>(options.caps.max_samples) / job_rate);
-    consider("job_cap", cap_s * job_rate, cap_s);
+    consider("error_target", f.error_target);
+    consider("max_samples", f.max_samples);
+    consider("time_budget", f.time_budget);
+    consider("job_cap", f.job_cap);
     pred = {{"stops_by", fires},
             {"samples", finite_or_null(best_s * job_rate)},
             {"seconds", finite_or_null(best_s)},

@@ -2,8 +2,13 @@
 // Turns an HttpRequest into an HttpResponse: routing, content negotiation, JSON
 // parsing with a depth pre-scan, and the one place that maps failures (SpecError,
 // JobError, HttpError) to statuses and problem+json bodies. No sockets here.
+// The route bodies live beside it: job_routes.cpp, image_routes.cpp (and the
+// health/metrics/openapi routes in add_routes). Routes read JobSnapshots.
 #include <atomic>
+#include <chrono>
 #include <functional>
+#include <map>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <string>
 
@@ -30,6 +35,22 @@ struct HandlerConfig {
   std::function<std::string()> extra_metrics;
 };
 
+// GET /v1/jobs/{id} bodies, kept until the job changes (its version) and, for a
+// running job, at most 1 s (its timing fields follow the clock). Thread-safe.
+class StatusCache {
+ public:
+  std::string body(const JobSnapshot& job, const std::function<std::string()>& build);
+
+ private:
+  struct Entry {
+    uint64_t version = 0;
+    std::string body;
+    std::chrono::steady_clock::time_point at{};
+  };
+  std::mutex mu_;
+  std::map<std::string, Entry> entries_;
+};
+
 class RequestHandler {
  public:
   RequestHandler(JobManager& manager, Metrics& metrics, HandlerConfig config);
@@ -44,7 +65,6 @@ class RequestHandler {
  private:
   void add_routes();
   nlohmann::json parse_json_body(const HttpRequest& request) const;
-  std::shared_ptr<Job> job_or_404(const std::string& id) const;
 
   HttpResponse post_job(const HttpRequest&, const PathParams&);
   HttpResponse list_jobs(const HttpRequest&, const PathParams&);
@@ -62,6 +82,7 @@ class RequestHandler {
   Router router_;
   std::atomic<bool> ready_{true};
   std::atomic<unsigned> pilots_{0};
+  StatusCache status_cache_;
 };
 
 // The OpenAPI 3.1 document (docs/openapi.json, embedded at build time).

@@ -61,6 +61,16 @@ long long RValue::as_int() const {
   throw RedisReplyError(fmt::format("expected an integer reply, got \"{}\"", str));
 }
 
+std::optional<long long> RValue::to_int() const noexcept {
+  if (type == Type::integer) return integer;
+  if (type == Type::string || type == Type::status) {
+    long long v = 0;
+    auto [p, ec] = std::from_chars(str.data(), str.data() + str.size(), v);
+    if (ec == std::errc() && p == str.data() + str.size()) return v;
+  }
+  return std::nullopt;
+}
+
 std::string RedisUrl::display() const {
   if (!unix_path.empty()) return "unix://" + unix_path;
   return fmt::format("redis://{}{}:{}/{}", user.empty() ? "" : user + "@", host, port, db);

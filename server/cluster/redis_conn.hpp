@@ -48,6 +48,8 @@ struct RValue {
   bool is_array() const { return type == Type::array; }
   // A string or integer reply as an integer (0 for nil); throws on other types.
   long long as_int() const;
+  // The same without throwing: nullopt for anything that is not an integer.
+  std::optional<long long> to_int() const noexcept;
 };
 
 class RedisConn {

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <set>
 
+#include "common/log/log.hpp"
 #include "server/cluster/protocol.hpp"
 #include "server/cluster/wire.hpp"
 
@@ -59,7 +60,7 @@ void RedisExecutor::add(ExecutorJob ej, PassWork first_pass) {
   }
   const std::string id = ej.id;
   if (!asset_error.empty()) {
-    fmt::print(stderr, "tally-server: job {}: {}\n", id, asset_error);
+    log::job(log::Level::error, id, "{}", asset_error);
     if (cb_.failed) cb_.failed(id, asset_error);
     return;
   }
@@ -151,16 +152,16 @@ bool RedisExecutor::connect() {
     }
     if (restarted) {
       counters_.republished += jobs_.size();
-      fmt::print(stderr, "tally-server: redis restarted (run_id changed): republishing {} job(s)\n", jobs_.size());
+      log::warn("redis restarted (run_id changed): republishing {} job(s)", jobs_.size());
     }
-    if (not_ready_) fmt::print(stderr, "tally-server: redis at {} is reachable\n", cfg_.url.display());
+    if (not_ready_) log::info("redis at {} is reachable", cfg_.url.display());
     not_ready_.reset();
     return true;
   } catch (const RedisIoError& e) {
     conn_.reset();
     std::lock_guard lock(mu_);
     const std::string reason = fmt::format("redis unreachable at {}: {}", cfg_.url.display(), e.what());
-    if (!not_ready_ || *not_ready_ != reason) fmt::print(stderr, "tally-server: {}; jobs are paused\n", reason);
+    if (!not_ready_ || *not_ready_ != reason) log::warn("{}; jobs are paused", reason);
     not_ready_ = reason;
     return false;
   }
@@ -183,10 +184,10 @@ void RedisExecutor::loop() {
       conn_.reset();
       std::lock_guard lock(mu_);
       not_ready_ = fmt::format("redis unreachable at {}: {}", cfg_.url.display(), e.what());
-      fmt::print(stderr, "tally-server: {}; jobs are paused\n", *not_ready_);
+      log::warn("{}; jobs are paused", *not_ready_);
     } catch (const std::exception& e) {
       // A reply we did not expect (e.g. a key of the wrong type): log, retry later.
-      fmt::print(stderr, "tally-server: cluster coordinator: {}\n", e.what());
+      log::error("cluster coordinator: {}", e.what());
       std::unique_lock lock(mu_);
       cv_.wait_for(lock, std::chrono::milliseconds(200), [&] { return stopping_; });
     }
@@ -397,7 +398,7 @@ void RedisExecutor::poll(const std::vector<std::string>& ids) {
     switch (o.what) {
       case Outcome::merge: merge(o.id); break;
       case Outcome::fail:
-        fmt::print(stderr, "tally-server: job {}: {}\n", o.id, o.error);
+        log::job(log::Level::error, o.id, "{}", o.error);
         leave(o.id, true, o.error);
         break;
       case Outcome::republish: {
@@ -405,7 +406,7 @@ void RedisExecutor::poll(const std::vector<std::string>& ids) {
         if (auto it = jobs_.find(o.id); it != jobs_.end()) {
           it->second->published = false;
           counters_.republished++;
-          fmt::print(stderr, "tally-server: job {}: its pass vanished from Redis; republishing\n", o.id);
+          log::job(log::Level::warn, o.id, "its pass vanished from Redis; republishing");
         }
         break;
       }
@@ -456,7 +457,7 @@ void RedisExecutor::merge(const std::string& id) {
   }
   if (error.empty() && std::find(seen.begin(), seen.end(), false) != seen.end()) return;  // not complete yet
   if (!error.empty()) {
-    fmt::print(stderr, "tally-server: job {}: {}\n", id, error);
+    log::job(log::Level::error, id, "{}", error);
     leave(id, true, error);
     return;
   }
@@ -467,8 +468,8 @@ void RedisExecutor::merge(const std::string& id) {
       const double secs = m.elems.at(0).is_nil() ? 0.0 : std::stod(m.elems[0].str);
       const long long blocks = m.elems.at(1).as_int();
       if (secs > 0 && blocks > 0) job->block_seconds = secs / static_cast<double>(blocks);
-    } catch (const std::exception&) {
-      // no measurement yet: entries stay one block long
+    } catch (const std::exception& e) {
+      log::job(log::Level::debug, id, "no block time measured yet ({}): entries stay one block long", e.what());
     }
   }
   // The pass is merged: its stream, inputs and results go. Digests stay a few passes
@@ -613,11 +614,7 @@ void RedisExecutor::refresh() {
     if (pend.is_array() && !pend.elems.empty() && pend.elems[0].type == RValue::Type::integer) {
       inflight = static_cast<uint64_t>(pend.elems[0].integer);
     }
-    uint64_t redelivered = 0;
-    try {
-      redelivered = static_cast<uint64_t>(red.as_int());
-    } catch (const std::exception&) {
-    }
+    const uint64_t redelivered = static_cast<uint64_t>(red.to_int().value_or(0));
     const uint64_t done = stored.type == RValue::Type::integer ? static_cast<uint64_t>(stored.integer) : 0;
     ExecutorStats::JobBlocks b;
     b.in_flight = std::min<uint64_t>(p.n - std::min<uint64_t>(p.n, done), inflight * p.k);
@@ -628,13 +625,7 @@ void RedisExecutor::refresh() {
   std::unique_lock lock(mu_);
   workers_ = std::move(ws);
   if (c.is_array() && c.elems.size() == 5) {
-    auto v = [&](size_t i) -> uint64_t {
-      try {
-        return static_cast<uint64_t>(c.elems[i].as_int());
-      } catch (const std::exception&) {
-        return 0;
-      }
-    };
+    auto v = [&](size_t i) -> uint64_t { return static_cast<uint64_t>(c.elems[i].to_int().value_or(0)); };
     counters_.first = v(0);
     counters_.dup_equal = v(1);
     counters_.dup_differ = v(2);
@@ -648,7 +639,7 @@ void RedisExecutor::refresh() {
   }
   lock.unlock();
   for (const auto& [id, error] : crashed) {
-    fmt::print(stderr, "tally-server: job {}: {}\n", id, error);
+    log::job(log::Level::error, id, "{}", error);
     leave(id, true, error);
   }
 }

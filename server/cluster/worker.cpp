@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "common/jobs/job_factory.hpp"
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "server/cluster/assets.hpp"
 #include "server/cluster/protocol.hpp"
 #include "server/cluster/wire.hpp"
@@ -126,19 +126,14 @@ class Worker {
       if (!conn) conn = std::make_unique<RedisConn>(cfg_.url, 1000ms);
       conn->cmd({"ZREM", kWorkers, cfg_.name});
       conn->cmd({"DEL", worker_key(cfg_.name)});
-    } catch (const std::exception&) {
-      // Redis is gone: the entry expires by itself.
+    } catch (const std::exception& e) {
+      log(fmt::format("could not leave the registry ({}); the entry expires by itself", e.what()));
     }
   }
 
   void beat(RedisConn& conn, const std::string& keep_sha) {
     const RValue l = conn.cmd({"HGET", "tally:config", "lease_ms"});
-    if (!l.is_nil()) {
-      try {
-        lease_ms_ = std::max<long long>(100, l.as_int());
-      } catch (const std::exception&) {
-      }
-    }
+    if (auto v = l.to_int()) lease_ms_ = std::max<long long>(100, *v);
     std::vector<Held> held;
     {
       std::lock_guard lock(mu_);

@@ -1,59 +1,68 @@
 #pragma once
-// One job as the server holds it: the immutable submission, the compiled
-// definition, the runner (guarded by `mu`), its lifecycle state and event log.
+// One job as the server holds it: the immutable submission, its event log and
+// its mutable state. The state is private: only the manager (lifecycle) and the
+// recorder (persistence, recovery) touch it, under the job's lock. Everyone else
+// reads a JobSnapshot (JobManager::snapshot) and never locks a job.
 #include <chrono>
 #include <cstdint>
 #include <memory>
 #include <mutex>
 #include <nlohmann/json.hpp>
-#include <optional>
 #include <string>
-#include <string_view>
 
 #include "common/engine/job_definition.hpp"
 #include "common/engine/job_runner.hpp"
+#include "common/protocol/job_snapshot.hpp"
 #include "server/jobs/event_log.hpp"
 
 namespace tally {
 
-enum class JobStatus { queued, running, succeeded, failed, cancelled };
-
-std::string_view job_status_name(JobStatus s);
-std::optional<JobStatus> parse_job_status(std::string_view s);
-inline bool is_terminal(JobStatus s) { return s != JobStatus::queued && s != JobStatus::running; }
-
 class Job {
  public:
-  Job(std::string id_, int64_t seq_, nlohmann::json spec_, int priority_, double created_at_, uint64_t epoch,
+  Job(std::string id, int64_t seq, nlohmann::json spec, int priority, double created_at, uint64_t epoch,
       size_t event_buffer)
-      : id(std::move(id_)), seq(seq_), spec(std::move(spec_)), priority(priority_), created_at(created_at_),
-        events(epoch, event_buffer) {}
+      : id_(std::move(id)), seq_(seq), spec_(std::make_shared<const nlohmann::json>(std::move(spec))),
+        priority_(priority), created_at_(created_at), events_(epoch, event_buffer) {}
 
-  const std::string id;
-  const int64_t seq;
-  const nlohmann::json spec;
-  const int priority;
-  const double created_at;
-  EventLog events;
+  const std::string& id() const { return id_; }
+  int64_t seq() const { return seq_; }
+  const nlohmann::json& spec() const { return *spec_; }
+  int priority() const { return priority_; }
+  double created_at() const { return created_at_; }
+  // Thread-safe by itself (its own lock); the event streams read it.
+  EventLog& events() const { return events_; }
 
-  mutable std::mutex mu;
-  // --- guarded by mu ---
-  std::shared_ptr<const JobDefinition> def;  // null if the stored spec no longer compiles
-  std::unique_ptr<JobRunner> runner;         // null if it could not be restored
-  JobStatus status = JobStatus::queued;
-  std::string error;
-  double started_at = 0, finished_at = 0;
-  nlohmann::json final_result;  // engine part of a finished job's status (also stored)
-  uint64_t version = 1;         // bumped on every change: keys the status cache and saves
-  uint64_t cached_version = 0;
-  std::string cached_status;
-  std::chrono::steady_clock::time_point cached_at{};
-  std::chrono::steady_clock::time_point last_checkpoint{};
-  bool cancel_requested = false;
+ private:
+  friend class JobManager;
+  friend class JobRecorder;
+
+  // The picture routes read; call under mu_.
+  JobSnapshot snapshot_locked() const;
+
+  const std::string id_;
+  const int64_t seq_;
+  const std::shared_ptr<const nlohmann::json> spec_;
+  const int priority_;
+  const double created_at_;
+  mutable EventLog events_;
+
+  mutable std::mutex mu_;
+  // --- guarded by mu_ ---
+  std::shared_ptr<const JobDefinition> def_;  // null if the stored spec no longer compiles
+  std::unique_ptr<JobRunner> runner_;         // null if it could not be restored
+  JobStatus status_ = JobStatus::queued;
+  std::string error_;
+  double started_at_ = 0, finished_at_ = 0;
+  std::shared_ptr<const nlohmann::json> final_result_;  // engine part of a finished job's status (also stored)
+  uint64_t version_ = 1;  // bumped on every change: keys snapshots, the status cache and saves
+  mutable std::shared_ptr<const JobRunner> published_;  // copy of runner_ at published_version_
+  mutable uint64_t published_version_ = 0;
+  std::chrono::steady_clock::time_point last_checkpoint_{};
+  bool cancel_requested_ = false;
 
   // Serialises store writes of this job; a save older than the last one is skipped.
-  std::mutex save_mu;
-  uint64_t saved_version = 0;  // guarded by save_mu
+  std::mutex save_mu_;
+  uint64_t saved_version_ = 0;  // guarded by save_mu_
 };
 
 }  // namespace tally

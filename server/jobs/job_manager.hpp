@@ -1,9 +1,9 @@
 #pragma once
-// Owns every job: admission (running set + bounded queue), the scheduler's pass
-// callbacks (commit, events, checkpoints), cancel/extend, recovery from the store
-// and shutdown. Knows nothing about HTTP: failures are JobError, mapped to
-// statuses by the request handler.
-#include <functional>
+// The job lifecycle state machine: admission (running set + bounded queue),
+// the executor's pass callbacks (commit, events), cancel/extend, shutdown, and
+// the snapshots routes read. Persistence and recovery are the recorder's
+// (job_recorder.hpp); JSON views are the protocol layer's (job_json.hpp). Knows
+// nothing about HTTP: failures are JobError, mapped to statuses by the routes.
 #include <map>
 #include <memory>
 #include <mutex>
@@ -13,13 +13,13 @@
 #include <vector>
 
 #include "common/engine/job_definition.hpp"
-#include "server/jobs/job.hpp"
-#include "server/jobs/job_store.hpp"
+#include "common/protocol/job_snapshot.hpp"
 #include "server/executor/executor.hpp"
+#include "server/jobs/job.hpp"
+#include "server/jobs/job_recorder.hpp"
+#include "server/jobs/job_store.hpp"
 
 namespace tally {
-
-using JobCompiler = std::function<std::unique_ptr<JobDefinition>(const nlohmann::json&, const JobLimits&)>;
 
 class JobError : public std::runtime_error {
  public:
@@ -33,8 +33,7 @@ class JobError : public std::runtime_error {
 
 struct ManagerConfig {
   unsigned workers = 1;
-  JobLimits limits;
-  JobCaps caps;
+  JobLimits limits;          // per-job limits and caps (the one set: common/engine/limits.hpp)
   size_t max_running = 16;   // jobs sharing the workers at once
   size_t max_queued = 256;   // jobs waiting for a running slot
   double checkpoint_interval_s = 0.5;
@@ -67,19 +66,15 @@ class JobManager {
   std::shared_ptr<Job> submit(const nlohmann::json& spec, int priority = 0);
   std::shared_ptr<Job> find(const std::string& id) const;  // null if unknown
   std::vector<std::shared_ptr<Job>> list() const;           // in submission order
+  // The job as it is now, taken under its lock (JobError not_found if unknown).
+  JobSnapshot snapshot(const std::string& id) const;
+  JobSnapshot snapshot(const Job& job) const;
+  std::vector<JobSnapshot> snapshots() const;  // every job, in submission order
   // Queued: cancelled at once; running: at the next chunk boundary. JobError on
   // unknown id (not_found) or a finished job (conflict).
   std::shared_ptr<Job> cancel(const std::string& id);
   // Reopens a finished job with a new rule. JobError: not_found, conflict.
   std::shared_ptr<Job> extend(const std::string& id, const StopRule& rule);
-
-  // The GET /v1/jobs/{id} document (cached until the job changes).
-  std::string status_body(Job& job) const;
-  // `version`, if given, receives the job version the document was built from.
-  nlohmann::json status_json(Job& job, uint64_t* version = nullptr) const;
-  nlohmann::json summary_json(Job& job) const;  // the short form GET /v1/jobs lists
-  // Events a new or resuming watcher starts with: state + progress (+ end).
-  std::vector<Event> snapshot_events(Job& job) const;
 
   // Stop computing, checkpoint every unfinished job, end every event stream.
   void shutdown();
@@ -98,15 +93,13 @@ class JobManager {
   void on_cancelled(const std::string& id);
   void start_queued_locked();
   void job_left_scheduler();
-  // Under job.mu: marks the job finished from its runner, publishes state + end.
+  // Under job.mu_: marks the job finished from its runner, publishes state + end.
   void finish_locked(Job& job, double now);
   void publish_state_locked(Job& job);
-  void persist(Job& job, bool with_checkpoint);
-  nlohmann::json engine_json_locked(const Job& job) const;
 
   ManagerConfig config_;
-  JobStore& store_;
   JobCompiler compiler_;
+  JobRecorder recorder_;
   uint64_t epoch_ = 1;
 
   mutable std::mutex mu_;
@@ -120,10 +113,6 @@ class JobManager {
   std::unique_ptr<Executor> executor_;  // last: its workers call back into us
 };
 
-// RFC 3339 UTC timestamp with milliseconds, or null for 0.
-nlohmann::json time_json(double unix_seconds);
 double unix_now();
-// Bits of channel 0's mean and M2 as hex, for exact comparisons by clients.
-nlohmann::json tally_bits_json(const JobState& state);
 
 }  // namespace tally

@@ -4,7 +4,7 @@
 #include <numbers>
 
 #include "common/integrate/genz.hpp"
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "common/protocol/status_json.hpp"
 #include "integrate/run_support.hpp"
 

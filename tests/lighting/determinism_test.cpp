@@ -5,7 +5,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "lighting/lighting_test_support.hpp"
 
 namespace tally::test {

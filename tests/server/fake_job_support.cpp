@@ -4,7 +4,7 @@
 
 #include <cmath>
 
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "common/protocol/stop_rule_json.hpp"
 
 namespace tally::test {

@@ -1,4 +1,4 @@
-#include "common/json/spec_reader.hpp"
+#include "common/protocol/spec_reader.hpp"
 
 #include <cmath>
 #include <fmt/format.h>

@@ -1,0 +1,32 @@
+#pragma once
+// The one set of per-job limits, configured by whoever runs jobs (server flags,
+// CLI defaults). JobLimits is what spec readers check a spec against (a spec over
+// a limit is refused up front with a SpecError naming the field, never half-run);
+// JobCaps is the part the runner enforces while a job runs, derived from it.
+#include <cstddef>
+#include <cstdint>
+#include <string>
+
+namespace tally {
+
+// Hard caps the runner enforces on one job (samples, compute seconds).
+struct JobCaps {
+  uint64_t max_samples = 100'000'000'000ULL;
+  double max_seconds = 3600.0;
+};
+
+struct JobLimits {
+  size_t max_dimensions = 64;
+  size_t max_channels = size_t{1} << 24;
+  uint64_t max_samples = 100'000'000'000ULL;
+  double max_seconds = 3600.0;
+  size_t max_expression_length = 4096;
+  uint64_t max_pixels = 4096ULL * 4096ULL;
+  uint64_t max_quadrature_points = 1ULL << 26;
+  size_t max_table_size = 1 << 20;  // tabulated densities, inline meshes
+  std::string asset_dir;            // OBJ files for lighting scenes; empty = none allowed
+
+  JobCaps caps() const { return JobCaps{max_samples, max_seconds}; }
+};
+
+}  // namespace tally

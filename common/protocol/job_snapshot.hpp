@@ -1,0 +1,48 @@
+#pragma once
+// An immutable picture of one job, taken by the manager under the job's lock
+// (JobManager::snapshot). Views (job_json.hpp) and routes read it with no lock:
+// the runner, definition and result it points to are never mutated after they
+// are published.
+#include <cstdint>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <string_view>
+
+#include "common/engine/job_definition.hpp"
+#include "common/engine/job_runner.hpp"
+
+namespace tally {
+
+enum class JobStatus { queued, running, succeeded, failed, cancelled };
+
+std::string_view job_status_name(JobStatus s);
+std::optional<JobStatus> parse_job_status(std::string_view s);
+inline bool is_terminal(JobStatus s) { return s != JobStatus::queued && s != JobStatus::running; }
+
+// What the executor says about a running job: cluster mode fills it (docs/cluster.md);
+// the in-process executor leaves it empty, and the views then add nothing.
+struct ExecutorNote {
+  std::string waiting_reason;  // why the job makes no progress now ("": it does)
+  bool has_blocks = false;     // the counts below are known
+  uint64_t pending = 0, in_flight = 0, redelivered = 0;  // blocks of the current pass
+};
+
+struct JobSnapshot {
+  std::string id;
+  int64_t seq = 0;
+  int priority = 0;
+  std::shared_ptr<const nlohmann::json> spec;  // as submitted
+  double created_at = 0, started_at = 0, finished_at = 0;  // unix seconds, 0 = not yet
+  JobStatus status = JobStatus::queued;
+  std::string error;
+  uint64_t version = 0;                          // bumped on every change of the job
+  std::shared_ptr<const JobDefinition> def;      // null if the stored spec no longer compiles
+  std::shared_ptr<const JobRunner> runner;       // at the last pass boundary; null if not restorable
+  std::shared_ptr<const nlohmann::json> final_result;  // engine part of a finished job's status
+  uint64_t last_event_id = 0;                    // the job's event log at the same instant
+  ExecutorNote executor;                         // running jobs in cluster mode
+};
+
+}  // namespace tally

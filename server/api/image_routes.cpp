@@ -1,0 +1,61 @@
+// The image routes: GET /v1/jobs/{id}/tiles/{n}, image.exr, image.png. They read
+// the immutable runner of a JobSnapshot, so encoding never holds a job's lock.
+#include <fmt/format.h>
+
+#include "common/protocol/job_json.hpp"
+#include "server/api/request_handler.hpp"
+#include "server/api/route_support.hpp"
+
+namespace tally {
+
+using nlohmann::json;
+
+namespace {
+
+const ImageSource& image_of(const JobSnapshot& s) {
+  const ImageSource* img = s.def ? s.def->image() : nullptr;
+  if (!img) throw HttpError(404, fmt::format("job {} has no image", s.id));
+  return *img;
+}
+
+}  // namespace
+
+HttpResponse RequestHandler::job_tile(const HttpRequest&, const PathParams& p) {
+  const JobSnapshot s = manager_.snapshot(p.at("id"));
+  const auto n = parse_u64(p.at("n"));
+  const ImageSource& img = image_of(s);
+  if (!n || *n >= img.tile_count()) {
+    throw HttpError(404, fmt::format("tile \"{}\" does not exist; the image has {} tiles", p.at("n"), img.tile_count()));
+  }
+  if (!s.runner) throw HttpError(409, "the job's state is not available");
+  const TileRect rc = img.tile_rect(static_cast<uint32_t>(*n));
+  const ImageSnapshot t = img.snapshot(s.runner->state(), rc);
+  return json_response(200, {{"tile", *n},
+                             {"x", rc.x}, {"y", rc.y}, {"w", rc.w}, {"h", rc.h},
+                             {"pass", s.runner->state().passes},
+                             {"mean", t.rgb},
+                             {"std_error", t.stderr_rgb},
+                             {"samples", t.samples}});
+}
+
+HttpResponse RequestHandler::job_image(const HttpRequest&, const PathParams& p, bool exr) {
+  const JobSnapshot s = manager_.snapshot(p.at("id"));
+  const ImageSource& img = image_of(s);
+  if (!s.runner) throw HttpError(409, "the job's state is not available");
+  if ((exr && !config_.images.exr) || (!exr && !config_.images.png)) {
+    throw HttpError(501, "image encoding is not available in this build");
+  }
+  const ImageSnapshot snap = img.snapshot(s.runner->state());
+  const json meta = {{"job_id", s.id},
+                     {"state", std::string(job_status_name(s.status))},
+                     {"samples", s.runner->state().samples},
+                     {"passes", s.runner->state().passes},
+                     {"spec", *s.spec}};
+  HttpResponse r;
+  r.set_header("Content-Type", exr ? "image/x-exr" : "image/png");
+  r.set_header("Content-Disposition", fmt::format("inline; filename=\"{}.{}\"", s.id, exr ? "exr" : "png"));
+  r.body = exr ? config_.images.exr(snap, meta) : config_.images.png(snap);
+  return r;
+}
+
+}  // namespace tally

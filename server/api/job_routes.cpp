@@ -1,0 +1,145 @@
+// The job routes: POST/GET /v1/jobs, GET/DELETE /v1/jobs/{id}, extend, validate,
+// events. Each reads a JobSnapshot from the manager (never a job's lock) and
+// renders it with the protocol layer's views (common/protocol/job_json.hpp).
+#include <fmt/format.h>
+
+#include "common/protocol/job_json.hpp"
+#include "common/protocol/spec_reader.hpp"
+#include "common/protocol/stop_rule_json.hpp"
+#include "server/api/job_event_stream.hpp"
+#include "server/api/pilot.hpp"
+#include "server/api/request_handler.hpp"
+#include "server/api/route_support.hpp"
+
+namespace tally {
+
+using nlohmann::json;
+
+std::string StatusCache::body(const JobSnapshot& job, const std::function<std::string()>& build) {
+  const auto now = std::chrono::steady_clock::now();
+  {
+    std::lock_guard lock(mu_);
+    auto it = entries_.find(job.id);
+    // The statistics change only at pass boundaries (version); the timing fields
+    // of a running job also change with the clock, so its copy lives at most 1 s.
+    if (it != entries_.end() && it->second.version == job.version &&
+        (is_terminal(job.status) || now - it->second.at < std::chrono::seconds(1))) {
+      return it->second.body;
+    }
+  }
+  std::string body = build();
+  std::lock_guard lock(mu_);
+  Entry& e = entries_[job.id];
+  if (e.version <= job.version) e = Entry{job.version, body, now};
+  return body;
+}
+
+HttpResponse RequestHandler::post_job(const HttpRequest& req, const PathParams&) {
+  const int priority = parse_priority(req);
+  const json spec = parse_json_body(req);
+  auto job = manager_.submit(spec, priority);
+  const JobSnapshot s = manager_.snapshot(*job);
+  HttpResponse r = json_response(202, {{"id", s.id},
+                                       {"state", std::string(job_status_name(s.status))},
+                                       {"links", job_links(s.id, false)}});
+  r.set_header("Location", "/v1/jobs/" + s.id);
+  return r;
+}
+
+HttpResponse RequestHandler::list_jobs(const HttpRequest& req, const PathParams&) {
+  std::optional<JobStatus> filter;
+  if (req.has_query_param("state")) {
+    filter = parse_job_status(req.query_param("state"));
+    if (!filter) {
+      throw HttpError(400, fmt::format("query parameter state must be one of queued, running, succeeded, failed, "
+                                       "cancelled; got \"{}\"", req.query_param("state")));
+    }
+  }
+  json jobs = json::array();
+  for (const JobSnapshot& s : manager_.snapshots()) {
+    if (filter && s.status != *filter) continue;
+    jobs.push_back(summary_json(s));
+  }
+  return json_response(200, {{"jobs", jobs}});
+}
+
+HttpResponse RequestHandler::get_job(const HttpRequest&, const PathParams& p) {
+  const JobSnapshot s = manager_.snapshot(p.at("id"));
+  HttpResponse r;
+  r.set_header("Content-Type", "application/json");
+  r.body = status_cache_.body(s, [&] {
+    const bool image = s.def && s.def->image();
+    std::string body = status_json(s, unix_now(), job_links(s.id, image))
+                           .dump(-1, ' ', false, json::error_handler_t::replace);
+    body.push_back('\n');
+    return body;
+  });
+  return r;
+}
+
+HttpResponse RequestHandler::delete_job(const HttpRequest&, const PathParams& p) {
+  auto job = manager_.cancel(p.at("id"));
+  const JobSnapshot s = manager_.snapshot(*job);
+  // 200 when the job is already cancelled, 202 when it stops at the next chunk boundary.
+  return json_response(s.status == JobStatus::cancelled ? 200 : 202, summary_json(s));
+}
+
+HttpResponse RequestHandler::extend_job(const HttpRequest& req, const PathParams& p) {
+  const json body = parse_json_body(req);
+  const JobSnapshot before = manager_.snapshot(p.at("id"));
+  // The job keeps its confidence and min_samples; the body sets the new targets.
+  const StopRule keep = before.runner ? before.runner->rule() : StopRule{};
+  SpecReader rd(body, "");
+  const StopRule rule = parse_stop_rule(rd, manager_.config().limits, &keep);
+  manager_.extend(before.id, rule);
+  return json_response(202, summary_json(manager_.snapshot(before.id)));
+}
+
+HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathParams&) {
+  const json spec = parse_json_body(req);
+  std::unique_ptr<JobDefinition> def = manager_.compiler()(spec, manager_.config().limits);
+  json out = {{"valid", true},
+              {"kind", std::string(def->kind())},
+              {"plan", def->plan()},
+              {"stop_rule", stop_rule_to_json(def->stop_rule())}};
+  if (pilots_.fetch_add(1) >= config_.max_concurrent_pilots) {
+    pilots_.fetch_sub(1);
+    out["pilot"] = nullptr;
+    out["prediction"] = nullptr;
+    out["note"] = "too many pilots running; the spec is valid but no prediction was made";
+    return json_response(200, out);
+  }
+  PilotOptions po;
+  po.seconds = config_.pilot_seconds;
+  po.caps = manager_.config().limits.caps();
+  po.parallelism = manager_.config().workers;
+  json pilot;
+  try {
+    pilot = run_pilot(*def, po);
+  } catch (...) {
+    pilots_.fetch_sub(1);
+    throw;  // handle() maps it to a problem response
+  }
+  pilots_.fetch_sub(1);
+  out["pilot"] = pilot["pilot"];
+  out["prediction"] = pilot["prediction"];
+  return json_response(200, out);
+}
+
+HttpResponse RequestHandler::job_events(const HttpRequest& req, const PathParams& p) {
+  auto job = manager_.find(p.at("id"));
+  if (!job) throw HttpError(404, fmt::format("no job with id \"{}\"", p.at("id")));
+  const std::string_view accept = req.header("accept");
+  const StreamFormat fmt = accept.find("application/x-ndjson") != std::string_view::npos ? StreamFormat::ndjson
+                                                                                          : StreamFormat::sse;
+  std::optional<uint64_t> last = parse_u64(req.header("last-event-id"));
+  if (!last && req.has_query_param("last_event_id")) last = parse_u64(req.query_param("last_event_id"));
+  HttpResponse r;
+  r.set_header("Content-Type", fmt == StreamFormat::ndjson ? "application/x-ndjson" : "text/event-stream");
+  r.set_header("Cache-Control", "no-cache");
+  r.set_header("X-Accel-Buffering", "no");
+  r.stream = std::make_shared<JobEventStream>(job, manager_, fmt, last);
+  return r;
+}
+
+}  // namespace tally

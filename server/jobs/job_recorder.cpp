@@ -1,0 +1,125 @@
+#include "server/jobs/job_recorder.hpp"
+
+#include <fmt/format.h>
+
+#include "common/engine/checkpoint.hpp"
+#include "common/log/log.hpp"
+#include "common/protocol/spec_reader.hpp"
+#include "common/protocol/stop_rule_json.hpp"
+
+namespace tally {
+
+using nlohmann::json;
+
+namespace {
+std::string dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
+double unix_now() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+}  // namespace
+
+void JobRecorder::persist(Job& job, bool with_checkpoint) {
+  StoredJob s;
+  uint64_t version;
+  {
+    std::lock_guard lock(job.mu_);
+    version = job.version_;
+    s.id = job.id_;
+    s.seq = job.seq_;
+    s.spec = dump(*job.spec_);
+    s.priority = job.priority_;
+    s.state = std::string(job_status_name(job.status_));
+    s.stop_rule = job.runner_ ? dump(stop_rule_to_json(job.runner_->rule())) : std::string("{}");
+    s.error = job.error_;
+    if (is_terminal(job.status_) && job.final_result_ && !job.final_result_->is_null()) {
+      s.result = dump(*job.final_result_);
+    }
+    if (with_checkpoint && job.runner_) s.checkpoint = encode_checkpoint(job.runner_->state());
+    s.created_at = job.created_at_;
+    s.started_at = job.started_at_;
+    s.finished_at = job.finished_at_;
+  }
+  std::lock_guard save_lock(job.save_mu_);
+  if (version < job.saved_version_) return;  // a newer state is already stored
+  job.saved_version_ = version;
+  try {
+    store_.save(s);
+  } catch (const std::exception& e) {
+    // The job keeps running; the store's health shows on /readyz and here.
+    log::job(log::Level::warn, job.id_, "saving the job failed; a restart would resume it from an older state: {}",
+             e.what());
+  }
+}
+
+JobRecorder::Recovered JobRecorder::recover() {
+  Recovered out;
+  out.epoch = store_.next_epoch();
+  std::vector<StoredJob> rows = store_.load_all();
+  std::vector<std::shared_ptr<Job>> to_save;
+  for (StoredJob& row : rows) {
+    json spec;
+    try {
+      spec = json::parse(row.spec);
+    } catch (const std::exception& e) {
+      log::job(log::Level::warn, row.id, "stored spec is not JSON ({}); it is kept as text and cannot run",
+               e.what());
+      spec = row.spec;
+    }
+    auto job = std::make_shared<Job>(row.id, row.seq, spec, row.priority, row.created_at, out.epoch, event_buffer_);
+    const auto status = parse_job_status(row.state).value_or(JobStatus::failed);
+    job->status_ = status;
+    job->error_ = row.error;
+    job->started_at_ = row.started_at;
+    job->finished_at_ = row.finished_at;
+    if (!row.result.empty()) {
+      try {
+        job->final_result_ = std::make_shared<const json>(json::parse(row.result));
+      } catch (const std::exception& e) {
+        log::job(log::Level::warn, row.id,
+                 "stored result is unreadable ({}); its status is rebuilt from the checkpoint", e.what());
+      }
+    }
+    std::string problem;
+    try {
+      job->def_ = compiler_(spec, limits_);
+      StopRule rule = job->def_->stop_rule();
+      try {
+        const json rj = json::parse(row.stop_rule);
+        if (rj.is_object() && !rj.empty()) {
+          SpecReader rd(rj, "/stop");
+          rule = parse_stop_rule(rd, limits_);
+        }
+      } catch (const std::exception& e) {
+        log::job(log::Level::warn, row.id,
+                 "stored stop rule is unreadable ({}); the spec's rule applies (an extend is lost)", e.what());
+      }
+      if (row.checkpoint) {
+        JobState st = decode_checkpoint(*row.checkpoint);
+        job->runner_ = std::make_unique<JobRunner>(job->def_->kernel(), rule, limits_.caps(), std::move(st));
+      } else {
+        job->runner_ = std::make_unique<JobRunner>(job->def_->kernel(), rule, limits_.caps());
+      }
+    } catch (const CheckpointError& e) {
+      problem = fmt::format("the job's checkpoint is corrupt and it cannot resume: {}", e.what());
+    } catch (const SpecError& e) {
+      problem = fmt::format("the stored spec no longer compiles: {}", e.what());
+    } catch (const std::exception& e) {
+      problem = fmt::format("the job could not be restored: {}", e.what());
+    }
+    if (!problem.empty()) {
+      job->runner_.reset();
+      if (!is_terminal(status)) {
+        job->status_ = JobStatus::failed;
+        job->error_ = problem;
+        job->finished_at_ = unix_now();
+        to_save.push_back(job);
+      }
+      log::job(log::Level::warn, job->id(), "{}", problem);
+    }
+    out.jobs.push_back(std::move(job));
+  }
+  for (auto& j : to_save) persist(*j, false);
+  return out;
+}
+
+}  // namespace tally
