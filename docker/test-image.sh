@@ -81,8 +81,11 @@ log "podman $(podman --version | awk '{print $3}'), CONTAINERS_CONF=${CONTAINERS
 
 # --- base image (no registry here: debootstrap from the Debian mirror) -------------
 if ! podman image exists "$base_image"; then
-  mirror=$(awk '/^URIs:/{print $2; exit}' /etc/apt/sources.list.d/debian.sources 2>/dev/null || true)
-  mirror=${mirror:-http://deb.debian.org/debian}
+  # The Debian mirror this machine's apt already uses (deb822 .sources or one-line .list files).
+  mirror=$(cat /etc/apt/sources.list.d/debian.sources /etc/apt/sources.list.d/*.sources 2>/dev/null | awk '/^URIs:/{print $2; exit}' || true)
+  [ -n "$mirror" ] || mirror=$(cat /etc/apt/sources.list /etc/apt/sources.list.d/*.list 2>/dev/null |
+    awk '$1 == "deb" {for (i = 2; i <= NF; i++) if ($i ~ /^[a-z+]+:\/\//) {print $i; exit}}' || true)
+  [ -n "$mirror" ] || die "no Debian mirror in /etc/apt/sources.list{,.d}: configure apt first"
   log "creating $base_image with debootstrap from $mirror"
   timeout 1200 debootstrap --variant=minbase bookworm "$work/rootfs" "$mirror" >"$work/debootstrap.log" 2>&1 ||
     { tail -20 "$work/debootstrap.log"; die "debootstrap failed"; }
@@ -178,6 +181,9 @@ wait_healthy() {  # name -> 0 when the image's HEALTHCHECK passes; bounded by 30
   done
   return 1
 }
+server_rss() {  # name -> VmRSS of tally-server in the container, kB
+  podman exec "$1" sh -c 'for p in /proc/[0-9]*; do [ "$(cat $p/comm 2>/dev/null)" = tally-server ] && grep VmRSS $p/status; done' 2>/dev/null | awk '{print $2}'
+}
 status_json() { "$cli" get "$1" --json --server "$url"; }
 field() {  # json-file path.to.field
   python3 -c 'import json,sys
@@ -191,6 +197,7 @@ read -r startup1 podstart1 < <(wait_ready "$name1") || true
 [ -n "${startup1:-}" ] || die "container did not become ready within 60 s"
 pass "start-up: ${startup1}s from podman start to /readyz 200 (podman start itself: ${podstart1}s; port $port, loopback only)"
 log "server log: $(podman logs "$name1" 2>&1 | head -1)"
+log "idle tally-server RSS: $(server_rss "$name1") kB"
 if ! podman exec "$name1" /usr/local/bin/tally --help 2>&1 | grep -q ' health'; then
   fail "HEALTHCHECK: the image's CLI has no 'health' command (client/main.cpp must call add_health_command)"
 elif wait_healthy "$name1"; then
@@ -225,6 +232,30 @@ if [ "$state" = succeeded ] && python3 -c 'import math,sys; m,s=map(float,sys.ar
 else
   fail "job result: state=$state mean=$mean std_error=$se"
 fi
+
+# An image job: its EXR and PNG come from the image module, loaded on this first image.
+python3 - "$repo/examples/lecture_lighting_image.json" >"$work/image.json" <<'EOF'
+import json, sys
+spec = json.load(open(sys.argv[1]))
+spec["scene"]["camera"]["resolution"] = [32, 24]
+spec["query"] = {"type": "image", "max_depth": 2, "tile_size": 16}
+spec["stop"] = {"max_samples": 8}
+print(json.dumps(spec))
+EOF
+if timeout 300 "$cli" submit "$work/image.json" --watch --server "$url" >"$work/image.out" 2>/dev/null &&
+   ijob=$(head -1 "$work/image.out") &&
+   timeout 60 "$cli" get "$ijob" --image "$work/out.exr" --server "$url" >/dev/null &&
+   timeout 60 "$cli" get "$ijob" --image "$work/out.png" --server "$url" >/dev/null &&
+   img=$(PYTHONPATH="$repo/client/python" python3 -c 'import sys; from tally_client import decode_exr
+im = decode_exr(open(sys.argv[1], "rb").read()); png = open(sys.argv[2], "rb").read(8)
+assert png == b"\x89PNG\r\n\x1a\n", png
+assert (im.width, im.height) == (32, 24) and set(im.samples_flat) == {8.0} and sum(im.mean_flat) > 0
+print(f"{im.width}x{im.height}, 8 spp, mean radiance {sum(im.mean_flat) / len(im.mean_flat):.4f}")' "$work/out.exr" "$work/out.png"); then
+  pass "image job $ijob: EXR ($img) and PNG written by the image module"
+else
+  fail "image job: EXR/PNG output failed: $(tail -3 "$work/image.out" 2>/dev/null)"
+fi
+log "tally-server RSS after an integration and an image job: $(server_rss "$name1") kB"
 
 # A long job that is still running when the container stops.
 cat >"$work/long.json" <<'EOF'

@@ -18,6 +18,7 @@
 #include "server/jobs/job_store.hpp"
 #include "server/http/listen_address.hpp"
 #include "server/api/metrics.hpp"
+#include "server/api/problem.hpp"
 #include "server/api/request_handler.hpp"
 
 #if __has_include("common/image/image_io.hpp")
@@ -92,8 +93,21 @@ int main(int argc, char** argv) {
   http.port = addr->port;
   mc.workers = workers > 0 ? workers : default_worker_count();
 #ifdef TALLY_HAVE_IMAGE_IO
-  hc.images.exr = [](const ImageSnapshot& s, const nlohmann::json& meta) { return encode_exr(s, meta); };
-  hc.images.png = [](const ImageSnapshot& s) { return encode_png(s); };
+  // The image module is loaded on the first image; without it the image routes answer 501.
+  hc.images.exr = [](const ImageSnapshot& s, const nlohmann::json& meta) {
+    try {
+      return encode_exr(s, meta);
+    } catch (const ImageModuleUnavailable& e) {
+      throw HttpError(501, e.what());
+    }
+  };
+  hc.images.png = [](const ImageSnapshot& s) {
+    try {
+      return encode_png(s);
+    } catch (const ImageModuleUnavailable& e) {
+      throw HttpError(501, e.what());
+    }
+  };
 #endif
 
   cluster::RedisExecutor* cluster_executor = nullptr;

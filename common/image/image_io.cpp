@@ -1,20 +1,97 @@
 #include "common/image/image_io.hpp"
 
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
+#include <dlfcn.h>
 #include <fmt/format.h>
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <fstream>
 #include <stdexcept>
+#include <system_error>
 #include <vector>
+
+#include "common/image/image_module_abi.hpp"
 
 namespace tally {
 
 namespace {
 
-namespace OIIO = OIIO_NAMESPACE;
+constexpr const char* kModuleFile = "libtally_image.so";
+
+struct LoadedModule {
+  const tally_image_api* api = nullptr;
+  std::string path;
+  std::string error;  // why api is null
+};
+
+std::vector<std::filesystem::path> module_candidates() {
+  std::vector<std::filesystem::path> out;
+  if (const char* env = std::getenv("TALLY_IMAGE_MODULE"); env != nullptr && *env != '\0') {
+    out.emplace_back(env);
+    return out;  // an explicit choice is the only one tried
+  }
+  std::error_code ec;
+  const std::filesystem::path exe = std::filesystem::read_symlink("/proc/self/exe", ec);
+  if (!ec) {
+    out.push_back(exe.parent_path() / kModuleFile);                          // next to the binary
+    out.push_back(exe.parent_path().parent_path() / "lib" / "tally" / kModuleFile);  // <prefix>/bin -> <prefix>/lib/tally
+  }
+#ifdef TALLY_IMAGE_MODULE_INSTALL_DIR
+  out.push_back(std::filesystem::path(TALLY_IMAGE_MODULE_INSTALL_DIR) / kModuleFile);
+#endif
+#ifdef TALLY_IMAGE_MODULE_BUILD_DIR
+  out.push_back(std::filesystem::path(TALLY_IMAGE_MODULE_BUILD_DIR) / kModuleFile);
+#endif
+  return out;
+}
+
+LoadedModule load_module() {
+  LoadedModule m;
+  std::string looked;
+  for (const auto& path : module_candidates()) {
+    std::error_code ec;
+    if (!std::filesystem::exists(path, ec)) {
+      looked += (looked.empty() ? "" : ", ") + path.string();
+      continue;
+    }
+    void* handle = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
+    if (handle == nullptr) {
+      const char* why = dlerror();
+      m.error = fmt::format("cannot load the image module {}: {}", path.string(), why ? why : "unknown error");
+      return m;
+    }
+    using Entry = const tally_image_api* (*)();
+    auto entry = reinterpret_cast<Entry>(dlsym(handle, kTallyImageModuleSymbol));
+    const tally_image_api* api = entry ? entry() : nullptr;
+    if (api == nullptr || api->abi_version != kTallyImageAbiVersion) {
+      m.error = fmt::format("{} is not a compatible tally image module (wants ABI {})", path.string(),
+                            kTallyImageAbiVersion);
+      return m;  // the handle stays open: unloading code that may have run is not worth it
+    }
+    m.api = api;
+    m.path = path.string();
+    return m;
+  }
+  m.error = fmt::format("image support is not available: the image module {} was not found; looked in {} (set TALLY_IMAGE_MODULE to its path)",
+                        kModuleFile, looked.empty() ? "no place" : looked);
+  return m;
+}
+
+const LoadedModule& loaded_module() {
+  static const LoadedModule m = load_module();  // once, thread-safe, on the first image
+  return m;
+}
+
+const tally_image_api& api() {
+  const LoadedModule& m = loaded_module();
+  if (m.api == nullptr) throw ImageModuleUnavailable(m.error);
+  return *m.api;
+}
+
+void append_to_string(void* context, const char* data, size_t size) {
+  static_cast<std::string*>(context)->append(data, size);
+}
 
 void check_snapshot(const ImageSnapshot& im) {
   const size_t n = static_cast<size_t>(std::max(im.width, 0)) * static_cast<size_t>(std::max(im.height, 0));
@@ -26,39 +103,6 @@ void check_snapshot(const ImageSnapshot& im) {
   }
 }
 
-void add_metadata(OIIO::ImageSpec& spec, const nlohmann::json& metadata) {
-  if (!metadata.is_object()) return;
-  for (auto it = metadata.begin(); it != metadata.end(); ++it) {
-    const std::string name = "tally:" + it.key();
-    const nlohmann::json& v = it.value();
-    if (v.is_number_integer() || v.is_number_unsigned()) {
-      // EXR has no 64-bit integers: keep exact values as double.
-      const double d = v.get<double>();
-      spec.attribute(name, OIIO::TypeDesc::DOUBLE, &d);
-    } else if (v.is_number()) {
-      const double d = v.get<double>();
-      spec.attribute(name, OIIO::TypeDesc::DOUBLE, &d);
-    } else if (v.is_string()) {
-      spec.attribute(name, v.get<std::string>());
-    } else {
-      spec.attribute(name, v.dump());
-    }
-  }
-}
-
-std::string write_to_memory(const char* fake_name, const OIIO::ImageSpec& spec, const void* data,
-                            OIIO::TypeDesc format) {
-  std::vector<unsigned char> buffer;
-  OIIO::Filesystem::IOVecOutput proxy(buffer);
-  auto out = OIIO::ImageOutput::create(fake_name, &proxy);
-  if (!out) throw std::runtime_error(fmt::format("OpenImageIO: no writer for {}: {}", fake_name, OIIO::geterror()));
-  if (!out->open(fake_name, spec)) throw std::runtime_error("OpenImageIO open: " + out->geterror());
-  if (!out->write_image(format, data)) throw std::runtime_error("OpenImageIO write: " + out->geterror());
-  if (!out->close()) throw std::runtime_error("OpenImageIO close: " + out->geterror());
-  out.reset();
-  return std::string(reinterpret_cast<const char*>(buffer.data()), buffer.size());
-}
-
 void write_file(const std::filesystem::path& path, const std::string& bytes) {
   std::ofstream f(path, std::ios::binary | std::ios::trunc);
   if (!f) throw std::runtime_error(fmt::format("cannot open {} for writing", path.string()));
@@ -68,6 +112,14 @@ void write_file(const std::filesystem::path& path, const std::string& bytes) {
 
 }  // namespace
 
+std::string image_module_path() {
+  const LoadedModule& m = loaded_module();
+  if (m.api == nullptr) throw ImageModuleUnavailable(m.error);
+  return m.path;
+}
+
+std::string image_module_backend() { return api().backend; }
+
 double srgb_oetf(double x) {
   x = std::clamp(x, 0.0, 1.0);
   return x <= 0.0031308 ? 12.92 * x : 1.055 * std::pow(x, 1.0 / 2.4) - 0.055;
@@ -75,33 +127,20 @@ double srgb_oetf(double x) {
 
 std::string encode_exr(const ImageSnapshot& im, const nlohmann::json& metadata) {
   check_snapshot(im);
-  OIIO::ImageSpec spec(im.width, im.height, 7, OIIO::TypeDesc::FLOAT);
-  spec.channelnames = {"R", "G", "B", "StdErr.R", "StdErr.G", "StdErr.B", "SampleCount"};
-  spec.alpha_channel = -1;
-  spec.x = im.x0;
-  spec.y = im.y0;
-  spec.full_x = 0;
-  spec.full_y = 0;
-  spec.full_width = im.full_width > 0 ? im.full_width : im.width;
-  spec.full_height = im.full_height > 0 ? im.full_height : im.height;
-  spec.attribute("compression", "zip");
-  add_metadata(spec, metadata);
-  const size_t n = static_cast<size_t>(im.width) * static_cast<size_t>(im.height);
-  std::vector<float> interleaved(7 * n);
-  for (size_t i = 0; i < n; ++i) {
-    float* px = &interleaved[7 * i];
-    for (int c = 0; c < 3; ++c) {
-      px[c] = im.rgb[3 * i + static_cast<size_t>(c)];
-      px[3 + c] = im.stderr_rgb[3 * i + static_cast<size_t>(c)];
-    }
-    px[6] = im.samples[i];
+  const tally_image_api& a = api();
+  const tally_image_view view{im.x0, im.y0, im.width, im.height, im.full_width, im.full_height,
+                              im.rgb.data(), im.stderr_rgb.data(), im.samples.data()};
+  const std::string meta = metadata.is_object() ? metadata.dump() : std::string("{}");
+  std::string out, error;
+  if (a.encode_exr(&view, meta.c_str(), &append_to_string, &out, &append_to_string, &error) != 0) {
+    throw std::runtime_error(error);
   }
-  return write_to_memory("image.exr", spec, interleaved.data(), OIIO::TypeDesc::FLOAT);
+  return out;
 }
 
 std::string encode_png(const ImageSnapshot& im) {
   check_snapshot(im);
-  OIIO::ImageSpec spec(im.width, im.height, 3, OIIO::TypeDesc::UINT8);
+  const tally_image_api& a = api();
   const size_t n = static_cast<size_t>(im.width) * static_cast<size_t>(im.height);
   std::vector<unsigned char> px(3 * n);
   for (size_t i = 0; i < 3 * n; ++i) {
@@ -109,7 +148,11 @@ std::string encode_png(const ImageSnapshot& im) {
     // NaN (no samples yet) shows as black.
     px[i] = static_cast<unsigned char>(std::lround(255.0 * srgb_oetf(std::isnan(v) ? 0.0 : v)));
   }
-  return write_to_memory("image.png", spec, px.data(), OIIO::TypeDesc::UINT8);
+  std::string out, error;
+  if (a.encode_png_rgb8(im.width, im.height, px.data(), &append_to_string, &out, &append_to_string, &error) != 0) {
+    throw std::runtime_error(error);
+  }
+  return out;
 }
 
 void write_image_files(const ImageSnapshot& image, const nlohmann::json& metadata,

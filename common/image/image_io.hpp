@@ -2,20 +2,33 @@
 // Image files out of an ImageSnapshot: OpenEXR with the estimate, its standard error and
 // the sample count per pixel (what a user needs to judge every pixel), and a tone-mapped
 // 8-bit PNG preview. Used by the server's image routes and the CLI.
+//
+// The encoders live in the image module, libtally_image.so (image_module.cpp, the only
+// code linking OpenImageIO). It is opened with dlopen on the first call here, so
+// binaries that never read or write an image never map OpenImageIO. It is looked for at
+// $TALLY_IMAGE_MODULE (only there, when set), next to the binary, in <binary dir>/../lib/tally,
+// in the install lib dir and in the build tree. Thread-safe: the first call loads it once.
 #include <filesystem>
 #include <nlohmann/json.hpp>
+#include <stdexcept>
 #include <string>
 
 #include "common/engine/image_source.hpp"
 
 namespace tally {
 
+// The image module could not be found or loaded; what() says where it was looked for.
+class ImageModuleUnavailable : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
 // Half-float would lose the standard errors of dim pixels: every channel is 32-bit float.
 // Channels: R, G, B, StdErr.R, StdErr.G, StdErr.B (standard error of the mean),
 // SampleCount (float, so readers do not rescale it). Every member of `metadata` becomes
-// an EXR header attribute "tally:<key>" (numbers as float/double, strings as strings,
+// an EXR header attribute "tally:<key>" (numbers as double, strings as strings,
 // anything else as its JSON text). The snapshot's position in the full image is kept as
-// the data window. Throws std::runtime_error when OpenImageIO fails.
+// the data window. Throws ImageModuleUnavailable, or std::runtime_error when OpenImageIO fails.
 std::string encode_exr(const ImageSnapshot& image, const nlohmann::json& metadata);
 
 // 8-bit sRGB preview: each channel clamped to [0, 1], then the sRGB OETF, rounded.
@@ -29,5 +42,10 @@ double srgb_oetf(double linear);
 void write_image_files(const ImageSnapshot& image, const nlohmann::json& metadata,
                        const std::filesystem::path& exr_path,
                        const std::filesystem::path& png_path);
+
+// Path of the loaded image module, and what it is built on ("OpenImageIO 2.4.7", "OpenEXR
+// 3.1.5 + libpng 1.6.39"). Both load it; both throw ImageModuleUnavailable.
+std::string image_module_path();
+std::string image_module_backend();
 
 }  // namespace tally

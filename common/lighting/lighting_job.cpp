@@ -152,6 +152,7 @@ std::vector<Strategy> parse_estimators(SpecReader& root) {
 std::unique_ptr<JobDefinition> compile_lighting_job(const nlohmann::json& spec, const JobLimits& limits) {
   SpecReader root(spec, "");
   root.string("kind");
+  root.string_or("name", "", 200);  // every kind takes a name (docs/jobs.md)
   auto job = std::make_unique<LightingJob>();
   job->seed_ = root.integer_or("seed", 1, 0, std::numeric_limits<uint64_t>::max());
   const bool full = root.enumeration_or("plan", "auto", {"auto", "full"}) == "full";

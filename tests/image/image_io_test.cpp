@@ -11,6 +11,11 @@
 namespace tally {
 namespace {
 
+constexpr size_t kReferenceExrSize = 1022;
+constexpr uint64_t kReferenceExrHash = 17768501710167138508ULL;  // capDate zeroed
+constexpr size_t kReferencePngSize = 146;
+constexpr uint64_t kReferencePngHash = 3936969893568565922ULL;
+
 ImageSnapshot make_snapshot(int w, int h) {
   ImageSnapshot s;
   s.width = w;
@@ -88,6 +93,37 @@ TEST(ImageIo, WriteFiles) {
   EXPECT_GT(std::filesystem::file_size(dir / "a.exr"), 0u);
   EXPECT_GT(std::filesystem::file_size(dir / "a.png"), 0u);
   std::filesystem::remove_all(dir);
+}
+
+// OpenImageIO stamps EXR files with the time they were written ("capDate", local time
+// "YYYY:MM:DD HH:MM:SS"): zero it so equal images hash equal.
+std::string without_cap_date(std::string exr) {
+  const std::string key("capDate\0string\0", 15);
+  const size_t at = exr.find(key);
+  if (at != std::string::npos && at + key.size() + 4 + 19 <= exr.size()) {
+    exr.replace(at + key.size() + 4, 19, std::string(19, '0'));
+  }
+  return exr;
+}
+
+uint64_t fnv1a(const std::string& bytes) {
+  uint64_t h = 14695981039346656037ULL;
+  for (const unsigned char c : bytes) h = (h ^ c) * 1099511628211ULL;
+  return h;
+}
+
+// Same formats after OpenImageIO moved into the dlopen'ed image module: the bytes equal
+// those of the statically linked encoder of main a314575 (OpenImageIO 2.4, Debian 12),
+// with either module (ctest runs this file once per backend: image.*_module).
+TEST(ImageIo, BytesUnchangedByTheImageModule) {
+  const ImageSnapshot s = make_snapshot(7, 5);
+  const std::string exr = encode_exr(s, {{"spp", 16}, {"estimator", "mis"}, {"seed", 42}});
+  const std::string png = encode_png(s);
+  SCOPED_TRACE("image module: " + image_module_backend() + " at " + image_module_path());
+  EXPECT_EQ(exr.size(), kReferenceExrSize);
+  EXPECT_EQ(fnv1a(without_cap_date(exr)), kReferenceExrHash);
+  EXPECT_EQ(png.size(), kReferencePngSize);
+  EXPECT_EQ(fnv1a(png), kReferencePngHash);
 }
 
 TEST(ImageIo, RejectsInconsistentSnapshot) {

@@ -1,0 +1,321 @@
+"""The tally-server HTTP client (docs/api.md), standard library only."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import socket
+import ssl
+import time
+import urllib.parse
+from dataclasses import dataclass
+from typing import Any, Dict, Iterator, List, Mapping, Optional, Tuple, Type
+
+from .errors import TallyConnectionError, problem_from_response
+from .image import Image, decode_exr, image_from_tiles
+
+__all__ = ["Client", "Event", "TERMINAL_STATES"]
+
+TERMINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
+JsonObject = Dict[str, Any]
+
+# Errors that mean "the connection broke" (as opposed to an HTTP error answer).
+_NETWORK_ERRORS: Tuple[Type[Exception], ...] = (OSError, http.client.HTTPException)
+
+
+@dataclass(frozen=True)
+class Event:
+    """One event of a job's stream: ``state``, ``progress``, ``tile``, ``end`` or ``shutdown``."""
+
+    id: int
+    event: str
+    data: JsonObject
+
+
+class _Response:
+    def __init__(self, status: int, headers: Dict[str, str], body: bytes):
+        self.status = status
+        self.headers = headers
+        self.body = body
+
+    def json(self) -> Any:
+        return json.loads(self.body.decode("utf-8")) if self.body else None
+
+
+class Client:
+    """A connection-per-request client of one tally-server.
+
+    ``url`` is the server's base URL (``http://127.0.0.1:8080``, ``https://host/prefix``).
+    ``token``, when given, is sent as ``Authorization: Bearer <token>``. https uses the
+    system's certificate store (``ssl.create_default_context()``) unless ``ssl_context``
+    is given. ``timeout`` bounds each request's connect and each read, in seconds.
+
+    Every method raises a :class:`~tally_client.errors.ProblemError` subclass for an
+    HTTP error (with the server's ``status``, ``title``, ``detail``, ``pointer``) and
+    :class:`~tally_client.errors.TallyConnectionError` when the server cannot be reached.
+    Instances hold no connection and may be shared between threads.
+    """
+
+    def __init__(self, url: str, token: Optional[str] = None, *, timeout: float = 30.0,
+                 ssl_context: Optional[ssl.SSLContext] = None):
+        parts = urllib.parse.urlsplit(url)
+        if parts.scheme not in ("http", "https") or not parts.hostname:
+            raise ValueError(f"url must be http://host[:port][/prefix] or https://..., got {url!r}")
+        self.url = url.rstrip("/")
+        self.token = token
+        self.timeout = timeout
+        self._https = parts.scheme == "https"
+        self._host = parts.hostname
+        self._port = parts.port or (443 if self._https else 80)
+        self._prefix = parts.path.rstrip("/")
+        self._ssl = ssl_context if ssl_context is not None else (ssl.create_default_context() if self._https else None)
+
+    def __repr__(self) -> str:
+        return f"Client({self.url!r}{', token=...' if self.token else ''})"
+
+    # --- jobs ----------------------------------------------------------------------
+
+    def submit(self, spec: Mapping[str, Any], *, priority: Optional[int] = None) -> str:
+        """Submits a job spec (docs/jobs.md); returns the new job's id. ``priority``: -5..5."""
+        query = {"priority": str(priority)} if priority is not None else None
+        return str(self._json("POST", "/v1/jobs", body=spec, query=query)["id"])
+
+    def validate(self, spec: Mapping[str, Any]) -> JsonObject:
+        """Dry run: the plan, a short pilot and the predicted samples and seconds per rule."""
+        return self._json("POST", "/v1/jobs/validate", body=spec)
+
+    def status(self, job_id: str) -> JsonObject:
+        """The status document of a job (state, estimate, prediction, timing, ...)."""
+        return self._json("GET", f"/v1/jobs/{_segment(job_id)}")
+
+    def list(self, state: Optional[str] = None) -> List[JsonObject]:
+        """Job summaries in submission order, optionally only those in ``state``."""
+        query = {"state": state} if state is not None else None
+        return list(self._json("GET", "/v1/jobs", query=query)["jobs"])
+
+    def cancel(self, job_id: str) -> JsonObject:
+        """Cancels a queued or running job (raises Conflict if it has already finished)."""
+        return self._json("DELETE", f"/v1/jobs/{_segment(job_id)}")
+
+    def extend(self, job_id: str, *, max_samples: Optional[int] = None, abs_error: Optional[float] = None,
+               rel_error: Optional[float] = None, time_budget_s: Optional[float] = None) -> JsonObject:
+        """Reopens a finished job with new targets (totals over the job's life)."""
+        body = {k: v for k, v in (("max_samples", max_samples), ("abs_error", abs_error),
+                                  ("rel_error", rel_error), ("time_budget_s", time_budget_s)) if v is not None}
+        if not body:
+            raise ValueError("extend needs at least one of max_samples, abs_error, rel_error, time_budget_s")
+        return self._json("POST", f"/v1/jobs/{_segment(job_id)}/extend", body=body)
+
+    def wait(self, job_id: str, timeout: Optional[float] = None, *, reconnect_timeout: float = 60.0) -> JsonObject:
+        """Follows the job's event stream until it ends; returns the final status document.
+
+        Raises TimeoutError when ``timeout`` seconds pass first (the job keeps running).
+        A dropped connection is resumed as in :meth:`events`.
+        """
+        deadline = None if timeout is None else time.monotonic() + timeout
+        for ev in self._events(job_id, None, reconnect_timeout, deadline):
+            if ev is not None and ev.event == "end":
+                return self.status(job_id)
+        raise TimeoutError(f"job {job_id} did not finish within {timeout} s")  # pragma: no cover
+
+    def events(self, job_id: str, *, last_event_id: Optional[int] = None,
+               reconnect_timeout: float = 60.0) -> Iterator[Event]:
+        """The job's live events, as a generator; it returns after the ``end`` event.
+
+        A new stream starts with a snapshot (``state``, the latest ``progress``, ``end``
+        if finished). When the connection drops (or the server restarts: ``shutdown``
+        event), the generator reconnects with ``Last-Event-ID`` and carries on with the
+        events after the last one it yielded, retrying for up to ``reconnect_timeout``
+        seconds before raising TallyConnectionError. Pass ``last_event_id`` to resume a
+        stream read earlier.
+        """
+        for ev in self._events(job_id, last_event_id, reconnect_timeout, None):
+            if ev is not None:
+                yield ev
+
+    # --- images --------------------------------------------------------------------
+
+    def tile(self, job_id: str, n: int) -> JsonObject:
+        """One tile of an image job: x, y, w, h, pass, mean, std_error, samples (flat lists)."""
+        return self._json("GET", f"/v1/jobs/{_segment(job_id)}/tiles/{int(n)}")
+
+    def image(self, job_id: str, *, source: str = "tiles") -> Image:
+        """The job's current image (mean, standard error and samples per pixel).
+
+        ``source="tiles"`` assembles it from the tiles endpoint; ``source="exr"`` decodes
+        the server's EXR (one request, plus the ``tally:*`` metadata). Both give the same
+        float32 values. The tiles are read one by one, so on a running job they may come
+        from different passes.
+        """
+        if source == "exr":
+            return decode_exr(self.image_bytes(job_id, "exr"))
+        if source != "tiles":
+            raise ValueError(f"source must be 'tiles' or 'exr', got {source!r}")
+        st = self.status(job_id)
+        geometry = (st.get("plan") or {}).get("image")
+        if not geometry:
+            raise ValueError(f"job {job_id} has no image (its plan has no 'image')")
+        tiles = [self.tile(job_id, n) for n in range(int(geometry["tiles"]))]
+        return image_from_tiles(int(geometry["width"]), int(geometry["height"]), tiles)
+
+    def image_bytes(self, job_id: str, fmt: str = "exr") -> bytes:
+        """The server's image file: ``"exr"`` (float, with errors and counts) or ``"png"`` (preview)."""
+        if fmt not in ("exr", "png"):
+            raise ValueError(f"fmt must be 'exr' or 'png', got {fmt!r}")
+        return self._request("GET", f"/v1/jobs/{_segment(job_id)}/image.{fmt}").body
+
+    # --- HTTP ----------------------------------------------------------------------
+
+    def _connection(self, timeout: float) -> http.client.HTTPConnection:
+        if self._https:
+            return http.client.HTTPSConnection(self._host, self._port, timeout=timeout, context=self._ssl)
+        return http.client.HTTPConnection(self._host, self._port, timeout=timeout)
+
+    def _headers(self, extra: Optional[Mapping[str, str]] = None) -> Dict[str, str]:
+        h = {"Accept": "application/json", "User-Agent": "tally_client-python"}
+        if self.token:
+            h["Authorization"] = f"Bearer {self.token}"
+        if extra:
+            h.update(extra)
+        return h
+
+    def _target(self, path: str, query: Optional[Mapping[str, str]]) -> str:
+        return self._prefix + path + ("?" + urllib.parse.urlencode(query) if query else "")
+
+    def _request(self, method: str, path: str, *, body: Any = None, query: Optional[Mapping[str, str]] = None,
+                 raw_body: Optional[bytes] = None, headers: Optional[Mapping[str, str]] = None) -> _Response:
+        data = raw_body
+        extra: Dict[str, str] = {}
+        if body is not None:
+            data = json.dumps(body).encode("utf-8")
+            extra["Content-Type"] = "application/json"
+        if headers:
+            extra.update(headers)
+        conn = self._connection(self.timeout)
+        try:
+            try:
+                conn.request(method, self._target(path, query), body=data, headers=self._headers(extra))
+                resp = conn.getresponse()
+                payload = resp.read()
+            except _NETWORK_ERRORS as e:
+                raise TallyConnectionError(f"{method} {self.url}{path}: {e}") from e
+            hdrs = {k.lower(): v for k, v in resp.getheaders()}
+        finally:
+            conn.close()
+        if resp.status >= 400:
+            raise problem_from_response(resp.status, payload, hdrs)
+        return _Response(resp.status, hdrs, payload)
+
+    def _json(self, method: str, path: str, **kw: Any) -> JsonObject:
+        out = self._request(method, path, **kw).json()
+        return out if isinstance(out, dict) else {"value": out}
+
+    def _events(self, job_id: str, last_event_id: Optional[int], reconnect_timeout: float,
+                deadline: Optional[float]) -> Iterator[Optional[Event]]:
+        """Events, with None for every comment/heartbeat (lets wait() check its deadline)."""
+        last = last_event_id
+        broken_since: Optional[float] = None
+        delay = 0.05
+        while True:
+            if deadline is not None and time.monotonic() >= deadline:
+                raise TimeoutError(f"job {job_id}: no end event before the deadline")
+            headers = {"Accept": "text/event-stream"}
+            resumed_after = last  # events up to this id were yielded already
+            if last is not None:
+                headers["Last-Event-ID"] = str(last)
+            read_timeout = max(self.timeout, 60.0)  # > the server's 15 s heartbeat
+            if deadline is not None:
+                read_timeout = max(0.05, min(read_timeout, deadline - time.monotonic()))
+            conn = self._connection(read_timeout)
+            ended = False
+            try:
+                try:
+                    conn.request("GET", self._target(f"/v1/jobs/{_segment(job_id)}/events", None),
+                                 headers=self._headers(headers))
+                    resp = conn.getresponse()
+                except _NETWORK_ERRORS as e:
+                    err: Exception = e
+                else:
+                    if resp.status >= 400:
+                        raise problem_from_response(resp.status, resp.read(),
+                                                    {k.lower(): v for k, v in resp.getheaders()})
+                    try:
+                        for ev in _parse_sse(resp):
+                            if ev is None:
+                                yield None
+                                if deadline is not None and time.monotonic() >= deadline:
+                                    raise TimeoutError(f"job {job_id}: no end event before the deadline")
+                                continue
+                            broken_since = None
+                            delay = 0.05
+                            # A resumed stream may start with a fresh snapshot of what was
+                            # yielded already. (The events of one snapshot may share an id.)
+                            if resumed_after is not None and ev.id <= resumed_after and ev.event != "end":
+                                continue
+                            last = ev.id if last is None else max(last, ev.id)
+                            yield ev
+                            if ev.event == "end":
+                                ended = True
+                                return
+                            if deadline is not None and time.monotonic() >= deadline:
+                                raise TimeoutError(f"job {job_id}: no end event before the deadline")
+                        err = TallyConnectionError("the event stream closed before the job's end event")
+                    except socket.timeout as e:
+                        if deadline is not None and time.monotonic() >= deadline:
+                            raise TimeoutError(f"job {job_id}: no end event before the deadline") from e
+                        err = e
+                    except _NETWORK_ERRORS as e:
+                        err = e
+            finally:
+                conn.close()
+            if ended:
+                return
+            # Broken or closed (e.g. after `shutdown`): resume after `last`.
+            now = time.monotonic()
+            if broken_since is None:
+                broken_since = now
+            if now - broken_since > reconnect_timeout:
+                raise TallyConnectionError(
+                    f"event stream of job {job_id} lost for {reconnect_timeout} s (last event id {last}): {err}") from err
+            time.sleep(delay)
+            delay = min(delay * 2, 1.0)
+
+
+def _segment(job_id: str) -> str:
+    return urllib.parse.quote(str(job_id), safe="")
+
+
+def _parse_sse(resp: http.client.HTTPResponse) -> Iterator[Optional[Event]]:
+    """Server-sent events (WHATWG): id/event/data fields, a blank line dispatches.
+    An event cut off by a dropped connection is never dispatched."""
+    ev_id: Optional[int] = None
+    ev_type = "message"
+    data: List[str] = []
+    while True:
+        raw = resp.readline()
+        if not raw:
+            return
+        if not raw.endswith(b"\n"):
+            return  # truncated last line: the connection broke mid-event
+        line = raw.decode("utf-8").rstrip("\r\n")
+        if line == "":
+            if data:
+                yield Event(ev_id if ev_id is not None else 0, ev_type, json.loads("\n".join(data)))
+            ev_type, data = "message", []
+            continue
+        if line.startswith(":"):
+            yield None  # heartbeat
+            continue
+        name, _, value = line.partition(":")
+        if value.startswith(" "):
+            value = value[1:]
+        if name == "id":
+            try:
+                ev_id = int(value)
+            except ValueError:
+                pass
+        elif name == "event":
+            ev_type = value
+        elif name == "data":
+            data.append(value)
+

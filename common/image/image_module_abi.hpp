@@ -1,0 +1,44 @@
+#pragma once
+// The C interface between the image loader (image_io.cpp, linked into every binary)
+// and the image module (libtally_image.so, the only code that links OpenImageIO).
+// The module is opened with dlopen on the first image read or written, so a binary
+// that never touches an image never maps OpenImageIO and its ~250 dependencies.
+// Plain C types only: no exceptions or C++ objects cross the boundary.
+#include <cstddef>
+#include <cstdint>
+
+extern "C" {
+
+// One rectangle of an image: RGB means and standard errors interleaved, row-major.
+struct tally_image_view {
+  int32_t x0, y0, width, height, full_width, full_height;
+  const float* rgb;         // 3 * width * height
+  const float* stderr_rgb;  // 3 * width * height
+  const float* samples;     // width * height
+};
+
+// Receives output bytes (or an error message); may be called several times.
+typedef void (*tally_image_sink)(void* context, const char* data, size_t size);
+
+// Every function returns 0 on success; otherwise it has written a message to `error`.
+struct tally_image_api {
+  uint32_t abi_version;  // kTallyImageAbiVersion
+  const char* backend;   // what it is built on, e.g. "OpenImageIO 2.4.7" or "OpenEXR 3.1.5 + libpng 1.6.39"
+  // OpenEXR, 32-bit float channels R G B StdErr.R StdErr.G StdErr.B SampleCount;
+  // `metadata_json` is a JSON object whose members become "tally:<key>" attributes.
+  int (*encode_exr)(const tally_image_view* image, const char* metadata_json, tally_image_sink out,
+                    void* out_context, tally_image_sink error, void* error_context);
+  // 8-bit sRGB PNG of the means (already clamped and encoded by the caller: 3 bytes a pixel).
+  int (*encode_png_rgb8)(int32_t width, int32_t height, const unsigned char* rgb8, tally_image_sink out,
+                         void* out_context, tally_image_sink error, void* error_context);
+};
+
+// The module's one exported symbol.
+const tally_image_api* tally_image_module_api(void);
+
+}  // extern "C"
+
+namespace tally {
+inline constexpr uint32_t kTallyImageAbiVersion = 1;
+inline constexpr const char* kTallyImageModuleSymbol = "tally_image_module_api";
+}  // namespace tally

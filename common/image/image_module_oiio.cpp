@@ -1,0 +1,115 @@
+// libtally_image.so built on OpenImageIO (the default, -DTALLY_IMAGE_BACKEND=oiio).
+// Opened with dlopen by common/image/image_io.cpp on the first image read or written;
+// exports only tally_image_module_api() (built with hidden visibility).
+#include <OpenImageIO/filesystem.h>
+#include <OpenImageIO/imageio.h>
+
+#include <exception>
+#include <nlohmann/json.hpp>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "common/image/image_module_abi.hpp"
+
+namespace {
+
+namespace OIIO = OIIO_NAMESPACE;
+
+void add_metadata(OIIO::ImageSpec& spec, const nlohmann::json& metadata) {
+  if (!metadata.is_object()) return;
+  for (auto it = metadata.begin(); it != metadata.end(); ++it) {
+    const std::string name = "tally:" + it.key();
+    const nlohmann::json& v = it.value();
+    if (v.is_number()) {
+      // EXR has no 64-bit integers: integers are kept exact as double too.
+      const double d = v.get<double>();
+      spec.attribute(name, OIIO::TypeDesc::DOUBLE, &d);
+    } else if (v.is_string()) {
+      spec.attribute(name, v.get<std::string>());
+    } else {
+      spec.attribute(name, v.dump());
+    }
+  }
+}
+
+std::vector<unsigned char> write_to_memory(const char* fake_name, const OIIO::ImageSpec& spec, const void* data,
+                                           OIIO::TypeDesc format) {
+  std::vector<unsigned char> buffer;
+  OIIO::Filesystem::IOVecOutput proxy(buffer);
+  auto out = OIIO::ImageOutput::create(fake_name, &proxy);
+  if (!out) throw std::runtime_error(std::string("OpenImageIO: no writer for ") + fake_name + ": " + OIIO::geterror());
+  if (!out->open(fake_name, spec)) throw std::runtime_error("OpenImageIO open: " + out->geterror());
+  if (!out->write_image(format, data)) throw std::runtime_error("OpenImageIO write: " + out->geterror());
+  if (!out->close()) throw std::runtime_error("OpenImageIO close: " + out->geterror());
+  out.reset();
+  return buffer;
+}
+
+// Runs `f`, turning any exception into a message for the caller: nothing unwinds
+// across the C boundary.
+template <class F>
+int guarded(F&& f, tally_image_sink error, void* error_context) {
+  try {
+    f();
+    return 0;
+  } catch (const std::exception& e) {
+    const std::string m = e.what();
+    error(error_context, m.data(), m.size());
+  } catch (...) {
+    const std::string m = "unknown exception in the image module";
+    error(error_context, m.data(), m.size());
+  }
+  return 1;
+}
+
+int encode_exr(const tally_image_view* im, const char* metadata_json, tally_image_sink out, void* out_context,
+               tally_image_sink error, void* error_context) {
+  return guarded(
+      [&] {
+        OIIO::ImageSpec spec(im->width, im->height, 7, OIIO::TypeDesc::FLOAT);
+        spec.channelnames = {"R", "G", "B", "StdErr.R", "StdErr.G", "StdErr.B", "SampleCount"};
+        spec.alpha_channel = -1;
+        spec.x = im->x0;
+        spec.y = im->y0;
+        spec.full_x = 0;
+        spec.full_y = 0;
+        spec.full_width = im->full_width > 0 ? im->full_width : im->width;
+        spec.full_height = im->full_height > 0 ? im->full_height : im->height;
+        spec.attribute("compression", "zip");
+        add_metadata(spec, nlohmann::json::parse(metadata_json));
+        const size_t n = static_cast<size_t>(im->width) * static_cast<size_t>(im->height);
+        std::vector<float> interleaved(7 * n);
+        for (size_t i = 0; i < n; ++i) {
+          float* px = &interleaved[7 * i];
+          for (size_t c = 0; c < 3; ++c) {
+            px[c] = im->rgb[3 * i + c];
+            px[3 + c] = im->stderr_rgb[3 * i + c];
+          }
+          px[6] = im->samples[i];
+        }
+        const auto bytes = write_to_memory("image.exr", spec, interleaved.data(), OIIO::TypeDesc::FLOAT);
+        out(out_context, reinterpret_cast<const char*>(bytes.data()), bytes.size());
+      },
+      error, error_context);
+}
+
+int encode_png_rgb8(int32_t width, int32_t height, const unsigned char* rgb8, tally_image_sink out,
+                    void* out_context, tally_image_sink error, void* error_context) {
+  return guarded(
+      [&] {
+        OIIO::ImageSpec spec(width, height, 3, OIIO::TypeDesc::UINT8);
+        const auto bytes = write_to_memory("image.png", spec, rgb8, OIIO::TypeDesc::UINT8);
+        out(out_context, reinterpret_cast<const char*>(bytes.data()), bytes.size());
+      },
+      error, error_context);
+}
+
+constexpr tally_image_api kApi{tally::kTallyImageAbiVersion, "OpenImageIO " OIIO_VERSION_STRING, &encode_exr,
+                               &encode_png_rgb8};
+
+}  // namespace
+
+extern "C" __attribute__((visibility("default"))) const tally_image_api* tally_image_module_api(void) {
+  return &kApi;
+}
