@@ -15,7 +15,7 @@ int main(int argc, char** argv) {
   using namespace tally::study;
   const std::map<std::string, std::function<void(const Options&)>> sections = {
       {"quadrature", run_quadrature_study}, {"variance", run_variance_study}, {"disk", run_disk_study},
-      {"lighting", run_lighting_study},     {"rqmc", run_rqmc_study},         {"peers", run_peer_study}, {"peers-tune", run_peer_tuning}, {"eta", run_eta_study}};
+      {"lighting", run_lighting_study},     {"rqmc", run_rqmc_study},         {"peers", run_peer_study}, {"peers-tune", run_peer_tuning}, {"vegas-tune", run_vegas_tuning}, {"eta", run_eta_study}};
   const std::vector<std::string> order = {"quadrature", "variance", "disk", "rqmc", "eta", "lighting", "peers"};
   Options o;
   std::vector<std::string> chosen;

@@ -89,6 +89,7 @@ void run_lighting_study(const Options& o);
 void run_rqmc_study(const Options& o);
 void run_peer_study(const Options& o);
 void run_peer_tuning(const Options& o);
+void run_vegas_tuning(const Options& o);
 void run_eta_study(const Options& o);
 
 }  // namespace tally::study

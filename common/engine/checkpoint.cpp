@@ -9,7 +9,8 @@ namespace tally {
 namespace {
 
 constexpr char kMagic[8] = {'T', 'A', 'L', 'L', 'Y', 'C', 'K', '1'};
-constexpr uint32_t kVersion = 1;
+// Version 2 adds JobState::kernel_state; version 1 checkpoints still read (empty).
+constexpr uint32_t kVersion = 2;
 
 uint64_t fnv1a(std::string_view s) {
   uint64_t h = 0xcbf29ce484222325ULL;
@@ -113,6 +114,7 @@ std::string encode_checkpoint(const JobState& s) {
     w.f64(p.mean);
     w.f64(p.std_error);
   }
+  w.bytes(s.kernel_state);
   const uint64_t h = fnv1a(w.str());
   w.u64(h);
   return std::move(w.str());
@@ -129,7 +131,7 @@ JobState decode_checkpoint(std::string_view bytes) {
   }
   Reader r(body.substr(sizeof kMagic));
   const uint64_t version = r.u64();
-  if (version != kVersion) {
+  if (version != 1 && version != kVersion) {
     throw CheckpointError(fmt::format("unsupported checkpoint version {}", version));
   }
   JobState s;
@@ -172,6 +174,7 @@ JobState decode_checkpoint(std::string_view bytes) {
     p.mean = r.f64();
     p.std_error = r.f64();
   }
+  if (version >= 2) s.kernel_state = r.bytes();
   return s;
 }
 

@@ -91,6 +91,7 @@ std::vector<Block> JobRunner::plan_pass() {
 
 void JobRunner::commit_pass(std::vector<BlockResult>&& results, double wall_seconds) {
   TALLY_CHECK_EQ(results.size(), pending_.size());  // one result per planned block
+  kernel_->fold_pass(pass_input_, results, state_);
   for (size_t i = 0; i < results.size(); ++i) {
     BlockResult& r = results[i];
     for (size_t c = 0; c < r.tallies.size(); ++c) {
@@ -264,7 +265,7 @@ std::vector<CostPoint> JobRunner::cost_curve(const std::vector<double>& rel_leve
 }
 
 std::vector<std::string> JobRunner::warnings() const {
-  std::vector<std::string> w;
+  std::vector<std::string> w = kernel_->warnings(state_);
   if (const auto a = tail_alpha(); a && *a < TailTracker::kWarnBelow) {
     w.push_back(fmt::format(
         "heavy tail: estimated tail index {:.2f} (< {}); the variance may be infinite, so the "

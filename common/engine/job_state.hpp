@@ -3,6 +3,7 @@
 // a job resumed from it continues bit-identically.
 #include <cstdint>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include "common/engine/counters.hpp"
@@ -31,6 +32,9 @@ struct JobState {
   std::optional<SampleFault> fault;
   double compute_seconds = 0.0;
   std::vector<TracePoint> trace;  // thinned to at most kMaxTrace points
+  // Bytes owned by the kernel (Kernel::fold_pass), e.g. the VEGAS grid and its
+  // iterations: checkpointed with the rest, so an adaptive job resumes bit-identically.
+  std::string kernel_state;
 
   static constexpr size_t kMaxTrace = 512;
 };

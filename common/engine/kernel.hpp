@@ -34,6 +34,9 @@ struct BlockResult {
   TailTracker tail{32};  // largest |values| of the headline channel
   WeightStats weights;
   std::optional<SampleFault> fault;
+  // Kernel-defined per-block accumulators (e.g. VEGAS's per-bin sums), read by
+  // Kernel::fold_pass in block order. Empty for most kernels.
+  std::vector<double> aux;
 };
 
 struct ErrorSummary {
@@ -76,6 +79,13 @@ class Kernel {
   virtual void run_block_with(const Block& block, std::string_view /*pass_input*/, BlockResult& out) const {
     run_block(block, out);
   }
+  // Adaptive kernels: fold a finished pass's results (in block order, before the
+  // runner merges them) into state.kernel_state, which the next pass_input reads.
+  // Must be deterministic in (pass_input, results, state). Default: nothing.
+  virtual void fold_pass(std::string_view /*pass_input*/, const std::vector<BlockResult>& /*results*/,
+                         JobState& /*state*/) const {}
+  // Kernel-specific warnings (e.g. VEGAS iterations that disagree). Default: none.
+  virtual std::vector<std::string> warnings(const JobState&) const { return {}; }
   // The error the stopping rule looks at. Default: the worst channel.
   virtual ErrorSummary error_summary(const JobState& state, double confidence) const;
   // Default: none, and progress shows channel 0.

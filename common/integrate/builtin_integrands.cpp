@@ -10,12 +10,22 @@ namespace {
 class UnitDiskIndicator final : public Integrand {
  public:
   size_t dimensions() const override { return 2; }
-  void evaluate_batch(const double* const* xs, size_t n, double* out) const override {
-    const double* x = xs[0];
-    const double* y = xs[1];
-    for (size_t i = 0; i < n; ++i) out[i] = (x[i] * x[i] + y[i] * y[i] < 1.0) ? 1.0 : 0.0;
-  }
+  // Branch-free over non-aliasing rows so the loop vectorizes (a branch per point
+  // mispredicts on ~21% of uniform points and made this slower than the expression).
+  void evaluate_batch(const double* const* xs, size_t n, double* out) const override { disk(xs[0], xs[1], n, out); }
   nlohmann::json describe() const override { return {{"builtin", "unit_disk"}}; }
+
+ private:
+  // Fixed-width inner lanes (as the expression interpreter does) vectorize at -O2 too.
+  static void disk(const double* __restrict x, const double* __restrict y, size_t n, double* __restrict out) {
+    constexpr size_t kLane = 4;
+    size_t i = 0;
+    for (; i + kLane <= n; i += kLane) {
+      for (size_t j = 0; j < kLane; ++j) out[i + j] = inside(x[i + j], y[i + j]);
+    }
+    for (; i < n; ++i) out[i] = inside(x[i], y[i]);
+  }
+  static double inside(double x, double y) { return x * x + y * y < 1.0 ? 1.0 : 0.0; }
 };
 
 class InvSqrt final : public Integrand {

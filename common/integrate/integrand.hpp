@@ -19,6 +19,12 @@ class Integrand {
   virtual size_t dimensions() const = 0;
   // xs[k] holds n <= kIntegrandBatch values of coordinate k; writes n values to out.
   virtual void evaluate_batch(const double* const* xs, size_t n, double* out) const = 0;
+  // Vector integrands (several functions at the same points): components() values per
+  // point, component c's n values to out[c]. Default: one component, evaluate_batch.
+  virtual size_t components() const { return 1; }
+  virtual void evaluate_components(const double* const* xs, size_t n, double* const* out) const {
+    evaluate_batch(xs, n, out[0]);
+  }
   virtual nlohmann::json describe() const = 0;
 };
 

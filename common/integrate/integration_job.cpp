@@ -9,6 +9,8 @@
 #include "common/integrate/estimators.hpp"
 #include "common/integrate/genz.hpp"
 #include "common/integrate/integrand.hpp"
+#include "common/integrate/vector_integrand.hpp"
+#include "common/integrate/vegas.hpp"
 #include "common/protocol/spec_reader.hpp"
 #include "common/protocol/stop_rule_json.hpp"
 #include "common/sampling/ball_simplex.hpp"
@@ -24,15 +26,37 @@ struct ParsedIntegrand {
   std::optional<GenzParams> genz;
   std::string builtin;  // empty for expressions
   std::string expression;
+  std::vector<std::string> expressions;  // a vector integrand
   size_t dims = 0;  // 0: take the domain's
 };
+
+constexpr size_t kMaxComponents = 64;
 
 ParsedIntegrand parse_integrand(SpecReader r, const JobLimits& limits) {
   ParsedIntegrand out;
   const bool has_expr = r.has("expression");
+  const bool has_exprs = r.has("expressions");
   const bool has_builtin = r.has("builtin");
-  if (has_expr == has_builtin) {
-    throw SpecError(r.pointer(), "needs exactly one of \"expression\" or \"builtin\"");
+  if (int{has_expr} + int{has_exprs} + int{has_builtin} != 1) {
+    throw SpecError(r.pointer(), "needs exactly one of \"expression\", \"expressions\" or \"builtin\"");
+  }
+  if (has_exprs) {
+    const json& a = r.at("expressions");
+    const std::string ptr = r.pointer_of("expressions");
+    if (!a.is_array() || a.empty() || a.size() > kMaxComponents) {
+      throw SpecError(ptr, fmt::format("must be an array of 1 to {} expression strings", kMaxComponents));
+    }
+    for (size_t i = 0; i < a.size(); ++i) {
+      if (!a[i].is_string()) throw SpecError(json_pointer_append(ptr, i), "must be a string");
+      std::string t = a[i].get<std::string>();
+      if (t.size() > limits.max_expression_length) {
+        throw SpecError(json_pointer_append(ptr, i),
+                        fmt::format("is longer than {} characters", limits.max_expression_length));
+      }
+      out.expressions.push_back(std::move(t));
+    }
+    r.finish();
+    return out;  // compiled once the domain fixes the dimension
   }
   if (has_expr) {
     out.expression = r.string("expression", limits.max_expression_length);
@@ -46,6 +70,35 @@ ParsedIntegrand parse_integrand(SpecReader r, const JobLimits& limits) {
   } else if (out.builtin == "inv_sqrt") {
     out.f = make_inv_sqrt();
     out.dims = 1;
+  } else if (r.has("families")) {
+    // A built-in vector integrand: several Genz families sharing a and u.
+    const json& fams = r.at("families");
+    const std::string ptr = r.pointer_of("families");
+    if (!fams.is_array() || fams.empty() || fams.size() > kMaxComponents) {
+      throw SpecError(ptr, fmt::format("must be an array of 1 to {} Genz family names", kMaxComponents));
+    }
+    GenzParams p;
+    p.a = r.numbers("a", 1, limits.max_dimensions, 1e-9, 1e6);
+    p.u = r.has("u") ? r.numbers("u", 1, limits.max_dimensions, 0.0, 1.0) : std::vector<double>(p.a.size(), 0.5);
+    if (p.u.size() != p.a.size()) {
+      throw SpecError(r.pointer_of("u"), fmt::format("must have as many entries as a ({}), got {}",
+                                                     p.a.size(), p.u.size()));
+    }
+    std::vector<GenzParams> members;
+    for (size_t i = 0; i < fams.size(); ++i) {
+      const auto f = fams[i].is_string() ? parse_genz_family(fams[i].get<std::string>()) : std::nullopt;
+      if (!f) {
+        throw SpecError(json_pointer_append(ptr, i),
+                        fmt::format("must be one of {}", fmt::join(genz_family_names(), ", ")));
+      }
+      if (*f == GenzFamily::corner_peak && p.a.size() > 20) {
+        throw SpecError(r.pointer_of("a"), "corner_peak supports at most 20 dimensions");
+      }
+      p.family = *f;
+      members.push_back(p);
+    }
+    out.dims = p.a.size();
+    out.f = make_genz_set(members);
   } else {
     GenzParams p;
     p.family = *parse_genz_family(r.enumeration("family", genz_family_names()));
@@ -135,14 +188,33 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
                                 const JobLimits& limits) {
   const Domain& D = *prob.domain;
   EstimatorChoice c;
+  const bool vector = prob.integrand->components() > 1;
+  // Vector integrands run on the VEGAS kernel (all components at the same points);
+  // "uniform" is that kernel with its grid frozen uniform.
+  auto frozen_uniform = [&](const std::string& where) {
+    if (!D.is_box()) {
+      throw SpecError(where, fmt::format("vector integrands need an interval or box domain, not {}", D.type()));
+    }
+    VegasOptions vo;
+    vo.bins = 2;
+    vo.alpha = 0.0;
+    vo.warmup_passes = 0;
+    vo.weighted = false;  // one fixed grid: every sample has the same distribution
+    c.kernel = make_vegas_kernel(prob, vo);
+    c.plan = {{"type", "uniform"}, {"components", prob.integrand->components()}};
+  };
   if (node == nullptr) {
+    if (vector) {
+      frozen_uniform("/domain");
+      return c;
+    }
     c.kernel = make_uniform_kernel(prob);
     c.plan = {{"type", "uniform"}};
     return c;
   }
   SpecReader r(*node, pointer);
   const std::string type =
-      r.enumeration("type", {"uniform", "importance", "stratified", "qmc", "rejection", "quadrature"});
+      r.enumeration("type", {"uniform", "importance", "stratified", "qmc", "rejection", "quadrature", "vegas"});
   c.plan = {{"type", type}};
   auto need_box = [&](const char* what) {
     if (!D.is_box()) {
@@ -150,7 +222,13 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
                       fmt::format("{} needs an interval or box domain, not {}", what, D.type()));
     }
   };
-  if (type == "uniform") {
+  if (vector && type != "uniform" && type != "vegas") {
+    throw SpecError(r.pointer_of("type"), fmt::format("vector integrands support the uniform and vegas "
+                                                      "estimators, not {}", type));
+  }
+  if (type == "uniform" && vector) {
+    frozen_uniform(r.pointer_of("type"));
+  } else if (type == "uniform") {
     c.kernel = make_uniform_kernel(prob);
   } else if (type == "importance") {
     SpecReader dr = r.object("density");
@@ -226,6 +304,28 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
     c.plan["points_per_sample"] = points;
     c.kernel = make_qmc_kernel(prob, points, scramble == "owen");
     c.sweep = true;
+  } else if (type == "vegas") {
+    need_box("vegas");
+    VegasOptions vo;
+    vo.bins = static_cast<uint32_t>(r.integer_or("bins", vo.bins, 2, 4096));
+    vo.alpha = r.number_or("alpha", vo.alpha, 0.0, 10.0);
+    vo.warmup_passes = static_cast<uint32_t>(r.integer_or("warmup_passes", vo.warmup_passes, 0, 64));
+    vo.max_pass_samples = r.integer_or("max_pass_samples", vo.max_pass_samples, 4096, uint64_t{1} << 26);
+    vo.weighted = r.enumeration_or("combine", "weighted", {"weighted", "pooled"}) == "weighted";
+    c.plan["bins"] = vo.bins;
+    c.plan["alpha"] = vo.alpha;
+    c.plan["warmup_passes"] = vo.warmup_passes;
+    c.plan["max_pass_samples"] = vo.max_pass_samples;
+    c.plan["combine"] = vo.weighted ? "weighted" : "pooled";
+    c.plan["combination"] = vo.weighted ? "inverse-variance weighted mean of the passes after the warm-up; "
+                                          "chi^2/dof across them checked"
+                                        : "samples of the passes after the warm-up pooled with equal weight; "
+                                          "chi^2/dof across passes checked";
+    if (vector) {
+      c.plan["components"] = prob.integrand->components();
+      c.plan["steering"] = "sum over components of each one's per-bin (f/p)^2, normalized to 1 per component";
+    }
+    c.kernel = make_vegas_kernel(prob, vo);
   } else if (type == "rejection") {
     if (D.is_box() || !D.is_solid()) {
       throw SpecError(r.pointer_of("type"),
@@ -257,7 +357,7 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
 
 // Closed forms for the built-ins on their natural domains (tests, study, result).
 std::optional<double> reference_value(const ParsedIntegrand& in, const Domain& D) {
-  if (in.builtin == "genz" && D.is_box()) {
+  if (in.builtin == "genz" && in.genz && D.is_box()) {
     for (size_t k = 0; k < D.dimensions(); ++k) {
       if (D.lower()[k] != 0.0 || D.upper()[k] != 1.0) return std::nullopt;
     }
@@ -293,9 +393,46 @@ class IntegrationJob final : public JobDefinition {
       const ErrorSummary e = runner.error();
       j["error_estimate"] = std::isfinite(e.abs_error) ? json(e.abs_error) : json(nullptr);
     }
+    if (const size_t m = integrand_->components(); m > 1) {
+      json comps = json::array();
+      const auto rep = vegas_report(runner.state());
+      const bool combined = rep && plan_["estimator"].value("combine", "") == "weighted";
+      for (size_t c = 0; c < m; ++c) {
+        Estimate e = runner.estimate(c);  // the pooled samples of component c
+        if (combined) {  // VEGAS's weighted passes, as the stop rule sees them
+          const double z = (e.ci_hi - e.ci_lo) / (2.0 * e.std_error);
+          e.mean = rep->combined_mean[c];
+          e.std_error = rep->combined_std_error[c] * rep->error_scale;
+          e.ci_lo = e.mean - z * e.std_error;
+          e.ci_hi = e.mean + z * e.std_error;
+        }
+        comps.push_back({{"mean", e.mean},
+                         {"std_error", std::isfinite(e.std_error) ? json(e.std_error) : json(nullptr)},
+                         {"ci", {e.ci_lo, e.ci_hi}}});
+      }
+      j["components"] = comps;
+      const std::vector<double> cov = component_mean_covariance(runner.state(), m);
+      json rows = json::array();
+      for (size_t a = 0; a < m; ++a) rows.push_back(std::vector<double>(cov.begin() + static_cast<std::ptrdiff_t>(a * m), cov.begin() + static_cast<std::ptrdiff_t>((a + 1) * m)));
+      j["covariance_of_means"] = rows;
+    }
+    if (const auto v = vegas_report(runner.state())) {
+      json its = json::array();
+      for (const VegasIteration& it : v->iterations) {
+        its.push_back({{"n", it.tally.n}, {"mean", it.tally.mean},
+                       {"std_error", it.tally.n > 1 ? json(it.tally.std_error()) : json(nullptr)},
+                       {"warmup", it.warmup}});
+      }
+      j["vegas"] = {{"iterations", its},
+                    {"used_iterations", v->used},
+                    {"chi2_per_dof", std::isfinite(v->chi2_per_dof) ? json(v->chi2_per_dof) : json(nullptr)},
+                    {"p_value", v->p_value},
+                    {"consistent", !v->inconsistent},
+                    {"error_scale", v->error_scale}};
+    }
     if (reference_) {
       j["reference"] = *reference_;
-      const Estimate e = runner.estimate(0);
+      const Estimate e = runner.headline();  // channel 0, or VEGAS's combined passes
       j["error_vs_reference"] = e.mean - *reference_;
       if (e.std_error > 0 && std::isfinite(e.std_error)) {
         j["z_score"] = (e.mean - *reference_) / e.std_error;
@@ -309,7 +446,9 @@ class IntegrationJob final : public JobDefinition {
       const Estimate e = runner.estimate(0);
       return fmt::format("{:.12g} (trapezoid, error estimate {:.3g})", e.mean, runner.error().abs_error);
     }
-    return JobDefinition::summary_line(runner);
+    const Estimate e = runner.headline();  // channel 0, or VEGAS's combined passes
+    return fmt::format("{:.10g} ± {:.3g} ({:g}% CI [{:.10g}, {:.10g}])", e.mean, e.std_error, 100.0 * e.confidence,
+                       e.ci_lo, e.ci_hi);
   }
 
   std::shared_ptr<const Kernel> kernel_;
@@ -338,6 +477,16 @@ std::unique_ptr<JobDefinition> compile_integration_job(const json& spec, const J
   if (domain->dimensions() > limits.max_dimensions) {
     throw SpecError("/domain", fmt::format("has {} dimensions; the limit is {}", domain->dimensions(),
                                            limits.max_dimensions));
+  }
+  if (!in.f && !in.expressions.empty()) {
+    for (size_t i = 0; i < in.expressions.size(); ++i) {
+      try {
+        make_expression_integrand(in.expressions[i], domain->dimensions(), limits.max_expression_length);
+      } catch (const ExprError& e) {
+        throw SpecError(json_pointer_append("/integrand/expressions", i), e.what());
+      }
+    }
+    in.f = make_vector_expression_integrand(in.expressions, domain->dimensions(), limits.max_expression_length);
   }
   if (!in.f) {
     try {

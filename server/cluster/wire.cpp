@@ -8,7 +8,7 @@ namespace tally::cluster {
 
 namespace {
 
-constexpr unsigned char kResultVersion = 1;
+constexpr unsigned char kResultVersion = 2;  // 2: BlockResult::aux (adaptive kernels)
 
 class Writer {
  public:
@@ -123,6 +123,8 @@ std::string encode_result(const BlockResult& res) {
     for (double v : res.fault->point) w.f64(v);
     w.bytes(res.fault->message);
   }
+  w.u64(res.aux.size());
+  for (double v : res.aux) w.f64(v);
   return w.take();
 }
 
@@ -163,6 +165,8 @@ BlockResult decode_result(std::string_view bytes) {
     f.message = r.bytes();
     res.fault = std::move(f);
   }
+  res.aux.resize(r.count(8));
+  for (double& v : res.aux) v = r.f64();
   if (!r.done()) throw WireError("trailing bytes after a result");
   return res;
 }

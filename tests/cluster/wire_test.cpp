@@ -22,6 +22,7 @@ TEST(ClusterWire, ResultRoundTripIsBitExact) {
   for (double v : {3.0, 1.0, 7.0, 2.0, 9.0, 0.5}) r.tail.offer(v);
   r.weights.add(0.25);
   r.weights.add(4.0);
+  r.aux = {1.5, -0.0, 1e-310};
   r.fault = SampleFault{42, 1, std::numeric_limits<double>::infinity(), {0.5, -0.25}, "x0 = 0.5: inf"};
   const BlockResult d = decode_result(encode_result(r));
   EXPECT_EQ(d.block_index, 77u);
@@ -39,6 +40,8 @@ TEST(ClusterWire, ResultRoundTripIsBitExact) {
   ASSERT_TRUE(d.fault);
   EXPECT_EQ(d.fault->message, "x0 = 0.5: inf");
   EXPECT_EQ(d.fault->point, r.fault->point);
+  ASSERT_EQ(d.aux.size(), 3u);
+  for (size_t i = 0; i < 3; ++i) EXPECT_EQ(std::bit_cast<uint64_t>(d.aux[i]), std::bit_cast<uint64_t>(r.aux[i]));
   EXPECT_EQ(encode_result(d), encode_result(r));
 }
 

@@ -32,6 +32,7 @@ JobState sample_state() {
   s.fault = f;
   s.compute_seconds = 1.25;
   s.trace = {{0.1, 100, 0.3, 0.01}, {0.2, 200, 0.31, 0.007}};
+  s.kernel_state = std::string("VEGAS grid\0bytes", 16);
   return s;
 }
 
@@ -56,6 +57,30 @@ TEST(Checkpoint, RoundTripIsBitExact) {
   EXPECT_TRUE(std::isnan(r.fault->value));
   EXPECT_EQ(r.compute_seconds, s.compute_seconds);
   EXPECT_EQ(r.trace, s.trace);
+  EXPECT_EQ(r.kernel_state, s.kernel_state);
+}
+
+// Version 1 (before JobState::kernel_state) still reads, with no kernel state: the
+// v1 bytes are the v2 bytes without the trailing kernel_state field.
+TEST(Checkpoint, VersionOneStillReads) {
+  JobState s = sample_state();
+  s.kernel_state.clear();
+  std::string v2 = encode_checkpoint(s);
+  std::string body = v2.substr(0, v2.size() - 16);  // drop the empty bytes field (its length) and the checksum
+  ASSERT_EQ(body[8], 2);
+  body[8] = 1;
+  uint64_t h = 0xcbf29ce484222325ULL;  // FNV-1a, as the format's checksum
+  for (unsigned char c : body) {
+    h ^= c;
+    h *= 0x100000001b3ULL;
+  }
+  for (int i = 0; i < 8; ++i) body.push_back(static_cast<char>((h >> (8 * i)) & 0xff));
+  const JobState r = decode_checkpoint(body);
+  EXPECT_EQ(r.samples, s.samples);
+  EXPECT_EQ(r.trace, s.trace);
+  EXPECT_TRUE(r.kernel_state.empty());
+  body[8] = 3;
+  EXPECT_THROW(decode_checkpoint(body), CheckpointError);  // unknown version (and checksum)
 }
 
 TEST(Checkpoint, EveryTruncationIsReported) {
