@@ -44,7 +44,7 @@ if [ ! -d "$tools/node_modules/kubernetes-models" ] || [ ! -d "$tools/node_modul
 fi
 
 cd "$repo"
-yaml_files=(docker/compose.yaml docker/k8s/*.yaml)
+yaml_files=(docker/compose.yaml docker/k8s/*.yaml docker/k8s-cluster/*.yaml)
 
 # 1. YAML style and syntax.
 yamllint_conf='{extends: default, rules: {line-length: {max: 120}, document-start: disable, truthy: {check-keys: false}}}'
@@ -71,7 +71,6 @@ fi
 
 # 3. Kustomize render.
 render=$(mktemp)
-trap 'rm -f "$render"' EXIT
 if command -v kubectl >/dev/null && kubectl kustomize docker/k8s >"$render" 2>/dev/null; then
   pass "kubectl kustomize docker/k8s: $(grep -c '^kind:' "$render") objects"
 elif command -v kustomize >/dev/null && kustomize build docker/k8s >"$render"; then
@@ -90,6 +89,34 @@ if out=$(TALLY_NODE_MODULES="$tools/node_modules" node docker/validate-k8s.mjs <
   pass "kubernetes-models schemas + policy: $(echo "$out" | tail -1)"
 else
   fail "kubernetes-models schemas + policy:"; echo "$out" | grep -v '^ok '
+fi
+
+# 4b. The cluster overlay (docs/cluster.md): rendered, schemas, cluster policy.
+crender=$(mktemp)
+trap 'rm -f "$render" "$crender"' EXIT
+if command -v kubectl >/dev/null && kubectl kustomize docker/k8s-cluster >"$crender" 2>/dev/null; then
+  pass "kubectl kustomize docker/k8s-cluster: $(grep -c '^kind:' "$crender") objects"
+else
+  fail "kubectl kustomize docker/k8s-cluster (kubectl needed to render the overlay)"
+fi
+if out=$(TALLY_NODE_MODULES="$tools/node_modules" node docker/validate-k8s-cluster.mjs <"$crender" 2>&1); then
+  pass "cluster overlay schemas + policy: $(echo "$out" | tail -1)"
+else
+  fail "cluster overlay schemas + policy:"; echo "$out" | grep -v '^ok '
+fi
+# Compose: Redis is on the internal network and not published; workers scale.
+if [ -n "${rendered:-}" ]; then
+  if echo "$rendered" | awk '/^  redis:/{r=1;next} /^  [a-z]/{r=0} r' | grep -q 'ports:'; then
+    fail "compose: redis publishes a port"
+  else
+    pass "compose: redis not published to the host"
+  fi
+  if echo "$rendered" | awk '/^  worker:/{r=1;next} /^  [a-z]/{r=0} r' | grep -Eq 'container_name|ports:'; then
+    fail "compose: worker has a container_name or ports (--scale worker=N would conflict)"
+  else
+    pass "compose: worker scales (no container_name, no ports)"
+  fi
+  if echo "$rendered" | grep -q 'internal: true'; then pass "compose: backend network is internal"; else fail "compose: backend network not internal"; fi
 fi
 
 # 5. Dockerfile promises.

@@ -7,9 +7,10 @@ want=${1:-all}
 build_pkgs=(cmake g++ make ninja-build pkg-config
   libboost-dev libboost-system-dev nlohmann-json3-dev libmuparser-dev libfmt-dev libcli11-dev
   libsqlite3-dev libsqlitecpp-dev libembree-dev libopenimageio-dev libopenexr-dev libpng-dev libtinyobjloader-dev
-  libgtest-dev libgmock-dev libbenchmark-dev libgsl-dev libspdlog-dev libcubature-dev libssl-dev)
+  libgtest-dev libgmock-dev libbenchmark-dev libgsl-dev libspdlog-dev libcubature-dev
+  libhiredis-dev libssl-dev)
 # clang-14 + libclang-rt-14-dev: the sanitizer tree and the libFuzzer targets (make sanitize, make fuzz)
-test_pkgs=(python3 python3-pip python3-numpy python3-mypy openssl curl chromium nodejs clang-14 libclang-rt-14-dev)
+test_pkgs=(python3 python3-pip python3-numpy python3-mypy openssl curl chromium nodejs redis-server clang-14 libclang-rt-14-dev)
 command -v npm >/dev/null 2>&1 || test_pkgs+=(npm)  # nodesource's nodejs bundles npm
 bench_pkgs=(wrk python3-matplotlib python3-scipy python3-numpy)
 

@@ -2,6 +2,7 @@
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -13,6 +14,8 @@
 #include "server/auth/access_control.hpp"
 #include "server/auth/auth_file.hpp"
 #include "server/auth/token.hpp"
+#include "server/cluster/cluster_http.hpp"
+#include "server/cluster/redis_executor.hpp"
 #include "common/log/log.hpp"
 #include "server/executor/cpu_quota.hpp"
 #include "server/http/fd_limit.hpp"
@@ -90,6 +93,17 @@ int main(int argc, char** argv) {
   token_new->add_option("name", token_name, "principal name")->required();
   token_new->add_option("--role", token_role, "admin, user, reader or metrics")->capture_default_str();
   token_cmd->require_subcommand(1);
+
+  std::string redis_url;
+  double lease_s = 30.0;
+  unsigned max_deliveries = 3;
+  app.add_option("--redis", redis_url,
+                 "cluster mode: blocks are computed by tally-worker processes through this Redis "
+                 "(redis://[[user]:password@]host:port[/db] or unix:///path); the server computes nothing itself");
+  app.add_option("--lease", lease_s, "cluster mode: seconds before a silent worker's block is reclaimed")
+      ->capture_default_str();
+  app.add_option("--max-deliveries", max_deliveries,
+                 "cluster mode: failed deliveries of one block that fail its job")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   log::configure(*log::parse_level(log_level), *log::parse_format(log_format));
 
@@ -188,12 +202,42 @@ int main(int argc, char** argv) {
   };
 #endif
 
+  cluster::RedisExecutor* cluster_executor = nullptr;
+  if (!redis_url.empty()) {
+    cluster::RedisExecutorConfig rc;
+    try {
+      rc.url = cluster::parse_redis_url(redis_url);
+    } catch (const std::exception& e) {
+      log::error("--redis: {}", e.what());
+      return 2;
+    }
+    if (!(lease_s >= 0.1) || max_deliveries < 1) {
+      log::error("--lease must be >= 0.1 s and --max-deliveries >= 1");
+      return 2;
+    }
+    // hiredis writes to its socket with write(2): a Redis that went away must be an
+    // error the coordinator handles (jobs pause), not a SIGPIPE that ends the server.
+    std::signal(SIGPIPE, SIG_IGN);
+    rc.lease = std::chrono::milliseconds(static_cast<long long>(lease_s * 1000.0));
+    rc.max_failures = max_deliveries;
+    rc.asset_dir = mc.limits.asset_dir;
+    mc.make_executor = [rc, &cluster_executor](ExecutorCallbacks cb) {
+      auto ex = std::make_unique<cluster::RedisExecutor>(rc, std::move(cb));
+      cluster_executor = ex.get();
+      return std::unique_ptr<Executor>(std::move(ex));
+    };
+  }
+
   try {
     auto store = open_sqlite_store(data_dir);
     Metrics metrics;
     JobManager manager(mc, *store, [](const nlohmann::json& spec, const JobLimits& limits) {
       return compile_job(spec, limits);
     });
+    if (cluster_executor) {
+      hc.workers = [cluster_executor] { return cluster::workers_json(*cluster_executor); };
+      hc.extra_metrics = [cluster_executor] { return cluster::cluster_metrics(*cluster_executor); };
+    }
     RequestHandler handler(manager, metrics, hc);
     HttpServer server(http, handler, metrics);
     std::promise<int> signalled;
@@ -220,8 +264,11 @@ int main(int argc, char** argv) {
       std::ofstream(tmp) << port << "\n";
       std::filesystem::rename(tmp, port_file);
     }
-    log::info("listening on {}://{}:{} ({} workers, data in {}, access control {})", http.tls_cert.empty() ? "http" : "https",
-              http.address, port, mc.workers, std::filesystem::absolute(data_dir).string(),
+    const std::string computing = cluster_executor
+                                      ? fmt::format("cluster mode: workers through {}", cluster_executor->config().url.display())
+                                      : fmt::format("{} workers", mc.workers);
+    log::info("listening on {}://{}:{} ({}, data in {}, access control {})", http.tls_cert.empty() ? "http" : "https",
+              http.address, port, computing, std::filesystem::absolute(data_dir).string(),
               access ? fmt::format("on, {} principals", access->principal_count()) : std::string("off"));
 
     const int sig = signalled.get_future().get();

@@ -100,6 +100,14 @@ json status_json(const JobSnapshot& job, double now, json links) {
   j["plan"] = job.def ? job.def->plan() : json(nullptr);
   if (job.runner) j["stop_rule"] = stop_rule_to_json(job.runner->rule());
   if (!job.error.empty()) j["error_message"] = job.error;
+  if (job.status == JobStatus::running) {
+    if (!job.executor.waiting_reason.empty()) j["waiting_reason"] = job.executor.waiting_reason;
+    if (job.executor.has_blocks) {
+      j["blocks"] = {{"pending", job.executor.pending},
+                     {"in_flight", job.executor.in_flight},
+                     {"redelivered", job.executor.redelivered}};
+    }
+  }
   const double end = job.finished_at > 0 ? job.finished_at : now;
   j["timing"] = {{"created_at", time_json(job.created_at)},
                  {"started_at", time_json(job.started_at)},

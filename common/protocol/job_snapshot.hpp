@@ -21,6 +21,14 @@ std::string_view job_status_name(JobStatus s);
 std::optional<JobStatus> parse_job_status(std::string_view s);
 inline bool is_terminal(JobStatus s) { return s != JobStatus::queued && s != JobStatus::running; }
 
+// What the executor says about a running job: cluster mode fills it (docs/cluster.md);
+// the in-process executor leaves it empty, and the views then add nothing.
+struct ExecutorNote {
+  std::string waiting_reason;  // why the job makes no progress now ("": it does)
+  bool has_blocks = false;     // the counts below are known
+  uint64_t pending = 0, in_flight = 0, redelivered = 0;  // blocks of the current pass
+};
+
 struct JobSnapshot {
   std::string id;
   int64_t seq = 0;
@@ -35,6 +43,7 @@ struct JobSnapshot {
   std::shared_ptr<const JobRunner> runner;       // at the last pass boundary; null if not restorable
   std::shared_ptr<const nlohmann::json> final_result;  // engine part of a finished job's status
   uint64_t last_event_id = 0;                    // the job's event log at the same instant
+  ExecutorNote executor;                         // running jobs in cluster mode
 };
 
 }  // namespace tally

@@ -34,6 +34,7 @@ void RequestHandler::add_routes() {
   router_.add("GET", "/readyz", [this](const HttpRequest&, const PathParams&) {
     if (!ready_ || manager_.shutting_down()) throw HttpError(503, "the server is not ready (starting or shutting down)");
     if (auto why = manager_.not_ready_reason()) throw HttpError(503, "the server is not ready: " + *why);
+    if (auto why = manager_.executor_not_ready()) throw HttpError(503, "the server is not ready: " + *why);
     HttpResponse r;
     r.set_header("Content-Type", "text/plain; charset=utf-8");
     r.body = config_.access.insecure_no_auth ? "ready (INSECURE: no access control, --insecure-no-auth)\n" : "ready\n";
@@ -49,6 +50,15 @@ void RequestHandler::add_routes() {
         "# HELP tally_insecure_no_auth 1 when listening off loopback without access control (--insecure-no-auth)\n"
         "# TYPE tally_insecure_no_auth gauge\ntally_insecure_no_auth {}\n",
         config_.access.access ? 1 : 0, config_.access.insecure_no_auth ? 1 : 0);
+    if (config_.extra_metrics) r.body += config_.extra_metrics();
+    return r;
+  });
+  router_.add("GET", "/v1/workers", [this](const HttpRequest&, const PathParams&) {
+    HttpResponse r;
+    r.set_header("Content-Type", "application/json");
+    const json j = config_.workers ? config_.workers() : json{{"executor", "in_process"}, {"workers", json::array()}};
+    r.body = j.dump();
+    r.body.push_back('\n');
     return r;
   });
   router_.add("GET", "/v1/openapi.json", [](const HttpRequest&, const PathParams&) {

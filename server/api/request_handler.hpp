@@ -32,6 +32,9 @@ struct HandlerConfig {
   unsigned max_concurrent_pilots = 2;
   ImageEncoders images;  // empty functions: the image routes answer 501
   AccessPolicy access;   // who may call (server/auth/authorize.hpp); default: no access control
+  // Cluster mode: GET /v1/workers body and extra /metrics lines (server/cluster/cluster_http.hpp).
+  std::function<nlohmann::json()> workers;
+  std::function<std::string()> extra_metrics;
 };
 
 // GET /v1/jobs/{id} bodies, kept until the job changes (its version) and, for a

@@ -102,6 +102,7 @@ std::string cookie_value(const HttpRequest& request, std::string_view name) {
 
 RouteAccess route_access(std::string_view method, std::string_view pattern) {
   if (pattern == "/metrics") return RouteAccess::metrics;
+  if (pattern == "/v1/workers") return RouteAccess::workers;  // operators: it names every tenant's jobs
   if (pattern.substr(0, 4) != "/v1/") return RouteAccess::open;
   if (pattern == "/v1/session") return method == "POST" ? RouteAccess::login : RouteAccess::session;
   return is_state_changing(method) ? RouteAccess::write : RouteAccess::read;
@@ -149,6 +150,11 @@ Principal authorize(const HttpRequest& req, std::string_view pattern, const Acce
     case RouteAccess::metrics:
       if (who->role != Role::admin && who->role != Role::metrics) {
         forbidden(fmt::format("role {} may not read /metrics (admin or metrics may)", role_name(who->role)));
+      }
+      break;
+    case RouteAccess::workers:
+      if (who->role != Role::admin && who->role != Role::metrics) {
+        forbidden(fmt::format("role {} may not read /v1/workers (admin or metrics may)", role_name(who->role)));
       }
       break;
     case RouteAccess::read:

@@ -28,6 +28,7 @@ enum class RouteAccess {
   open,     // /livez, /readyz, static files: no credentials
   login,    // POST /v1/session: takes a token in its body
   metrics,  // GET /metrics: open on loopback, else admin or metrics role
+  workers,  // GET /v1/workers: admin or metrics role (it names every tenant's jobs)
   read,     // GET on /v1: any role but metrics
   write,    // everything else on /v1: admin and user
   session,  // GET/DELETE /v1/session: any authenticated principal

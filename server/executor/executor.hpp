@@ -84,6 +84,9 @@ class Executor {
   virtual ExecutorStats stats() const = 0;
   // Empty when the executor can compute; otherwise why not (e.g. "redis unreachable").
   virtual std::optional<std::string> not_ready_reason() const { return std::nullopt; }
+  // Why a job in the executor makes no progress right now (e.g. no cluster worker is
+  // connected), for its status; empty when it is being computed.
+  virtual std::optional<std::string> waiting_reason(const std::string& /*id*/) const { return std::nullopt; }
 };
 
 }  // namespace tally

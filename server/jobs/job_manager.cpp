@@ -77,7 +77,9 @@ JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compil
                         double wall) { return on_pass_done(id, done, std::move(results), wall); };
   cb.cancelled = [this](const std::string& id) { on_cancelled(id); };
   cb.failed = [this](const std::string& id, const std::string& error) { on_failed(id, error); };
-  executor_ = std::make_unique<InProcessExecutor>(config_.workers, std::move(cb), config_.chunk_target_s);
+  executor_ = config_.make_executor
+                  ? config_.make_executor(std::move(cb))
+                  : std::make_unique<InProcessExecutor>(config_.workers, std::move(cb), config_.chunk_target_s);
 }
 
 JobManager::~JobManager() { executor_->stop(); }
@@ -90,8 +92,21 @@ std::optional<std::string> JobManager::not_ready_reason() const {
 // ---------------------------------------------------------------- snapshots
 
 JobSnapshot JobManager::snapshot(const Job& job) const {
+  // What the executor says about the job (cluster mode: why it waits, blocks pending /
+  // in flight), asked before taking the job's lock (executor locks are never nested in it).
+  ExecutorNote note;
+  if (auto why = executor_->waiting_reason(job.id_)) note.waiting_reason = *why;
+  if (const ExecutorStats es = executor_->stats(); es.blocks_by_job.count(job.id_)) {
+    const auto& b = es.blocks_by_job.at(job.id_);
+    note.has_blocks = true;
+    note.pending = b.pending;
+    note.in_flight = b.in_flight;
+    note.redelivered = b.redelivered;
+  }
   std::lock_guard lock(job.mu_);
-  return job.snapshot_locked();
+  JobSnapshot s = job.snapshot_locked();
+  s.executor = std::move(note);
+  return s;
 }
 
 JobSnapshot JobManager::snapshot(const std::string& id) const {

@@ -41,6 +41,9 @@ struct ManagerConfig {
   double checkpoint_interval_s = 0.5;
   size_t event_buffer = 1024;
   double chunk_target_s = 0.004;
+  // Builds the executor (e.g. cluster mode's RedisExecutor); unset: the in-process
+  // worker pool with `workers` threads.
+  std::function<std::unique_ptr<Executor>(ExecutorCallbacks)> make_executor;
 };
 
 // Who submits a job and within which limits. The default is the anonymous owner
@@ -96,6 +99,8 @@ class JobManager {
   const ManagerConfig& config() const { return config_; }
   const JobCompiler& compiler() const { return compiler_; }
   uint64_t epoch() const { return epoch_; }
+  // Why the executor cannot compute (e.g. Redis unreachable), for /readyz.
+  std::optional<std::string> executor_not_ready() const { return executor_->not_ready_reason(); }
 
  private:
   PassWork on_pass_done(const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,

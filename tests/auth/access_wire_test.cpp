@@ -154,6 +154,7 @@ TEST_P(WireTable, EveryRouteTimesEveryCaller) {
       {"GET", "/readyz", {200, 200, 200, 200, 200, 200, 200}},
       {"GET", "/metrics", {200, 200, 200, 200, 200, 200, 200}},  // loopback: open
       {"GET", "/v1/openapi.json", {401, 401, 401, 200, 200, 200, 200}},
+      {"GET", "/v1/workers", {401, 401, 401, 403, 403, 403, 200}},  // admin or metrics role
       {"POST", "/v1/jobs", {401, 401, 401, 202, 403, 202, 202}},
       {"GET", "/v1/jobs", {401, 401, 401, 200, 200, 200, 200}},
       {"POST", "/v1/jobs/validate", {401, 401, 401, 200, 403, 200, 200}},

@@ -1,0 +1,253 @@
+// Cluster mode figures, from one run (build with -DTALLY_BUILD_BENCH=ON, then
+// build/bench/cluster/cluster_bench). Starts its own redis-server on a Unix socket.
+//  1. Overhead at equal cores: the same job on tally-server --workers 2 (in process) and
+//     on tally-server --redis with one tally-worker --threads 2, interleaved A B B A ...;
+//     the ratio of median wall times (goal: Redis <= 1.03x). Integration and lighting image.
+//  2. Coordinator ceiling: a RedisExecutor driven directly with one-sample blocks (trivial
+//     work) and 2 worker threads: blocks/s published and merged, with one block per entry
+//     (worst case) and with the default entry sizing.
+//  3. Reclaim latency after kill -9 of a worker holding an entry (lease 1 s; goal <=
+//     lease + 1 s), and the duplicate ratio of that run.
+#include <fmt/format.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <condition_variable>
+#include <fcntl.h>
+#include <fstream>
+#include <mutex>
+#include <thread>
+
+#include "common/jobs/job_factory.hpp"
+#include "server/cluster/protocol.hpp"
+#include "server/cluster/redis_executor.hpp"
+#include "server_process.hpp"
+
+using namespace tally;
+using namespace tally::e2e;
+using nlohmann::json;
+using namespace std::chrono_literals;
+namespace fs = std::filesystem;
+
+namespace {
+
+pid_t spawn(const std::vector<std::string>& args, const fs::path& log) {
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
+    ::dup2(fd, 1);
+    ::dup2(fd, 2);
+    std::vector<char*> argv;
+    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    ::execvp(argv[0], argv.data());
+    ::_exit(127);
+  }
+  return pid;
+}
+void reap(pid_t pid) {
+  if (pid <= 0) return;
+  ::kill(pid, SIGKILL);
+  int st = 0;
+  ::waitpid(pid, &st, 0);
+}
+pid_t worker(const std::string& url, const std::string& name, unsigned threads, const fs::path& dir) {
+  return spawn({TALLY_WORKER_BIN, "--redis", url, "--name", name, "--threads", std::to_string(threads)},
+               dir / (name + ".log"));
+}
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0.0 : v[v.size() / 2];
+}
+
+double job_wall(HttpClient& c, const json& spec, json* bits) {
+  const std::string id = submit(c, spec);
+  const json s = wait_state(c, id, "succeeded", 600);
+  if (bits) *bits = s.at("bits");
+  return s.at("timing").at("wall_seconds").get<double>();
+}
+
+void overhead(const std::string& what, const json& spec, HttpClient& in_process, HttpClient& cluster, int rounds) {
+  std::vector<double> a, b;
+  json bits_a, bits_b;
+  job_wall(in_process, spec, nullptr);  // warm-up (page cache, scene build)
+  job_wall(cluster, spec, nullptr);
+  for (int r = 0; r < rounds; ++r) {
+    if (r % 2 == 0) {
+      a.push_back(job_wall(in_process, spec, &bits_a));
+      b.push_back(job_wall(cluster, spec, &bits_b));
+    } else {
+      b.push_back(job_wall(cluster, spec, &bits_b));
+      a.push_back(job_wall(in_process, spec, &bits_a));
+    }
+  }
+  std::fflush(stdout);
+  fmt::print("{:<34} in-process 2 threads {:7.3f} s   redis + 1 worker x 2 threads {:7.3f} s   ratio {:.3f}   bits {}\n",
+             what, median(a), median(b), median(b) / median(a), bits_a == bits_b ? "equal" : "DIFFER");
+}
+
+// Drives a RedisExecutor with passes of `blocks_per_pass` one-sample blocks.
+void ceiling(const std::string& url, size_t max_entry_blocks, size_t passes, size_t blocks_per_pass) {
+  cluster::RedisExecutorConfig cfg;
+  cfg.url = cluster::parse_redis_url(url);
+  cfg.max_entry_blocks = max_entry_blocks;
+  std::mutex mu;
+  std::condition_variable cv;
+  size_t done = 0;
+  bool finished = false;
+  auto make_pass = [&](uint64_t pass) {
+    PassWork w;
+    w.pass = pass;
+    for (size_t i = 0; i < blocks_per_pass; ++i) w.blocks.push_back(Block{i, pass * blocks_per_pass + i, 1, 0});
+    return w;
+  };
+  ExecutorCallbacks cb;
+  cb.pass_done = [&](const std::string&, const PassWork& d, std::vector<BlockResult>&& r, double) {
+    std::lock_guard lock(mu);
+    done += r.size();
+    if (d.pass + 1 >= passes) {
+      finished = true;
+      cv.notify_all();
+      return PassWork{};
+    }
+    return make_pass(d.pass + 1);
+  };
+  cb.failed = [&](const std::string&, const std::string& e) {
+    fmt::print("ceiling: job failed: {}\n", e);
+    std::lock_guard lock(mu);
+    finished = true;
+    cv.notify_all();
+  };
+  cluster::RedisExecutor ex(cfg, cb);
+  std::this_thread::sleep_for(1500ms);  // the worker registry is read once a second
+  ExecutorJob job;
+  job.id = fmt::format("ceiling{}", max_entry_blocks);
+  job.spec_json = json{{"kind", "integrate"},
+                       {"integrand", {{"builtin", "unit_disk"}}},
+                       {"domain", {{"type", "box"}, {"lower", {-1, -1}}, {"upper", {1, 1}}}},
+                       {"seed", 1},
+                       {"stop", {{"max_samples", 1000000}}}}
+                      .dump();
+  job.epoch = 1;
+  const auto t0 = std::chrono::steady_clock::now();
+  ex.add(job, make_pass(0));
+  std::unique_lock lock(mu);
+  cv.wait_for(lock, 300s, [&] { return finished; });
+  const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  lock.unlock();
+  ex.stop();
+  fmt::print("coordinator ceiling, <= {:4} blocks/entry: {} passes x {} blocks in {:.2f} s = {:8.0f} blocks/s\n",
+             max_entry_blocks, passes, blocks_per_pass, secs, static_cast<double>(done) / secs);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const int rounds = argc > 1 ? std::atoi(argv[1]) : 5;
+  const std::string only = argc > 2 ? argv[2] : "";  // "reclaim": part 3 alone
+  TempDir tmp;
+  const fs::path sock = tmp.path / "r.sock";
+  const pid_t redis = spawn({"redis-server", "--port", "0", "--unixsocket", sock.string(), "--save", "", "--appendonly",
+                             "no", "--maxmemory-policy", "noeviction", "--dir", tmp.path.string()},
+                            tmp.path / "redis.log");
+  std::this_thread::sleep_for(500ms);
+  const std::string url = "unix://" + sock.string();
+  int rc = 0;
+  std::vector<pid_t> pids;
+  try {
+    if (only.empty()) {
+    // 1. Overhead at equal cores.
+    ServerProcess in_process(tmp.path / "a", {"--checkpoint-interval", "0.5"});
+    ServerProcess cluster(tmp.path / "b", {"--redis", url, "--checkpoint-interval", "0.5"});
+    pids.push_back(worker(url, "bench", 2, tmp.path));
+    std::this_thread::sleep_for(1500ms);
+    HttpClient ca = in_process.client(), cb = cluster.client();
+    overhead("integration (unit disk, 4e8 samples)", disk_spec(400'000'000, 1), ca, cb, rounds);
+    std::ifstream in(std::string(TALLY_SOURCE_DIR) + "/examples/lecture_lighting_image.json");
+    json image = json::parse(in);
+    image["stop"] = {{"max_samples", 256}};
+    image["query"].erase("adaptive");
+    overhead("lighting image (128x96, 256 spp)", image, ca, cb, rounds);
+    in_process.terminate();
+    cluster.terminate();
+    reap(pids.back());
+    pids.pop_back();
+
+    // 2. Coordinator ceiling (its own Redis database; one worker process, 2 threads).
+    const std::string url1 = url + "?db=1";
+    pids.push_back(worker(url1, "ceiling", 2, tmp.path));
+    ceiling(url1, 1, 10, 2000);
+    ceiling(url1, 4096, 10, 20000);
+    reap(pids.back());
+    pids.pop_back();
+    }
+
+    // 3. Reclaim latency after kill -9, lease 1 s.
+    const std::string url2 = url + "?db=2";
+    ServerProcess reclaim(tmp.path / "c", {"--redis", url2, "--lease", "1"});
+    pid_t victim = worker(url2, "victim", 1, tmp.path);
+    pids.push_back(worker(url2, "survivor", 1, tmp.path));
+    std::this_thread::sleep_for(1500ms);
+    HttpClient cc = reclaim.client();
+    const std::string id = submit(cc, disk_spec(2'000'000'000ULL, 3));
+    cluster::RedisConn rconn(cluster::parse_redis_url(url2));
+    // Under way (entries of ~20 ms), then freeze the victim while it holds an entry and
+    // kill it: the entry is certainly held at the kill.
+    while (get_json(cc, "/v1/jobs/" + id).at("samples").get<uint64_t>() < 50'000'000) std::this_thread::sleep_for(20ms);
+    std::string stream, entry;
+    for (int i = 0; i < 2000 && entry.empty(); ++i) {
+      ::kill(victim, SIGSTOP);
+      for (const auto& s : rconn.cmd({"SMEMBERS", "tally:active"}).elems) {
+        try {
+          for (const auto& e : rconn.cmd({"XPENDING", s.str, "w", "-", "+", "100"}).elems) {
+            if (e.elems.size() >= 2 && e.elems[1].str.rfind("victim/", 0) == 0) {
+              stream = s.str;
+              entry = e.elems[0].str;
+            }
+          }
+        } catch (const std::exception&) {
+        }
+      }
+      if (entry.empty()) {
+        ::kill(victim, SIGCONT);
+        std::this_thread::sleep_for(3ms);
+      }
+    }
+    if (entry.empty()) throw std::runtime_error("the victim never held an entry");
+    reap(victim);
+    const auto t0 = std::chrono::steady_clock::now();
+    double latency = -1;
+    while (std::chrono::steady_clock::now() - t0 < 30s) {
+      bool gone = false;
+      cluster::RValue p;
+      try {
+        p = rconn.cmd({"XPENDING", stream, "w", entry, entry, "1"});
+      } catch (const cluster::RedisReplyError&) {
+        gone = true;  // the pass was merged: the entry was reclaimed and computed (an upper bound)
+      }
+      if (gone || p.elems.empty() || p.elems[0].elems[1].str.rfind("victim/", 0) != 0) {
+        latency = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        break;
+      }
+      std::this_thread::sleep_for(2ms);
+    }
+    cc.request("DELETE", "/v1/jobs/" + id);
+    const json r = get_json(cc, "/v1/workers").at("results");
+    fmt::print("reclaim after kill -9 (lease 1.0 s): {:.3f} s (goal <= 2.0 s); results first {} duplicates {} -> "
+               "duplicate ratio {:.5f}\n",
+               latency, r.at("first").get<uint64_t>(), r.at("duplicates_equal").get<uint64_t>(),
+               static_cast<double>(r.at("duplicates_equal").get<uint64_t>()) /
+                   std::max<double>(1.0, static_cast<double>(r.at("first").get<uint64_t>())));
+    reclaim.terminate();
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "cluster_bench: {}\n", e.what());
+    rc = 1;
+  }
+  for (pid_t p : pids) reap(p);
+  reap(redis);
+  return rc;
+}

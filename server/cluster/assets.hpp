@@ -1,0 +1,37 @@
+#pragma once
+// Job assets without a shared file system. The coordinator finds the OBJ files a spec
+// names (scene shapes' "obj"), reads them from its --asset-dir and stores their bytes in
+// Redis under their SHA-256 (content-addressed, so a file shared by many jobs is stored
+// once). The job's manifest maps each relative path to its hash. A worker fetches what
+// it lacks into a local cache, checks the hash, and gives the compiler a per-job
+// directory holding exactly those files: the worker's compiler, with its own limits,
+// never reads anything else.
+#include <filesystem>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <string>
+
+namespace tally::cluster {
+
+class RedisConn;
+
+struct JobAsset {
+  std::string sha256;  // lowercase hex
+  std::string bytes;
+};
+
+std::string sha256_hex(std::string_view bytes);
+
+// relative path -> asset, for every "obj" string in the spec. Throws (SpecError or
+// std::runtime_error) when a file cannot be read.
+std::map<std::string, JobAsset> collect_assets(const nlohmann::json& spec, const std::string& asset_dir);
+// {"path": "sha256", ...}
+nlohmann::json asset_manifest(const std::map<std::string, JobAsset>& assets);
+
+// Worker side: materializes the manifest under cache_dir/jobs/<tag>/ (hard links to
+// cache_dir/blobs/<sha>), fetching and verifying missing blobs. Returns the directory
+// to use as JobLimits::asset_dir. Throws std::runtime_error naming the bad entry.
+std::filesystem::path materialize_assets(RedisConn& conn, const nlohmann::json& manifest,
+                                         const std::filesystem::path& cache_dir, const std::string& tag);
+
+}  // namespace tally::cluster

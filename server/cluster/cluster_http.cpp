@@ -1,0 +1,85 @@
+#include "server/cluster/cluster_http.hpp"
+
+#include <fmt/format.h>
+
+#include <chrono>
+#include <ctime>
+
+namespace tally::cluster {
+
+using nlohmann::json;
+
+namespace {
+json rfc3339(double t) {
+  const auto secs = static_cast<std::time_t>(t);
+  std::tm tm{};
+  gmtime_r(&secs, &tm);
+  return fmt::format("{:04}-{:02}-{:02}T{:02}:{:02}:{:02}Z", tm.tm_year + 1900, tm.tm_mon + 1, tm.tm_mday, tm.tm_hour,
+                     tm.tm_min, tm.tm_sec);
+}
+}  // namespace
+
+json workers_json(const RedisExecutor& ex) {
+  const double now = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+  json list = json::array();
+  for (const WorkerInfo& w : ex.workers()) {
+    list.push_back({{"name", w.name},
+                    {"host", w.host},
+                    {"threads", w.threads},
+                    {"last_heartbeat", rfc3339(w.last_heartbeat)},
+                    {"seconds_since_heartbeat", std::max(0.0, now - w.last_heartbeat)},
+                    {"blocks_done", w.blocks_done},
+                    {"current_job", w.current_job.empty() ? json(nullptr) : json(w.current_job)}});
+  }
+  const ClusterCounters c = ex.counters();
+  json j = {{"executor", "redis"},
+            {"redis", ex.config().url.display()},
+            {"lease_seconds", static_cast<double>(ex.config().lease.count()) / 1000.0},
+            {"workers", list},
+            {"results", {{"first", c.first},
+                         {"duplicates_equal", c.dup_equal},
+                         {"duplicates_different", c.dup_differ},
+                         {"stale", c.stale},
+                         {"failed_deliveries", c.failures},
+                         {"blocks_merged", c.merged},
+                         {"passes_republished", c.republished}}}};
+  if (auto why = ex.not_ready_reason()) j["not_ready_reason"] = *why;
+  return j;
+}
+
+std::string cluster_metrics(const RedisExecutor& ex) {
+  std::string o;
+  const auto workers = ex.workers();
+  unsigned threads = 0;
+  for (const auto& w : workers) threads += w.threads;
+  o += "# HELP tally_cluster_workers Live tally-worker processes.\n# TYPE tally_cluster_workers gauge\n";
+  o += fmt::format("tally_cluster_workers {}\n", workers.size());
+  o += "# HELP tally_cluster_worker_threads Compute threads of the live workers.\n# TYPE tally_cluster_worker_threads gauge\n";
+  o += fmt::format("tally_cluster_worker_threads {}\n", threads);
+  o += "# HELP tally_cluster_worker_blocks_done Blocks computed, per worker.\n# TYPE tally_cluster_worker_blocks_done counter\n";
+  for (const auto& w : workers) {
+    o += fmt::format("tally_cluster_worker_blocks_done{{worker=\"{}\"}} {}\n", w.name, w.blocks_done);
+  }
+  o += "# HELP tally_cluster_redis_up 1 when the coordinator reaches Redis.\n# TYPE tally_cluster_redis_up gauge\n";
+  o += fmt::format("tally_cluster_redis_up {}\n", ex.not_ready_reason() ? 0 : 1);
+  const ClusterCounters c = ex.counters();
+  o += "# HELP tally_cluster_results_total Block results stored in Redis, by outcome.\n"
+       "# TYPE tally_cluster_results_total counter\n";
+  o += fmt::format("tally_cluster_results_total{{outcome=\"first\"}} {}\n", c.first);
+  o += fmt::format("tally_cluster_results_total{{outcome=\"duplicate_equal\"}} {}\n", c.dup_equal);
+  o += fmt::format("tally_cluster_results_total{{outcome=\"duplicate_different\"}} {}\n", c.dup_differ);
+  o += fmt::format("tally_cluster_results_total{{outcome=\"stale\"}} {}\n", c.stale);
+  o += fmt::format("tally_cluster_results_total{{outcome=\"failed\"}} {}\n", c.failures);
+  o += "# HELP tally_cluster_blocks_merged_total Blocks merged by this coordinator.\n"
+       "# TYPE tally_cluster_blocks_merged_total counter\n";
+  o += fmt::format("tally_cluster_blocks_merged_total {}\n", c.merged);
+  o += "# HELP tally_cluster_job_blocks Blocks of a running job's current pass.\n# TYPE tally_cluster_job_blocks gauge\n";
+  for (const auto& [id, b] : ex.stats().blocks_by_job) {
+    o += fmt::format("tally_cluster_job_blocks{{job=\"{}\",state=\"pending\"}} {}\n", id, b.pending);
+    o += fmt::format("tally_cluster_job_blocks{{job=\"{}\",state=\"in_flight\"}} {}\n", id, b.in_flight);
+    o += fmt::format("tally_cluster_job_blocks{{job=\"{}\",state=\"redelivered\"}} {}\n", id, b.redelivered);
+  }
+  return o;
+}
+
+}  // namespace tally::cluster

@@ -1,0 +1,133 @@
+#pragma once
+// The Redis key layout and Lua scripts shared by the coordinator (RedisExecutor) and
+// tally-worker. docs/cluster.md describes the protocol in prose.
+//
+//   tally:job:{id}                  hash: run, cancelled, spec, assets, max_failures,
+//                                   failed (error text), mismatch, redelivered,
+//                                   compute_s + computed (workers' seconds and blocks)
+//   tally:s:{id}:{run}:{pass}       stream of the pass's blocks, k consecutive ones per
+//                                   entry (b = blocks, s = first slot), consumer group "w"
+//   tally:p:{id}:{run}:{pass}       hash: n (blocks in the pass), input (pass input bytes)
+//   tally:r:{id}:{run}:{pass}       hash: slot -> encoded BlockResult (first wins)
+//   tally:d:{id}:{run}:{pass}       hash: slot -> sha1 of the first result, kept a few
+//                                   passes longer so late duplicates are still compared
+//   tally:f:{id}:{run}:{pass}       hash: slot -> failed deliveries
+//   tally:active                    set of the stream keys workers read
+//   tally:wake                      stream the coordinator appends to when work appears
+//   tally:notify                    list of job ids whose pass is complete
+//   tally:counters                  hash: first, dup_equal, dup_differ, stale, failures
+//   tally:workers                   zset name -> last heartbeat (unix s)
+//   tally:worker:{name}             hash: name, host, threads, heartbeat, blocks_done, current_job
+//   tally:asset:{sha256}            bytes of an OBJ file, content-addressed
+//
+// run = "{epoch}.{generation}": a new one each time a job enters the coordinator, so
+// nothing of an older epoch, an earlier cancelled run or a previous pass is ever merged.
+#include <string>
+#include <string_view>
+
+namespace tally::cluster {
+
+inline constexpr std::string_view kGroup = "w";
+inline constexpr std::string_view kActive = "tally:active";
+inline constexpr std::string_view kWake = "tally:wake";
+inline constexpr std::string_view kNotify = "tally:notify";
+inline constexpr std::string_view kCounters = "tally:counters";
+inline constexpr std::string_view kWorkers = "tally:workers";
+
+inline std::string job_key(std::string_view id) { return "tally:job:" + std::string(id); }
+inline std::string pass_key(char kind, std::string_view id, std::string_view run, uint64_t pass) {
+  std::string k = "tally:";
+  k += kind;
+  k += ':';
+  k += id;
+  k += ':';
+  k += run;
+  k += ':';
+  k += std::to_string(pass);
+  return k;
+}
+inline std::string worker_key(std::string_view name) { return "tally:worker:" + std::string(name); }
+inline std::string asset_key(std::string_view sha) { return "tally:asset:" + std::string(sha); }
+
+// An entry of a pass stream holds k consecutive blocks (fields b = k encoded blocks,
+// s = slot of the first): the coordinator sizes k so an entry takes ~20 ms to compute.
+//
+// Stores an entry's results: each slot's first result wins (HSETNX), the entry is
+// acked in the same atomic step; a duplicate is compared byte for byte while the pass
+// is open, by SHA1 digest once it is merged. Returns {first, duplicate equal,
+// duplicate different, stale}; a difference marks the job (non-determinism). Stale:
+// the job was cancelled, belongs to another run, or its pass is gone without a digest.
+// KEYS: results, stream, job, digests, counters, notify
+// ARGV: first slot, entry id, run, block count of the pass, job id, compute seconds, results...
+inline constexpr std::string_view kStoreScript = R"lua(
+local k = #ARGV - 6
+local run = redis.call('HGET', KEYS[3], 'run')
+if run ~= ARGV[3] or redis.call('HGET', KEYS[3], 'cancelled') == '1' then
+  redis.call('HINCRBY', KEYS[5], 'stale', k)
+  return {0, 0, 0, k}
+end
+redis.call('HINCRBYFLOAT', KEYS[3], 'compute_s', ARGV[6])
+redis.call('HINCRBY', KEYS[3], 'computed', k)
+local open = redis.call('EXISTS', KEYS[2]) == 1
+if open then redis.call('XACK', KEYS[2], 'w', ARGV[2]) end
+local first, eq, diff, stale = 0, 0, 0, 0
+local base = tonumber(ARGV[1])
+local mismatch = nil
+for i = 1, k do
+  local slot = tostring(base + i - 1)
+  local res = ARGV[6 + i]
+  if open and redis.call('HSETNX', KEYS[1], slot, res) == 1 then
+    redis.call('HSET', KEYS[4], slot, redis.sha1hex(res))
+    first = first + 1
+  elseif open and redis.call('HEXISTS', KEYS[1], slot) == 1 then
+    if redis.call('HGET', KEYS[1], slot) == res then eq = eq + 1 else diff = diff + 1; mismatch = slot end
+  else
+    local d = redis.call('HGET', KEYS[4], slot)
+    if not d then
+      stale = stale + 1
+    elseif d == redis.sha1hex(res) then
+      eq = eq + 1
+    else
+      diff = diff + 1
+      mismatch = slot
+    end
+  end
+end
+if first > 0 then redis.call('HINCRBY', KEYS[5], 'first', first) end
+if eq > 0 then redis.call('HINCRBY', KEYS[5], 'dup_equal', eq) end
+if stale > 0 then redis.call('HINCRBY', KEYS[5], 'stale', stale) end
+if diff > 0 then
+  redis.call('HINCRBY', KEYS[5], 'dup_differ', diff)
+  redis.call('HSET', KEYS[3], 'mismatch', mismatch)
+  redis.call('RPUSH', KEYS[6], ARGV[5])
+elseif first > 0 and redis.call('HLEN', KEYS[1]) == tonumber(ARGV[4]) then
+  redis.call('RPUSH', KEYS[6], ARGV[5])
+end
+return {first, eq, diff, stale}
+)lua";
+
+// An entry threw: count the failed delivery (against its first slot); below the
+// limit, ack it and re-queue its blocks at once (another worker may take them); at
+// the limit, mark the job failed with the worker's error. Returns 0 stale, 1
+// re-queued, 2 job failed.
+// KEYS: stream, job, failures, counters, notify, wake
+// ARGV: entry id, first slot, run, max failures, message, blocks, job id
+inline constexpr std::string_view kFailScript = R"lua(
+local run = redis.call('HGET', KEYS[2], 'run')
+if run ~= ARGV[3] or redis.call('HGET', KEYS[2], 'cancelled') == '1' or redis.call('EXISTS', KEYS[1]) == 0 then
+  return 0
+end
+redis.call('HINCRBY', KEYS[4], 'failures', 1)
+local n = redis.call('HINCRBY', KEYS[3], ARGV[2], 1)
+redis.call('XACK', KEYS[1], 'w', ARGV[1])
+if n >= tonumber(ARGV[4]) then
+  redis.call('HSET', KEYS[2], 'failed', ARGV[5])
+  redis.call('RPUSH', KEYS[5], ARGV[7])
+  return 2
+end
+redis.call('XADD', KEYS[1], '*', 'b', ARGV[6], 's', ARGV[2])
+redis.call('XADD', KEYS[6], 'MAXLEN', '~', '1000', '*', 'j', ARGV[7])
+return 1
+)lua";
+
+}  // namespace tally::cluster

@@ -1,0 +1,647 @@
+#include "server/cluster/redis_executor.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <set>
+
+#include "common/log/log.hpp"
+#include "server/cluster/protocol.hpp"
+#include "server/cluster/wire.hpp"
+
+namespace tally::cluster {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double unix_seconds() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+// Live workers: a heartbeat within this many leases (at least 10 s).
+double worker_timeout_s(std::chrono::milliseconds lease) {
+  return std::max(10.0, 3.0 * static_cast<double>(lease.count()) / 1000.0);
+}
+
+}  // namespace
+
+RedisExecutor::RedisExecutor(RedisExecutorConfig config, ExecutorCallbacks callbacks)
+    : cfg_(std::move(config)), cb_(std::move(callbacks)) {
+  not_ready_ = fmt::format("connecting to redis at {}", cfg_.url.display());
+  thread_ = std::thread([this] { loop(); });
+}
+
+RedisExecutor::~RedisExecutor() { stop(); }
+
+void RedisExecutor::stop() {
+  {
+    std::lock_guard lock(mu_);
+    stopping_ = true;
+  }
+  cv_.notify_all();
+  if (thread_.joinable()) thread_.join();
+  std::lock_guard lock(mu_);
+  jobs_.clear();
+}
+
+void RedisExecutor::add(ExecutorJob ej, PassWork first_pass) {
+  if (first_pass.empty()) return;
+  auto job = std::make_unique<Job>();
+  // The assets are read here, on the caller's thread (not an I/O thread: the manager
+  // starts jobs from its own paths); a job whose files vanished fails at once.
+  std::string asset_error;
+  try {
+    job->assets = collect_assets(nlohmann::json::parse(ej.spec_json), cfg_.asset_dir);
+    job->manifest = asset_manifest(job->assets).dump();
+  } catch (const std::exception& e) {
+    asset_error = fmt::format("cannot publish the job's assets: {}", e.what());
+  }
+  const std::string id = ej.id;
+  if (!asset_error.empty()) {
+    log::job(log::Level::error, id, "{}", asset_error);
+    if (cb_.failed) cb_.failed(id, asset_error);
+    return;
+  }
+  job->ej = std::move(ej);
+  job->pass = std::move(first_pass);
+  {
+    std::lock_guard lock(mu_);
+    if (stopping_) return;
+    job->run = fmt::format("{}.{}", job->ej.epoch, ++generation_);
+    job->blocks.pending = job->pass.blocks.size();
+    jobs_[id] = std::move(job);
+  }
+  cv_.notify_all();
+}
+
+bool RedisExecutor::cancel(const std::string& id) {
+  {
+    std::lock_guard lock(mu_);
+    auto it = jobs_.find(id);
+    if (it == jobs_.end()) return false;
+    it->second->cancel_requested = true;
+  }
+  cv_.notify_all();
+  return true;
+}
+
+ExecutorStats RedisExecutor::stats() const {
+  std::lock_guard lock(mu_);
+  ExecutorStats s;
+  const double now = unix_seconds();
+  for (const auto& w : workers_) {
+    if (now - w.last_heartbeat > worker_timeout_s(cfg_.lease)) continue;
+    s.workers += w.threads;
+    if (!w.current_job.empty()) s.busy_workers += 1;
+  }
+  s.samples_done = samples_done_;
+  s.scheduled_jobs = jobs_.size();
+  for (const auto& [id, j] : jobs_) s.blocks_by_job[id] = j->blocks;
+  return s;
+}
+
+std::optional<std::string> RedisExecutor::not_ready_reason() const {
+  std::lock_guard lock(mu_);
+  return not_ready_;
+}
+
+std::optional<std::string> RedisExecutor::waiting_reason(const std::string& id) const {
+  std::lock_guard lock(mu_);
+  if (!jobs_.count(id)) return std::nullopt;
+  if (not_ready_) return fmt::format("paused: {}; the job resumes when Redis is back", *not_ready_);
+  const double now = unix_seconds();
+  const bool any = std::any_of(workers_.begin(), workers_.end(),
+                               [&](const WorkerInfo& w) { return now - w.last_heartbeat <= worker_timeout_s(cfg_.lease); });
+  if (!any) return std::string("waiting for a tally-worker: none is connected to Redis");
+  return std::nullopt;
+}
+
+std::vector<WorkerInfo> RedisExecutor::workers() const {
+  std::lock_guard lock(mu_);
+  return workers_;
+}
+
+ClusterCounters RedisExecutor::counters() const {
+  std::lock_guard lock(mu_);
+  return counters_;
+}
+
+// ---------------------------------------------------------------- coordinator thread
+
+bool RedisExecutor::connect() {
+  try {
+    conn_ = std::make_unique<RedisConn>(cfg_.url, std::chrono::milliseconds(5000));
+    const std::string rid = conn_->run_id();
+    conn_->cmd({"HSET", "tally:config", "lease_ms", std::to_string(cfg_.lease.count())});
+    if (first_connect_) {
+      // This process is the only coordinator: stream keys in the active set belong to
+      // an earlier run of it and are swept job by job as the jobs come back.
+      conn_->cmd({"DEL", kActive});
+    }
+    const bool restarted = !first_connect_ && rid != run_id_;
+    first_connect_ = false;
+    run_id_ = rid;
+    std::lock_guard lock(mu_);
+    for (auto& [id, j] : jobs_) {
+      // After a Redis restart everything unmerged is gone: publish it again. After a
+      // mere disconnect, publishing again is harmless too (results already stored stay).
+      j->published = false;
+      if (restarted) j->swept = false;
+    }
+    if (restarted) {
+      counters_.republished += jobs_.size();
+      log::warn("redis restarted (run_id changed): republishing {} job(s)", jobs_.size());
+    }
+    if (not_ready_) log::info("redis at {} is reachable", cfg_.url.display());
+    not_ready_.reset();
+    return true;
+  } catch (const RedisIoError& e) {
+    conn_.reset();
+    std::lock_guard lock(mu_);
+    const std::string reason = fmt::format("redis unreachable at {}: {}", cfg_.url.display(), e.what());
+    if (!not_ready_ || *not_ready_ != reason) log::warn("{}; jobs are paused", reason);
+    not_ready_ = reason;
+    return false;
+  }
+}
+
+void RedisExecutor::loop() {
+  for (;;) {
+    {
+      std::lock_guard lock(mu_);
+      if (stopping_) return;
+    }
+    if (!conn_ && !connect()) {
+      std::unique_lock lock(mu_);
+      cv_.wait_for(lock, std::chrono::milliseconds(500), [&] { return stopping_; });
+      continue;
+    }
+    try {
+      step();
+    } catch (const RedisIoError& e) {
+      conn_.reset();
+      std::lock_guard lock(mu_);
+      not_ready_ = fmt::format("redis unreachable at {}: {}", cfg_.url.display(), e.what());
+      log::warn("{}; jobs are paused", *not_ready_);
+    } catch (const std::exception& e) {
+      // A reply we did not expect (e.g. a key of the wrong type): log, retry later.
+      log::error("cluster coordinator: {}", e.what());
+      std::unique_lock lock(mu_);
+      cv_.wait_for(lock, std::chrono::milliseconds(200), [&] { return stopping_; });
+    }
+  }
+}
+
+void RedisExecutor::step() {
+  // Cancels first: their keys go, so no worker starts another of their blocks.
+  std::vector<std::string> to_cancel, to_publish;
+  {
+    std::lock_guard lock(mu_);
+    for (auto& [id, j] : jobs_) {
+      if (j->cancel_requested) {
+        to_cancel.push_back(id);
+      } else if (!j->published) {
+        to_publish.push_back(id);
+      }
+    }
+  }
+  for (const auto& id : to_cancel) leave(id, false, {});
+  for (const auto& id : to_publish) {
+    Job* j;
+    {
+      std::lock_guard lock(mu_);
+      auto it = jobs_.find(id);
+      if (it == jobs_.end()) continue;
+      j = it->second.get();
+    }
+    publish(*j);
+  }
+
+  // Wait briefly for a completed pass (the store script pushes the job id).
+  std::vector<std::string> notified;
+  const RValue r = conn_->cmd({"BLPOP", kNotify, "0.05"});
+  if (r.is_array() && r.elems.size() == 2) {
+    notified.push_back(r.elems[1].str);
+    for (int i = 0; i < 1000; ++i) {
+      const RValue more = conn_->cmd({"LPOP", kNotify});
+      if (more.is_nil()) break;
+      notified.push_back(more.str);
+    }
+  }
+  const auto now = Clock::now();
+  if (now - last_poll_ >= std::chrono::milliseconds(250)) {
+    last_poll_ = now;
+    poll({});  // also catches lost notifications and streams Redis lost
+  } else if (!notified.empty()) {
+    poll(notified);
+  }
+  if (now - last_refresh_ >= std::chrono::milliseconds(500)) {
+    last_refresh_ = now;
+    refresh();
+  }
+}
+
+void RedisExecutor::sweep(const Job& job) {
+  // Keys of this job from an earlier run (older epoch, a coordinator that died, a
+  // cancelled run before an extend): delete them so they are never read or merged.
+  const std::string pattern = fmt::format("tally:?:{}:*", job.ej.id);
+  std::string cursor = "0";
+  do {
+    const RValue r = conn_->cmd({"SCAN", cursor, "MATCH", pattern, "COUNT", "1000"});
+    if (!r.is_array() || r.elems.size() != 2) break;
+    cursor = r.elems[0].str;
+    for (const RValue& k : r.elems[1].elems) {
+      if (k.str.find(":" + job.run + ":") != std::string::npos) continue;
+      conn_->cmd({"DEL", k.str});
+      conn_->cmd({"SREM", kActive, k.str});
+    }
+  } while (cursor != "0");
+}
+
+void RedisExecutor::publish(Job& job) {
+  if (!job.swept) {
+    sweep(job);
+    job.swept = true;
+  }
+  const std::string& id = job.ej.id;
+  const std::string jk = job_key(id);
+  const std::string s = pass_key('s', id, job.run, job.pass.pass);
+  const std::string p = pass_key('p', id, job.run, job.pass.pass);
+  const std::string r = pass_key('r', id, job.run, job.pass.pass);
+  const size_t n = job.pass.blocks.size();
+
+  conn_->cmd({"HSET", jk, "run", job.run, "cancelled", "0", "spec", job.ej.spec_json, "assets", job.manifest,
+              "max_failures", std::to_string(cfg_.max_failures)});
+  conn_->cmd({"HDEL", jk, "failed", "mismatch"});
+  for (const auto& [rel, a] : job.assets) conn_->cmd({"SET", asset_key(a.sha256), a.bytes, "NX"});
+  conn_->cmd({"HSET", p, "n", std::to_string(n), "input", job.pass.pass_input});
+
+  // Results already stored (a reconnect without a Redis restart) need no new entry.
+  std::set<size_t> have;
+  for (const RValue& k : conn_->cmd({"HKEYS", r}).elems) have.insert(static_cast<size_t>(k.as_int()));
+  conn_->cmd({"DEL", s});
+  conn_->cmd({"XGROUP", "CREATE", s, kGroup, "$", "MKSTREAM"});
+  // Entry sizes by guided self-scheduling: each entry takes 1/(2T) of what is left (T:
+  // live worker threads), at most ~20 ms and at least ~2 ms of work (from the workers'
+  // measured time per block), so a pass starts with few big entries and ends with
+  // small ones, and the last worker to finish waits for little.
+  size_t k_max = 1, k_min = 1, threads = 1;
+  {
+    std::lock_guard lock(mu_);
+    unsigned t = 0;
+    for (const auto& w : workers_) t += w.threads;
+    threads = std::max(1u, t);
+    if (job.block_seconds > 0) {
+      k_max = static_cast<size_t>(std::clamp(0.02 / job.block_seconds, 1.0, 4096.0));
+      k_min = static_cast<size_t>(std::clamp(0.002 / job.block_seconds, 1.0, 4096.0));
+    }
+    k_max = std::clamp<size_t>(k_max, 1, std::max<size_t>(1, cfg_.max_entry_blocks));
+    k_min = std::min(k_min, k_max);
+  }
+  size_t missing = n - std::min(n, have.size());
+  std::vector<std::pair<std::string, std::string>> entries;  // first slot, blocks
+  size_t largest = 0;
+  for (size_t i = 0; i < n;) {
+    if (have.count(i)) {
+      ++i;
+      continue;
+    }
+    const size_t k = std::clamp((missing + 2 * threads - 1) / (2 * threads), k_min, k_max);
+    std::string bytes;
+    const size_t first = i;
+    while (i < n && i - first < k && !have.count(i)) bytes += encode_block(job.pass.blocks[i++]);
+    missing -= i - first;
+    largest = std::max(largest, i - first);
+    entries.emplace_back(std::to_string(first), std::move(bytes));
+  }
+  {
+    std::lock_guard lock(mu_);
+    job.entry_blocks = std::max<size_t>(1, largest);
+  }
+  for (const auto& [first, bytes] : entries) conn_->append({"XADD", s, "*", "b", bytes, "s", first});
+  for (size_t i = 0; i < entries.size(); ++i) {
+    const RValue v = conn_->get_reply();
+    if (v.type == RValue::Type::error) throw RedisReplyError("XADD: " + v.str);
+  }
+  conn_->cmd({"SADD", kActive, s});
+  conn_->cmd({"XADD", kWake, "MAXLEN", "~", "1000", "*", "j", id});
+  std::lock_guard lock(mu_);
+  if (job.pass_start == Clock::time_point{}) job.pass_start = Clock::now();
+  job.published = true;
+  job.blocks.pending = n - have.size();
+}
+
+void RedisExecutor::poll(const std::vector<std::string>& ids) {
+  struct Probe {
+    std::string id, r, s, jk;
+    size_t n;
+  };
+  std::vector<Probe> probes;
+  {
+    std::lock_guard lock(mu_);
+    auto add_probe = [&](const Job& j) {
+      if (!j.published || j.cancel_requested) return;
+      probes.push_back({j.ej.id, pass_key('r', j.ej.id, j.run, j.pass.pass), pass_key('s', j.ej.id, j.run, j.pass.pass),
+                        job_key(j.ej.id), j.pass.blocks.size()});
+    };
+    if (ids.empty()) {
+      for (const auto& [id, j] : jobs_) add_probe(*j);
+    } else {
+      for (const auto& id : ids) {
+        if (auto it = jobs_.find(id); it != jobs_.end()) add_probe(*it->second);
+      }
+    }
+  }
+  for (const Probe& pr : probes) {
+    conn_->append({"HLEN", pr.r});
+    conn_->append({"EXISTS", pr.s});
+    conn_->append({"HMGET", pr.jk, "failed", "mismatch", "run"});
+  }
+  struct Outcome {
+    std::string id;
+    enum { nothing, merge, fail, republish } what = nothing;
+    std::string error;
+  };
+  std::vector<Outcome> outcomes;
+  for (const Probe& pr : probes) {
+    const RValue hlen = conn_->get_reply();
+    const RValue exists = conn_->get_reply();
+    const RValue flags = conn_->get_reply();
+    Outcome o;
+    o.id = pr.id;
+    if (flags.is_array() && flags.elems.size() == 3) {
+      if (!flags.elems[0].is_nil()) {
+        o.what = Outcome::fail;
+        o.error = flags.elems[0].str;
+      } else if (!flags.elems[1].is_nil()) {
+        o.what = Outcome::fail;
+        o.error = fmt::format(
+            "non-determinism: two deliveries of block slot {} of pass gave different results; the job cannot be "
+            "trusted",
+            flags.elems[1].str);
+      } else if (flags.elems[2].is_nil()) {
+        o.what = Outcome::republish;  // Redis lost the job (restart, flush)
+      }
+    }
+    if (o.what == Outcome::nothing) {
+      if (hlen.type == RValue::Type::integer && static_cast<size_t>(hlen.integer) >= pr.n) {
+        o.what = Outcome::merge;
+      } else if (exists.type == RValue::Type::integer && exists.integer == 0) {
+        o.what = Outcome::republish;
+      }
+    }
+    outcomes.push_back(std::move(o));
+  }
+  for (const Outcome& o : outcomes) {
+    switch (o.what) {
+      case Outcome::merge: merge(o.id); break;
+      case Outcome::fail:
+        log::job(log::Level::error, o.id, "{}", o.error);
+        leave(o.id, true, o.error);
+        break;
+      case Outcome::republish: {
+        std::lock_guard lock(mu_);
+        if (auto it = jobs_.find(o.id); it != jobs_.end()) {
+          it->second->published = false;
+          counters_.republished++;
+          log::job(log::Level::warn, o.id, "its pass vanished from Redis; republishing");
+        }
+        break;
+      }
+      case Outcome::nothing: break;
+    }
+  }
+}
+
+void RedisExecutor::merge(const std::string& id) {
+  Job* job;
+  {
+    std::lock_guard lock(mu_);
+    auto it = jobs_.find(id);
+    if (it == jobs_.end() || it->second->cancel_requested) return;
+    job = it->second.get();
+  }
+  const PassWork& pass = job->pass;
+  const size_t n = pass.blocks.size();
+  const std::string r = pass_key('r', id, job->run, pass.pass);
+  const RValue all = conn_->cmd({"HGETALL", r});
+  std::vector<BlockResult> results(n);
+  std::vector<bool> seen(n, false);
+  std::string error;
+  for (size_t i = 0; i + 1 < all.elems.size(); i += 2) {
+    size_t slot = 0;
+    try {
+      slot = static_cast<size_t>(all.elems[i].as_int());
+    } catch (const std::exception&) {
+      error = "a result field is not a slot number";
+      break;
+    }
+    if (slot >= n) {
+      error = fmt::format("result slot {} is out of range (pass of {} blocks)", slot, n);
+      break;
+    }
+    try {
+      results[slot] = decode_result(all.elems[i + 1].str);
+    } catch (const WireError& e) {
+      error = fmt::format("the result of block slot {} cannot be decoded: {}", slot, e.what());
+      break;
+    }
+    if (results[slot].block_index != pass.blocks[slot].index) {
+      error = fmt::format("the result in slot {} belongs to block {}, expected {}", slot, results[slot].block_index,
+                          pass.blocks[slot].index);
+      break;
+    }
+    seen[slot] = true;
+  }
+  if (error.empty() && std::find(seen.begin(), seen.end(), false) != seen.end()) return;  // not complete yet
+  if (!error.empty()) {
+    log::job(log::Level::error, id, "{}", error);
+    leave(id, true, error);
+    return;
+  }
+  const double wall = std::chrono::duration<double>(Clock::now() - job->pass_start).count();
+  {
+    const RValue m = conn_->cmd({"HMGET", job_key(id), "compute_s", "computed"});
+    try {
+      const double secs = m.elems.at(0).is_nil() ? 0.0 : std::stod(m.elems[0].str);
+      const long long blocks = m.elems.at(1).as_int();
+      if (secs > 0 && blocks > 0) job->block_seconds = secs / static_cast<double>(blocks);
+    } catch (const std::exception& e) {
+      log::job(log::Level::debug, id, "no block time measured yet ({}): entries stay one block long", e.what());
+    }
+  }
+  // The pass is merged: its stream, inputs and results go. Digests stay a few passes
+  // so a late duplicate is still compared.
+  const std::string s = pass_key('s', id, job->run, pass.pass);
+  conn_->cmd({"SREM", kActive, s});
+  conn_->cmd({"DEL", s, pass_key('p', id, job->run, pass.pass), r, pass_key('f', id, job->run, pass.pass)});
+  job->digest_passes.push_back(pass.pass);
+  while (job->digest_passes.size() > cfg_.digest_passes) {
+    conn_->cmd({"DEL", pass_key('d', id, job->run, job->digest_passes.front())});
+    job->digest_passes.pop_front();
+  }
+  uint64_t samples = 0;
+  for (const Block& b : pass.blocks) samples += b.sample_count;
+  {
+    std::lock_guard lock(mu_);
+    counters_.merged += n;
+    samples_done_ += samples;
+  }
+  PassWork next = cb_.pass_done(id, pass, std::move(results), wall);
+  bool leave_now = false;
+  {
+    std::lock_guard lock(mu_);
+    if (next.empty()) {
+      leave_now = true;
+    } else {
+      job->pass = std::move(next);
+      job->published = false;
+      job->pass_start = Clock::now();
+      job->blocks = {};
+      job->blocks.pending = job->pass.blocks.size();
+    }
+  }
+  if (leave_now) {
+    delete_job_keys(*job);
+    std::lock_guard lock(mu_);
+    jobs_.erase(id);
+  } else if (!job->cancel_requested) {
+    publish(*job);
+  }
+}
+
+void RedisExecutor::delete_job_keys(Job& job) {
+  const std::string& id = job.ej.id;
+  const std::string s = pass_key('s', id, job.run, job.pass.pass);
+  conn_->cmd({"HSET", job_key(id), "cancelled", "1"});
+  conn_->cmd({"SREM", kActive, s});
+  conn_->cmd({"DEL", s, pass_key('p', id, job.run, job.pass.pass), pass_key('r', id, job.run, job.pass.pass),
+              pass_key('f', id, job.run, job.pass.pass)});
+  for (uint64_t p : job.digest_passes) conn_->cmd({"DEL", pass_key('d', id, job.run, p)});
+  conn_->cmd({"DEL", pass_key('d', id, job.run, job.pass.pass)});
+  job.digest_passes.clear();
+  conn_->cmd({"DEL", job_key(id)});
+}
+
+void RedisExecutor::leave(const std::string& id, bool failed, const std::string& error) {
+  Job* job;
+  {
+    std::lock_guard lock(mu_);
+    auto it = jobs_.find(id);
+    if (it == jobs_.end()) return;
+    job = it->second.get();
+  }
+  delete_job_keys(*job);  // a late result finds no run: stale, never merged
+  {
+    std::lock_guard lock(mu_);
+    jobs_.erase(id);
+  }
+  if (failed) {
+    if (cb_.failed) cb_.failed(id, error);
+  } else if (cb_.cancelled) {
+    cb_.cancelled(id);
+  }
+}
+
+void RedisExecutor::refresh() {
+  const double now = unix_seconds();
+  const double timeout = worker_timeout_s(cfg_.lease);
+  conn_->cmd({"ZREMRANGEBYSCORE", kWorkers, "-inf", fmt::format("{}", now - 10 * timeout)});
+  const RValue names = conn_->cmd({"ZRANGE", kWorkers, "0", "-1"});
+  std::vector<WorkerInfo> ws;
+  for (const RValue& name : names.elems) {
+    const RValue h = conn_->cmd({"HMGET", worker_key(name.str), "host", "threads", "heartbeat", "blocks_done", "current_job"});
+    if (!h.is_array() || h.elems.size() != 5 || h.elems[2].is_nil()) continue;
+    WorkerInfo w;
+    w.name = name.str;
+    w.host = h.elems[0].str;
+    try {
+      w.threads = static_cast<unsigned>(h.elems[1].as_int());
+      w.last_heartbeat = std::stod(h.elems[2].str);
+      w.blocks_done = static_cast<uint64_t>(h.elems[3].as_int());
+    } catch (const std::exception&) {
+      continue;  // a malformed registry entry is not a live worker
+    }
+    w.current_job = h.elems[4].str;
+    if (now - w.last_heartbeat > timeout) continue;
+    ws.push_back(std::move(w));
+  }
+  const RValue c = conn_->cmd({"HMGET", kCounters, "first", "dup_equal", "dup_differ", "stale", "failures"});
+
+  // Per job: blocks in flight (pending entries) and redelivered.
+  struct Probe {
+    std::string id, s, jk, r;
+    uint64_t n, k;
+  };
+  std::vector<Probe> probes;
+  {
+    std::lock_guard lock(mu_);
+    for (const auto& [id, j] : jobs_) {
+      if (j->published) {
+        probes.push_back({id, pass_key('s', id, j->run, j->pass.pass), job_key(id), pass_key('r', id, j->run, j->pass.pass),
+                          j->pass.blocks.size(), j->entry_blocks});
+      }
+    }
+  }
+  std::map<std::string, ExecutorStats::JobBlocks> flight;
+  for (const Probe& p : probes) {
+    conn_->append({"XPENDING", p.s, kGroup});
+    conn_->append({"HGET", p.jk, "redelivered"});
+    conn_->append({"HLEN", p.r});
+    conn_->append({"XPENDING", p.s, kGroup, "-", "+", "50"});
+  }
+  // Entries delivered again and again without a result: the workers that took them died
+  // or stalled each time (a crash on that block, not a thrown error). Give up on the job
+  // rather than loop forever; one delivery more than --max-deliveries allows one stall.
+  std::vector<std::pair<std::string, std::string>> crashed;
+  for (const Probe& p : probes) {
+    const RValue pend = conn_->get_reply();
+    const RValue red = conn_->get_reply();
+    const RValue stored = conn_->get_reply();
+    const RValue detail = conn_->get_reply();
+    for (const RValue& e : detail.elems) {
+      if (e.elems.size() < 4 || e.elems[3].type != RValue::Type::integer) continue;
+      if (static_cast<uint64_t>(e.elems[3].integer) > static_cast<uint64_t>(cfg_.max_failures) + 1) {
+        crashed.emplace_back(p.id, fmt::format("an entry of blocks was delivered {} times and no worker finished it "
+                                               "(last held by {}): the workers crash or stall on it",
+                                               e.elems[3].integer, e.elems[1].str));
+        break;
+      }
+    }
+    uint64_t inflight = 0;
+    if (pend.is_array() && !pend.elems.empty() && pend.elems[0].type == RValue::Type::integer) {
+      inflight = static_cast<uint64_t>(pend.elems[0].integer);
+    }
+    const uint64_t redelivered = static_cast<uint64_t>(red.to_int().value_or(0));
+    const uint64_t done = stored.type == RValue::Type::integer ? static_cast<uint64_t>(stored.integer) : 0;
+    ExecutorStats::JobBlocks b;
+    b.in_flight = std::min<uint64_t>(p.n - std::min<uint64_t>(p.n, done), inflight * p.k);
+    b.redelivered = redelivered;
+    b.pending = p.n > done + b.in_flight ? p.n - done - b.in_flight : 0;
+    flight[p.id] = b;
+  }
+  std::unique_lock lock(mu_);
+  workers_ = std::move(ws);
+  if (c.is_array() && c.elems.size() == 5) {
+    auto v = [&](size_t i) -> uint64_t { return static_cast<uint64_t>(c.elems[i].to_int().value_or(0)); };
+    counters_.first = v(0);
+    counters_.dup_equal = v(1);
+    counters_.dup_differ = v(2);
+    counters_.stale = v(3);
+    counters_.failures = v(4);
+  }
+  for (auto& [id, j] : jobs_) {
+    auto it = flight.find(id);
+    if (it == flight.end()) continue;
+    j->blocks = it->second;
+  }
+  lock.unlock();
+  for (const auto& [id, error] : crashed) {
+    log::job(log::Level::error, id, "{}", error);
+    leave(id, true, error);
+  }
+}
+
+}  // namespace tally::cluster

@@ -1,0 +1,120 @@
+#pragma once
+// The cluster executor (coordinator side): each pass of a job becomes a Redis stream
+// of its blocks with a consumer group; tally-worker processes (server/cluster/worker.hpp)
+// compute them and store each result once, atomically (first wins, duplicates are
+// compared byte for byte). This executor collects a complete pass, decodes it and
+// hands it to pass_done in block order, so the bits equal an in-process run. It never
+// computes blocks itself. Protocol: server/cluster/protocol.hpp, docs/cluster.md.
+//
+// Thread-safety: as Executor. One coordinator thread owns the Redis connection and
+// runs every callback; add/cancel only queue requests for it.
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "server/cluster/assets.hpp"
+#include "server/cluster/redis_conn.hpp"
+#include "server/executor/executor.hpp"
+
+namespace tally::cluster {
+
+struct RedisExecutorConfig {
+  RedisUrl url;
+  std::chrono::milliseconds lease{30000};  // a block's lease before workers reclaim it
+  unsigned max_failures = 3;               // failed deliveries of one block that fail its job
+  std::string asset_dir;                   // where the specs' OBJ files are read from
+  size_t digest_passes = 16;               // passes whose result digests stay for late duplicates
+  size_t max_entry_blocks = 4096;          // cap on blocks per stream entry (benchmarks set 1)
+};
+
+struct WorkerInfo {
+  std::string name, host, current_job;
+  unsigned threads = 0;
+  double last_heartbeat = 0;  // unix seconds
+  uint64_t blocks_done = 0;
+};
+
+// Cluster-wide result counts (since Redis started): what a test or operator checks to
+// see that no block was merged twice and duplicates were compared.
+struct ClusterCounters {
+  uint64_t first = 0, dup_equal = 0, dup_differ = 0, stale = 0, failures = 0;
+  uint64_t merged = 0;  // blocks merged by this coordinator
+  uint64_t republished = 0;  // passes republished after Redis lost them
+};
+
+class RedisExecutor final : public Executor {
+ public:
+  RedisExecutor(RedisExecutorConfig config, ExecutorCallbacks callbacks);
+  ~RedisExecutor() override;
+  RedisExecutor(const RedisExecutor&) = delete;
+  RedisExecutor& operator=(const RedisExecutor&) = delete;
+
+  void add(ExecutorJob job, PassWork first_pass) override;
+  bool cancel(const std::string& id) override;
+  // Leaves Redis as it is (a restarted coordinator sweeps the old run's keys).
+  void stop() override;
+  ExecutorStats stats() const override;
+  std::optional<std::string> not_ready_reason() const override;
+  std::optional<std::string> waiting_reason(const std::string& id) const override;
+
+  std::vector<WorkerInfo> workers() const;
+  ClusterCounters counters() const;
+  const RedisExecutorConfig& config() const { return cfg_; }
+
+ private:
+  struct Job {
+    ExecutorJob ej;
+    std::string run;
+    PassWork pass;
+    std::map<std::string, JobAsset> assets;
+    std::string manifest;
+    std::chrono::steady_clock::time_point pass_start;
+    bool published = false;  // the current pass is in Redis
+    bool swept = false;      // keys of older runs removed
+    bool cancel_requested = false;
+    std::deque<uint64_t> digest_passes;
+    ExecutorStats::JobBlocks blocks;
+    double block_seconds = 0;  // workers' measured compute time per block
+    size_t entry_blocks = 1;   // blocks per stream entry in the current pass
+  };
+
+  void loop();
+  void step();
+  bool connect();
+  void publish(Job& job);
+  void sweep(const Job& job);
+  // Checks the jobs' result hashes; merges complete passes. `ids` empty: all jobs.
+  void poll(const std::vector<std::string>& ids);
+  void merge(const std::string& id);
+  void leave(const std::string& id, bool failed, const std::string& error);
+  void delete_job_keys(Job& job);
+  void refresh();
+
+  RedisExecutorConfig cfg_;
+  ExecutorCallbacks cb_;
+  std::unique_ptr<RedisConn> conn_;  // coordinator thread only
+  std::string run_id_;
+  bool first_connect_ = true;
+  uint64_t generation_ = 0;
+  std::chrono::steady_clock::time_point last_poll_{}, last_refresh_{};
+
+  mutable std::mutex mu_;
+  std::condition_variable cv_;
+  std::map<std::string, std::unique_ptr<Job>> jobs_;
+  std::optional<std::string> not_ready_;
+  std::vector<WorkerInfo> workers_;
+  ClusterCounters counters_;
+  uint64_t samples_done_ = 0;
+  bool stopping_ = false;
+  std::thread thread_;
+};
+
+}  // namespace tally::cluster

@@ -1,0 +1,28 @@
+#pragma once
+// Binary encodings of what crosses Redis: a Block (a work stream entry) and a
+// BlockResult (a result hash field). Doubles travel as raw bits, so a result merged
+// from Redis is bit-identical to one computed in process. Decoding checks lengths and
+// a version byte and throws WireError, never reads past the input.
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "common/engine/kernel.hpp"
+
+namespace tally::cluster {
+
+class WireError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+std::string encode_block(const Block& b);
+Block decode_block(std::string_view bytes);
+// k blocks back to back (a stream entry); throws WireError unless a whole number of blocks.
+std::vector<Block> decode_blocks(std::string_view bytes);
+
+std::string encode_result(const BlockResult& r);
+BlockResult decode_result(std::string_view bytes);
+
+}  // namespace tally::cluster

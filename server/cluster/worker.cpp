@@ -1,0 +1,407 @@
+#include "server/cluster/worker.hpp"
+
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <deque>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "common/jobs/job_factory.hpp"
+#include "common/protocol/spec_reader.hpp"
+#include "server/cluster/assets.hpp"
+#include "server/cluster/protocol.hpp"
+#include "server/cluster/wire.hpp"
+
+namespace tally::cluster {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using namespace std::chrono_literals;
+
+// Resets the idle time of an entry this consumer still holds (never steals one that
+// was reclaimed by another worker meanwhile).
+constexpr std::string_view kKeepLeaseScript = R"lua(
+local p = redis.call('XPENDING', KEYS[1], 'w', ARGV[1], ARGV[1], 1, ARGV[2])
+if #p == 1 then
+  redis.call('XCLAIM', KEYS[1], 'w', ARGV[2], 0, ARGV[1], 'JUSTID')
+  return 1
+end
+return 0
+)lua";
+
+struct Held {
+  std::string stream, entry, consumer, job;
+};
+
+struct Compiled {
+  std::shared_ptr<const JobDefinition> def;
+  std::shared_ptr<const Kernel> kernel;
+  std::string error;  // non-empty: the spec was refused here
+};
+
+struct PassMeta {
+  uint64_t n = 0;
+  std::string input;
+};
+
+struct StreamKey {
+  std::string id, run;
+  uint64_t pass = 0;
+};
+
+std::optional<StreamKey> parse_stream_key(const std::string& k) {
+  // tally:s:{id}:{run}:{pass}
+  if (!k.starts_with("tally:s:")) return std::nullopt;
+  const std::string rest = k.substr(8);
+  const size_t a = rest.find(':');
+  const size_t b = a == std::string::npos ? a : rest.find(':', a + 1);
+  if (a == std::string::npos || b == std::string::npos || a == 0) return std::nullopt;
+  StreamKey s;
+  s.id = rest.substr(0, a);
+  s.run = rest.substr(a + 1, b - a - 1);
+  try {
+    size_t used = 0;
+    s.pass = std::stoull(rest.substr(b + 1), &used);
+    if (used != rest.size() - b - 1) return std::nullopt;
+  } catch (const std::exception&) {
+    return std::nullopt;
+  }
+  return s;
+}
+
+double unix_seconds() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+class Worker {
+ public:
+  Worker(const WorkerConfig& cfg, const std::atomic<bool>& stop) : cfg_(cfg), stop_(stop), held_(cfg.threads) {}
+
+  int run() {
+    std::vector<std::thread> threads;
+    for (unsigned t = 0; t < cfg_.threads; ++t) threads.emplace_back([this, t] { compute_loop(t); });
+    heartbeat_loop();
+    for (auto& th : threads) th.join();
+    return 0;
+  }
+
+ private:
+  void log(const std::string& msg) {
+    std::lock_guard lock(log_mu_);
+    fmt::print("tally-worker {}: {}\n", cfg_.name, msg);
+    std::fflush(stdout);
+  }
+
+  std::chrono::milliseconds lease() const { return std::chrono::milliseconds(lease_ms_.load()); }
+
+  // ------------------------------------------------------------ heartbeat
+
+  void heartbeat_loop() {
+    std::unique_ptr<RedisConn> conn;
+    std::string keep_sha;
+    while (!stop_) {
+      try {
+        if (!conn) {
+          conn = std::make_unique<RedisConn>(cfg_.url);
+          keep_sha = conn->load_script(kKeepLeaseScript);
+        }
+        beat(*conn, keep_sha);
+      } catch (const std::exception& e) {
+        if (conn) log(fmt::format("heartbeat: {}", e.what()));
+        conn.reset();
+      }
+      const auto period = std::clamp(lease() / 3, std::chrono::milliseconds(100), std::chrono::milliseconds(1000));
+      const auto until = Clock::now() + period;
+      while (!stop_ && Clock::now() < until) std::this_thread::sleep_for(20ms);
+    }
+    // Leave the registry at once so the coordinator stops counting this worker.
+    try {
+      if (!conn) conn = std::make_unique<RedisConn>(cfg_.url, 1000ms);
+      conn->cmd({"ZREM", kWorkers, cfg_.name});
+      conn->cmd({"DEL", worker_key(cfg_.name)});
+    } catch (const std::exception& e) {
+      log(fmt::format("could not leave the registry ({}); the entry expires by itself", e.what()));
+    }
+  }
+
+  void beat(RedisConn& conn, const std::string& keep_sha) {
+    const RValue l = conn.cmd({"HGET", "tally:config", "lease_ms"});
+    if (auto v = l.to_int()) lease_ms_ = std::max<long long>(100, *v);
+    std::vector<Held> held;
+    {
+      std::lock_guard lock(mu_);
+      for (const auto& h : held_) {
+        if (!h.entry.empty()) held.push_back(h);
+      }
+    }
+    for (const Held& h : held) {
+      conn.evalsha(keep_sha, kKeepLeaseScript, {h.stream}, {h.entry, h.consumer});
+    }
+    const double now = unix_seconds();
+    const std::string wk = worker_key(cfg_.name);
+    conn.cmd({"HSET", wk, "name", cfg_.name, "host", cfg_.host, "threads", std::to_string(cfg_.threads), "heartbeat",
+              fmt::format("{:.3f}", now), "blocks_done", std::to_string(blocks_done_.load()), "current_job",
+              held.empty() ? std::string() : held.front().job});
+    conn.cmd({"EXPIRE", wk, std::to_string(std::max<long long>(60, 10 * lease_ms_.load() / 1000))});
+    conn.cmd({"ZADD", kWorkers, fmt::format("{:.3f}", now), cfg_.name});
+    if (!cfg_.health_file.empty()) std::ofstream(cfg_.health_file, std::ios::trunc) << fmt::format("{:.3f}\n", now);
+  }
+
+  // ------------------------------------------------------------ compute
+
+  void compute_loop(unsigned t) {
+    const std::string consumer = fmt::format("{}/{}", cfg_.name, t);
+    std::unique_ptr<RedisConn> conn;
+    std::string store_sha, fail_sha, wake_id;
+    size_t rotate = t;
+    auto last_claim = Clock::now() - 1h;
+    bool warned = false;
+    while (!stop_) {
+      try {
+        if (!conn) {
+          conn = std::make_unique<RedisConn>(cfg_.url);
+          store_sha = conn->load_script(kStoreScript);
+          fail_sha = conn->load_script(kFailScript);
+          const RValue last = conn->cmd({"XREVRANGE", kWake, "+", "-", "COUNT", "1"});
+          wake_id = last.is_array() && !last.elems.empty() ? last.elems[0].elems[0].str : "0-0";
+          if (warned) log("connected to redis again");
+          warned = false;
+        }
+        const RValue active = conn->cmd({"SMEMBERS", kActive});
+        std::vector<std::string> streams;
+        for (const RValue& v : active.elems) streams.push_back(v.str);
+        bool worked = false;
+        // Reclaim blocks whose lease expired (a killed or stalled worker's).
+        if (!streams.empty() && Clock::now() - last_claim >= lease() / 4) {
+          last_claim = Clock::now();
+          for (size_t si = 0; si < streams.size() && !worked; ++si) {
+            const std::string& s = streams[si];
+            // XAUTOCLAIM looks at 10 x COUNT pending entries per call: follow the cursor.
+            std::string cursor = "0-0";
+            for (int scan = 0; scan < 20 && !worked; ++scan) {
+              const RValue r = try_cmd(*conn, {"XAUTOCLAIM", s, kGroup, consumer, std::to_string(lease_ms_.load()),
+                                               cursor, "COUNT", "1"});
+              if (!r.is_array() || r.elems.size() < 2) break;
+              if (!r.elems[1].elems.empty()) {
+                const RValue& e = r.elems[1].elems[0];
+                if (e.is_array() && e.elems.size() == 2 && e.elems[1].is_array()) {
+                  process(*conn, t, consumer, s, e, true, store_sha, fail_sha);
+                  worked = true;
+                }
+              }
+              cursor = r.elems[0].str;
+              if (cursor == "0-0") break;
+            }
+          }
+        }
+        if (!worked) {
+          for (size_t i = 0; i < streams.size() && !worked; ++i) {
+            const std::string& s = streams[(rotate + i) % streams.size()];
+            const RValue r = try_cmd(*conn, {"XREADGROUP", "GROUP", kGroup, consumer, "COUNT", "1", "STREAMS", s, ">"});
+            if (r.is_array() && !r.elems.empty() && r.elems[0].elems.size() == 2 && !r.elems[0].elems[1].elems.empty()) {
+              process(*conn, t, consumer, s, r.elems[0].elems[1].elems[0], false, store_sha, fail_sha);
+              worked = true;
+            }
+          }
+          ++rotate;
+        }
+        if (!worked) {
+          // Idle: wait for the coordinator to announce work, at most a quarter lease
+          // (then look for expired leases again).
+          const auto wait = std::clamp(lease() / 4, std::chrono::milliseconds(20), std::chrono::milliseconds(500));
+          const RValue r = conn->cmd({"XREAD", "COUNT", "100", "BLOCK", std::to_string(wait.count()), "STREAMS", kWake, wake_id});
+          if (r.is_array() && !r.elems.empty() && r.elems[0].elems.size() == 2 && !r.elems[0].elems[1].elems.empty()) {
+            wake_id = r.elems[0].elems[1].elems.back().elems[0].str;
+          }
+        }
+      } catch (const RedisIoError& e) {
+        if (!warned) log(fmt::format("redis unreachable ({}); retrying", e.what()));
+        warned = true;
+        conn.reset();
+        for (int i = 0; i < 25 && !stop_; ++i) std::this_thread::sleep_for(20ms);
+      } catch (const std::exception& e) {
+        log(fmt::format("unexpected: {}", e.what()));
+        for (int i = 0; i < 10 && !stop_; ++i) std::this_thread::sleep_for(20ms);
+      }
+    }
+  }
+
+  // A command on a stream that may vanish (merged, cancelled): NOGROUP is not an error.
+  static RValue try_cmd(RedisConn& conn, const std::vector<std::string_view>& argv) {
+    try {
+      return conn.cmd(argv);
+    } catch (const RedisReplyError&) {
+      return {};
+    }
+  }
+
+  Compiled compile(RedisConn& conn, const StreamKey& sk) {
+    const std::string tag = sk.id + "_" + sk.run;
+    std::lock_guard lock(compile_mu_);
+    if (auto it = kernels_.find(tag); it != kernels_.end()) return it->second;
+    Compiled c;
+    const RValue h = conn.cmd({"HMGET", job_key(sk.id), "spec", "assets"});
+    try {
+      if (h.elems.size() != 2 || h.elems[0].is_nil()) throw std::runtime_error("the job's spec is missing from Redis");
+      const nlohmann::json spec = nlohmann::json::parse(h.elems[0].str);
+      JobLimits limits = cfg_.limits;
+      limits.asset_dir.clear();  // only the job's own assets, never a local directory
+      if (!h.elems[1].is_nil() && !h.elems[1].str.empty()) {
+        const nlohmann::json manifest = nlohmann::json::parse(h.elems[1].str);
+        if (!manifest.empty()) limits.asset_dir = materialize_assets(conn, manifest, cfg_.cache_dir, tag).string();
+      }
+      std::shared_ptr<const JobDefinition> def = compile_job(spec, limits);
+      c.kernel = def->kernel();
+      c.def = std::move(def);
+    } catch (const SpecError& e) {
+      c.error = fmt::format("the worker refused the spec: {} (at {})", e.detail(), e.pointer());
+    } catch (const std::exception& e) {
+      c.error = fmt::format("the worker could not compile the spec: {}", e.what());
+    }
+    kernels_[tag] = c;
+    kernel_order_.push_back(tag);
+    while (kernel_order_.size() > 8) {
+      kernels_.erase(kernel_order_.front());
+      std::error_code ec;
+      std::filesystem::remove_all(cfg_.cache_dir / "jobs" / kernel_order_.front(), ec);
+      kernel_order_.pop_front();
+    }
+    return c;
+  }
+
+  std::optional<PassMeta> pass_meta(RedisConn& conn, const StreamKey& sk) {
+    const std::string p = pass_key('p', sk.id, sk.run, sk.pass);
+    {
+      std::lock_guard lock(mu_);
+      if (auto it = metas_.find(p); it != metas_.end()) return it->second;
+    }
+    const RValue h = conn.cmd({"HMGET", p, "n", "input"});
+    if (h.elems.size() != 2 || h.elems[0].is_nil()) return std::nullopt;
+    PassMeta m;
+    m.n = static_cast<uint64_t>(h.elems[0].as_int());
+    m.input = h.elems[1].str;
+    std::lock_guard lock(mu_);
+    metas_[p] = m;
+    meta_order_.push_back(p);
+    while (meta_order_.size() > 64) {
+      metas_.erase(meta_order_.front());
+      meta_order_.pop_front();
+    }
+    return m;
+  }
+
+  void process(RedisConn& conn, unsigned t, const std::string& consumer, const std::string& stream, const RValue& entry,
+               bool redelivered, const std::string& store_sha, const std::string& fail_sha) {
+    const std::string& entry_id = entry.elems[0].str;
+    std::string block_bytes, slot;
+    const auto& fv = entry.elems[1].elems;
+    for (size_t i = 0; i + 1 < fv.size(); i += 2) {
+      if (fv[i].str == "b") block_bytes = fv[i + 1].str;
+      if (fv[i].str == "s") slot = fv[i + 1].str;
+    }
+    const auto sk = parse_stream_key(stream);
+    if (!sk || slot.empty()) {
+      log(fmt::format("ignoring a malformed entry {} of {}", entry_id, stream));
+      try_cmd(conn, {"XACK", stream, kGroup, entry_id});
+      return;
+    }
+    const std::string jk = job_key(sk->id);
+    const RValue st = conn.cmd({"HMGET", jk, "run", "cancelled", "max_failures"});
+    if (st.elems.size() != 3 || st.elems[0].str != sk->run || st.elems[1].str == "1") {
+      try_cmd(conn, {"XACK", stream, kGroup, entry_id});  // cancelled or an older run: skip
+      return;
+    }
+    if (redelivered) conn.cmd({"HINCRBY", jk, "redelivered", "1"});
+    const std::string max_failures = st.elems[2].is_nil() ? std::string("3") : st.elems[2].str;
+    const Compiled c = compile(conn, *sk);
+    const auto meta = pass_meta(conn, *sk);
+    if (!meta) {
+      try_cmd(conn, {"XACK", stream, kGroup, entry_id});  // the pass is gone (merged)
+      return;
+    }
+    {
+      std::lock_guard lock(mu_);
+      held_[t] = Held{stream, entry_id, consumer, sk->id};
+    }
+    std::vector<std::string> results;
+    std::string error;
+    uint64_t block_index = 0;
+    const auto t0 = Clock::now();
+    try {
+      const std::vector<Block> blocks = decode_blocks(block_bytes);
+      if (!c.error.empty()) throw std::runtime_error(c.error);
+      for (const Block& block : blocks) {
+        block_index = block.index;
+        BlockResult out;
+        out.block_index = block.index;
+        c.kernel->run_block_with(block, meta->input, out);
+        results.push_back(encode_result(out));
+      }
+    } catch (const std::exception& e) {
+      error = fmt::format("block {} (slot {}) of job {} failed on worker {}: {}", block_index, slot, sk->id, cfg_.name,
+                          e.what());
+    }
+    const double secs = std::chrono::duration<double>(Clock::now() - t0).count();
+    {
+      std::lock_guard lock(mu_);
+      held_[t] = Held{};
+    }
+    if (!error.empty()) {
+      const RValue r = conn.evalsha(fail_sha, kFailScript,
+                                    {stream, jk, pass_key('f', sk->id, sk->run, sk->pass), kCounters, kNotify, kWake},
+                                    {entry_id, slot, sk->run, max_failures, error, block_bytes, sk->id});
+      log(fmt::format("{}{}", error, r.as_int() == 2 ? " (delivery limit reached: the job fails)" : " (re-queued)"));
+      return;
+    }
+    const std::string n = std::to_string(meta->n);
+    const std::string secs_s = fmt::format("{:.9f}", secs);
+    std::vector<std::string_view> args = {slot, entry_id, sk->run, n, sk->id, secs_s};
+    for (const auto& r : results) args.push_back(r);
+    const RValue r = conn.evalsha(store_sha, kStoreScript,
+                                  {pass_key('r', sk->id, sk->run, sk->pass), stream, jk,
+                                   pass_key('d', sk->id, sk->run, sk->pass), kCounters, kNotify},
+                                  args);
+    blocks_done_.fetch_add(results.size());
+    if (r.elems.size() == 4) {
+      if (r.elems[1].integer > 0) {
+        log(fmt::format("duplicate result for {} block(s) from slot {} of job {} pass {}: compared, identical",
+                        r.elems[1].integer, slot, sk->id, sk->pass));
+      }
+      if (r.elems[2].integer > 0) {
+        log(fmt::format("duplicate result for slot {} of job {} pass {} DIFFERS from the first: non-determinism", slot,
+                        sk->id, sk->pass));
+      }
+      if (cfg_.verbose) {
+        log(fmt::format("entry {} of job {} pass {}: first {} stale {}", slot, sk->id, sk->pass, r.elems[0].integer,
+                        r.elems[3].integer));
+      }
+    }
+  }
+
+  const WorkerConfig& cfg_;
+  const std::atomic<bool>& stop_;
+  std::mutex log_mu_, compile_mu_, mu_;
+  std::vector<Held> held_;
+  std::map<std::string, Compiled> kernels_;
+  std::deque<std::string> kernel_order_;
+  std::map<std::string, PassMeta> metas_;
+  std::deque<std::string> meta_order_;
+  std::atomic<uint64_t> blocks_done_{0};
+  std::atomic<long long> lease_ms_{30000};
+};
+
+}  // namespace
+
+int run_worker(const WorkerConfig& config, const std::atomic<bool>& stop) {
+  Worker w(config, stop);
+  return w.run();
+}
+
+}  // namespace tally::cluster

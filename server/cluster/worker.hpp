@@ -1,0 +1,33 @@
+#pragma once
+// tally-worker's engine: N compute threads, each with its own Redis connection, take
+// blocks from the active pass streams (XREADGROUP), reclaim blocks whose lease expired
+// (XAUTOCLAIM), compute them with the kernel compiled from the job's spec (with this
+// worker's own limits and only the job's assets) and store each result with one Lua
+// script (first wins, duplicates compared). A heartbeat thread keeps the leases of the
+// blocks being computed (XCLAIM ... JUSTID) and the worker registry entry fresh.
+// Stateless: killing it at any moment loses nothing but the blocks in flight, which
+// other workers reclaim after the lease.
+#include <atomic>
+#include <filesystem>
+#include <string>
+
+#include "common/engine/job_definition.hpp"
+#include "server/cluster/redis_conn.hpp"
+
+namespace tally::cluster {
+
+struct WorkerConfig {
+  RedisUrl url;
+  unsigned threads = 1;
+  std::string name;  // unique per process; default host-pid
+  std::string host;
+  JobLimits limits;  // re-validation of every spec read from Redis
+  std::filesystem::path cache_dir;  // asset cache
+  std::string health_file;          // touched at every heartbeat (liveness probes)
+  bool verbose = false;
+};
+
+// Runs until `stop` becomes true (checked at least every half second). Returns 0.
+int run_worker(const WorkerConfig& config, const std::atomic<bool>& stop);
+
+}  // namespace tally::cluster
