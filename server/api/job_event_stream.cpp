@@ -5,18 +5,12 @@
 #include <fmt/format.h>
 
 #include "common/protocol/job_json.hpp"
+#include "server/api/route_support.hpp"
 #include "server/jobs/job_manager.hpp"
 
 namespace tally {
 
-std::optional<uint64_t> parse_last_event_id(std::string_view s) {
-  while (!s.empty() && s.front() == ' ') s.remove_prefix(1);
-  while (!s.empty() && s.back() == ' ') s.remove_suffix(1);
-  uint64_t v = 0;
-  auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
-  if (ec != std::errc() || p != s.data() + s.size() || s.empty()) return std::nullopt;
-  return v;
-}
+std::optional<uint64_t> parse_last_event_id(std::string_view s) { return parse_u64(s); }
 
 
 std::string format_event(const Event& e, StreamFormat format) {
