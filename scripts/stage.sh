@@ -12,11 +12,15 @@ echo "== stage $name: start $(date -u +%H:%M:%S) UTC, load $(cut -d' ' -f1-3 /pr
 "$@"
 rc=$?
 secs=$(($(date +%s) - start))
-# `times`, second line: user and sys time of the finished children, e.g. "12m3.456s 0m40.1s".
-cpu=$(times | sed -n 2p | awk '{
+# `times` (run in this shell, not in a $(...) subshell, which has no children), second
+# line: user and sys time of the finished children, e.g. "12m3.456s 0m40.100s".
+tfile=$(mktemp)
+times >"$tfile"
+cpu=$(sed -n 2p "$tfile" | awk '{
   t = 0
   for (i = 1; i <= 2; i++) { split($i, p, "m"); sub("s", "", p[2]); t += p[1] * 60 + p[2] }
   printf "%d", t }')
+rm -f "$tfile"
 line=$(printf '== stage %-15s wall %5d s = %5.1f min, CPU %5d s, exit %d (load at end: %s)' "$name" "$secs" \
   "$(awk "BEGIN{print $secs/60}")" "$cpu" "$rc" "$(cut -d' ' -f1-3 /proc/loadavg)")
 echo "$line"
