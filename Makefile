@@ -13,8 +13,12 @@ SAN_CXX ?= clang++-14
 SAN_TESTS = tally_stats_tests tally_engine_tests tally_expr_tests tally_sampling_tests tally_integrate_tests \
   tally_server_tests
 SAN_LABELS = ^(stats|engine|expr|sampling|integrate|server)$$
-# Tests of those labels left out under the sanitizers (ctest -E regex; too slow there).
-SAN_EXCLUDE ?= ^$$
+# Tests of those labels left out under the sanitizers (ctest -E regex), with the reason:
+# AcceptBacksOffWhenDescriptorsRunOut uses up every file descriptor on purpose, and the
+# sanitizer runtime needs descriptors itself (UBSan's vptr check validates memory through
+# a pipe, the symbolizer is a subprocess): under EMFILE it reports "invalid vptr" on every
+# virtual call. It runs in the normal suite.
+SAN_EXCLUDE ?= ^HttpServerFds\.AcceptBacksOffWhenDescriptorsRunOut$$
 FUZZ_TARGETS = fuzz_expr fuzz_job_spec fuzz_http fuzz_checkpoint fuzz_sse
 # Seconds per fuzz target in `make fuzz` and CI; run longer by hand (tests/fuzz/README.md).
 FUZZ_SECONDS ?= 60
