@@ -3,6 +3,9 @@
 #include <bit>
 #include <cstring>
 #include <fmt/format.h>
+#include <iterator>
+
+#include "common/engine/check.hpp"
 
 namespace tally {
 
@@ -10,7 +13,15 @@ namespace {
 
 constexpr char kMagic[8] = {'T', 'A', 'L', 'L', 'Y', 'C', 'K', '1'};
 // Version 2 adds JobState::kernel_state; version 1 checkpoints still read (empty).
-constexpr uint32_t kVersion = 2;
+// Version 3 stores the counters with their names (kernels declare their own); versions
+// 1 and 2 stored a fixed list of counters, named below.
+constexpr uint32_t kVersion = 3;
+
+// The counters of versions 1 and 2, in their order (the engine's enum of that time).
+constexpr std::string_view kLegacyCounterNames[] = {
+    "evaluations",   "nonfinite",        "rejection_attempts", "rejection_accepts", "rejection_failures",
+    "camera_rays",   "shadow_rays",      "bounce_rays",        "sky_lookups",       "emission_lookups",
+    "light_samples", "bsdf_samples",     "specular_events",    "roulette_terminations"};
 
 uint64_t fnv1a(std::string_view s) {
   uint64_t h = 0xcbf29ce484222325ULL;
@@ -90,8 +101,12 @@ std::string encode_checkpoint(const JobState& s) {
     w.f64(t.mean);
     w.f64(t.m2);
   }
-  w.u64(s.counters.values.size());
-  for (uint64_t v : s.counters.values) w.u64(v);
+  TALLY_CHECK_LE(s.counters.values.size(), s.counter_names.size());  // every counter has a name
+  w.u64(s.counter_names.size());
+  for (size_t i = 0; i < s.counter_names.size(); ++i) {
+    w.bytes(s.counter_names[i]);
+    w.u64(s.counters[i]);
+  }
   w.u64(s.tail.capacity());
   w.u64(s.tail.heap().size());
   for (double v : s.tail.heap()) w.f64(v);
@@ -131,7 +146,7 @@ JobState decode_checkpoint(std::string_view bytes) {
   }
   Reader r(body.substr(sizeof kMagic));
   const uint64_t version = r.u64();
-  if (version != 1 && version != kVersion) {
+  if (version < 1 || version > kVersion) {
     throw CheckpointError(fmt::format("unsupported checkpoint version {}", version));
   }
   JobState s;
@@ -145,9 +160,21 @@ JobState decode_checkpoint(std::string_view bytes) {
     t.mean = r.f64();
     t.m2 = r.f64();
   }
-  const uint64_t nc = r.count(8);
-  if (nc != s.counters.values.size()) throw CheckpointError("checkpoint counter layout differs");
-  for (auto& v : s.counters.values) v = r.u64();
+  if (version >= 3) {
+    const uint64_t nc = r.count(16);  // a name's length and a value
+    if (nc > Counters::kMaxCounters) throw CheckpointError(fmt::format("checkpoint has {} counters", nc));
+    for (uint64_t i = 0; i < nc; ++i) {
+      s.counter_names.push_back(r.bytes());
+      s.counters.values.push_back(r.u64());
+    }
+  } else {
+    const uint64_t nc = r.count(8);
+    if (nc != std::size(kLegacyCounterNames)) throw CheckpointError("checkpoint counter layout differs");
+    for (std::string_view name : kLegacyCounterNames) {
+      s.counter_names.emplace_back(name);
+      s.counters.values.push_back(r.u64());
+    }
+  }
   const uint64_t cap = r.u64();
   if (cap == 0 || cap > (1u << 20)) throw CheckpointError("checkpoint tail capacity is corrupt");
   std::vector<double> tail(r.count(8));

@@ -8,7 +8,9 @@ namespace tally::cluster {
 
 namespace {
 
-constexpr unsigned char kResultVersion = 2;  // 2: BlockResult::aux (adaptive kernels)
+// 2: BlockResult::aux (adaptive kernels); 3: as many counters as the kernel declares
+// (Kernel::counter_names), no longer a fixed list.
+constexpr unsigned char kResultVersion = 3;
 
 class Writer {
  public:
@@ -142,7 +144,9 @@ BlockResult decode_result(std::string_view bytes) {
     t.mean = r.f64();
     t.m2 = r.f64();
   }
-  if (r.count(8) != res.counters.values.size()) throw WireError("counter layout differs (worker of another version?)");
+  const uint64_t nc = r.count(8);
+  if (nc > Counters::kMaxCounters) throw WireError(fmt::format("{} counters (at most {})", nc, Counters::kMaxCounters));
+  res.counters.values.resize(nc);
   for (auto& v : res.counters.values) v = r.u64();
   const uint64_t cap = r.u64();
   if (cap == 0 || cap > (1u << 20)) throw WireError("tail capacity out of range");
