@@ -121,6 +121,36 @@ std::vector<JobSnapshot> JobManager::snapshots() const {
   return out;
 }
 
+std::shared_ptr<const std::string> JobManager::watch_progress_locked(const Job& job) {
+  if (!job.runner_) return nullptr;
+  if (!job.watch_progress_ || job.watch_progress_version_ != job.version_) {
+    job.watch_progress_ = std::make_shared<const std::string>(dump(progress_event_json(*job.runner_)));
+    job.watch_progress_version_ = job.version_;
+  }
+  return job.watch_progress_;
+}
+
+std::vector<Event> JobManager::watch_snapshot(const Job& job) const {
+  std::lock_guard lock(job.mu_);
+  const uint64_t id = job.events_.last_id();  // every append happens under job.mu_
+  std::vector<Event> out;
+  out.push_back(Event{id, "state", dump(state_event_json(job.status_, job.runner_.get(), job.error_, false))});
+  if (job.runner_ && job.runner_->state().passes > 0) {
+    // Built on a worker thread at the pass boundary; only a rare transition
+    // (start, cancel of a queued job, extend) leaves it to be built here.
+    out.push_back(Event{id, "progress", *watch_progress_locked(job)});
+  }
+  if (is_terminal(job.status_)) {
+    out.push_back(Event{id, "end", dump(state_event_json(job.status_, job.runner_.get(), job.error_, true))});
+  }
+  return out;
+}
+
+JobStatus JobManager::status(const Job& job) const {
+  std::lock_guard lock(job.mu_);
+  return job.status_;
+}
+
 // ---------------------------------------------------------------- lifecycle
 
 void JobManager::publish_state_locked(Job& job) {
@@ -135,6 +165,7 @@ void JobManager::finish_locked(Job& job, double now) {
   job.final_result_ = job.runner_ && job.def_ ? std::make_shared<const json>(engine_json(*job.def_, *job.runner_))
                                               : std::make_shared<const json>(json::object());
   job.version_++;
+  if (job.runner_ && job.runner_->state().passes > 0) watch_progress_locked(job);
   publish_state_locked(job);
   job.events_.append("end", dump(state_event_json(job.status_, job.runner_.get(), job.error_, true)));
   log::job(job.status_ == JobStatus::failed ? log::Level::warn : log::Level::info, job.id_, "{}{}{}",
@@ -270,7 +301,10 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
       r.fail(fmt::format("internal error committing a pass: {}", e.what()));
     }
     job->version_++;
-    job->events_.append("progress", dump(progress_event_json(r)));
+    auto progress = std::make_shared<const std::string>(dump(progress_event_json(r)));
+    job->events_.append("progress", *progress);
+    job->watch_progress_ = progress;
+    job->watch_progress_version_ = job->version_;
     if (const ImageSource* img = job->def_->image()) {
       std::set<uint32_t> tiles;
       for (const Block& b : blocks) tiles.insert(img->tile_of_partition(b.partition));
@@ -280,7 +314,10 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
                                               {"pass", r.state().passes}}));
       }
     }
-    if (job->cancel_requested_ && !r.finished()) r.cancel();  // takes effect at this boundary
+    if (job->cancel_requested_ && !r.finished()) {
+      r.cancel();  // takes effect at this boundary
+      job->watch_progress_.reset();  // the stop reason changed: rebuilt below by finish
+    }
     if (!r.finished()) {
       next.pass = r.state().passes;
       next.blocks = r.plan_pass();
