@@ -66,6 +66,10 @@ class Job : public std::enable_shared_from_this<Job> {
   // the I/O threads (on_pass_done, finish) and shared by every watcher.
   mutable std::shared_ptr<const std::string> watch_progress_;
   mutable uint64_t watch_progress_version_ = 0;
+  // engine_json at engine_version_ for a running job's status, built at the pass
+  // boundary on the worker thread (a status GET then does no pass over every pixel).
+  std::shared_ptr<const nlohmann::json> engine_;
+  uint64_t engine_version_ = 0;
   std::chrono::steady_clock::time_point last_checkpoint_{};
   bool cancel_requested_ = false;
 

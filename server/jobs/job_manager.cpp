@@ -65,6 +65,7 @@ JobSnapshot Job::snapshot_locked() const {
   if (!runner_) published_.reset();
   s.runner = published_;
   s.final_result = final_result_;
+  if (engine_version_ == version_) s.engine = engine_;
   s.last_event_id = events_.last_id();
   return s;
 }
@@ -327,6 +328,9 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
       finish_locked(*job, unix_now());
       finished = true;
       next = PassWork{};
+    } else if (job->def_) {
+      job->engine_ = std::make_shared<const json>(engine_json(*job->def_, r));
+      job->engine_version_ = job->version_;
     }
     const auto now = std::chrono::steady_clock::now();
     if (finished || now - job->last_checkpoint_ >= std::chrono::duration<double>(config_.checkpoint_interval_s)) {
@@ -397,7 +401,7 @@ std::shared_ptr<Job> JobManager::cancel(const std::string& id) {
       was_queued = true;
     } else {
       job->cancel_requested_ = true;
-      log::job(log::Level::info, id, "cancel requested; stops at the next chunk boundary");
+      log::job(log::Level::info, id, "cancel requested; blocks in flight stop early and the partial pass is dropped");
     }
   }
   if (was_queued) {
