@@ -65,7 +65,9 @@ JobSnapshot Job::snapshot_locked() const {
   if (!runner_) published_.reset();
   s.runner = published_;
   s.final_result = final_result_;
-  if (engine_version_ == version_) s.engine = engine_;
+  // A running job's status may lag its runner by the pass being published (built
+  // without the lock in on_pass_done) rather than be rebuilt here, on an I/O thread.
+  if (engine_ && (engine_version_ == version_ || status_ == JobStatus::running)) s.engine = engine_;
   s.last_event_id = events_.last_id();
   return s;
 }
@@ -124,7 +126,10 @@ std::vector<JobSnapshot> JobManager::snapshots() const {
 
 std::shared_ptr<const std::string> JobManager::watch_progress_locked(const Job& job) {
   if (!job.runner_) return nullptr;
-  if (!job.watch_progress_ || job.watch_progress_version_ != job.version_) {
+  // While a pass is being published (on_pass_done builds it without the lock) the
+  // previous pass's progress serves: the new one follows as a live event.
+  const bool publishing = job.status_ == JobStatus::running && job.watch_progress_;
+  if (!job.watch_progress_ || (job.watch_progress_version_ != job.version_ && !publishing)) {
     job.watch_progress_ = std::make_shared<const std::string>(dump(progress_event_json(*job.runner_)));
     job.watch_progress_version_ = job.version_;
   }
@@ -285,6 +290,23 @@ void JobManager::job_left_scheduler(const Job& job) {
   start_queued_locked();
 }
 
+namespace {
+
+// The pass's tile events of an image job (one per tile refined in the pass).
+std::vector<std::string> tile_events(const ImageSource* img, const std::vector<Block>& blocks, uint64_t pass) {
+  std::vector<std::string> out;
+  if (!img) return out;
+  std::set<uint32_t> tiles;
+  for (const Block& b : blocks) tiles.insert(img->tile_of_partition(b.partition));
+  for (uint32_t t : tiles) {
+    const TileRect rc = img->tile_rect(t);
+    out.push_back(dump(json{{"tile", t}, {"x", rc.x}, {"y", rc.y}, {"w", rc.w}, {"h", rc.h}, {"pass", pass}}));
+  }
+  return out;
+}
+
+}  // namespace
+
 PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
                                   double wall) {
   const std::shared_ptr<Job> job = find(id);
@@ -292,6 +314,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
   const std::vector<Block>& blocks = done.blocks;
   PassWork next;
   bool finished = false, checkpoint = false;
+  uint64_t version = 0;
   {
     std::lock_guard lock(job->mu_);
     JobRunner& r = *job->runner_;
@@ -302,41 +325,50 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
       r.fail(fmt::format("internal error committing a pass: {}", e.what()));
     }
     job->version_++;
-    auto progress = std::make_shared<const std::string>(dump(progress_event_json(r)));
-    job->events_.append("progress", *progress);
-    job->watch_progress_ = progress;
-    job->watch_progress_version_ = job->version_;
-    if (const ImageSource* img = job->def_->image()) {
-      std::set<uint32_t> tiles;
-      for (const Block& b : blocks) tiles.insert(img->tile_of_partition(b.partition));
-      for (uint32_t t : tiles) {
-        const TileRect rc = img->tile_rect(t);
-        job->events_.append("tile", dump(json{{"tile", t}, {"x", rc.x}, {"y", rc.y}, {"w", rc.w}, {"h", rc.h},
-                                              {"pass", r.state().passes}}));
-      }
-    }
-    if (job->cancel_requested_ && !r.finished()) {
-      r.cancel();  // takes effect at this boundary
-      job->watch_progress_.reset();  // the stop reason changed: rebuilt below by finish
-    }
-    if (!r.finished()) {
+    version = job->version_;
+    const bool cancel_now = job->cancel_requested_ && !r.finished();
+    if (!cancel_now && !r.finished()) {
       next.pass = r.state().passes;
       next.blocks = r.plan_pass();
       next.pass_input = r.pass_input();
     }
-    if (r.finished() || next.empty()) {
+    if (cancel_now || r.finished() || next.empty()) {
+      // The last pass: its events, then state and end, all under the lock (once per job).
+      auto progress = std::make_shared<const std::string>(dump(progress_event_json(r)));
+      job->events_.append("progress", *progress);
+      job->watch_progress_ = progress;
+      job->watch_progress_version_ = job->version_;
+      for (std::string& t : tile_events(job->def_->image(), blocks, r.state().passes)) {
+        job->events_.append("tile", std::move(t));
+      }
+      if (cancel_now) r.cancel();  // takes effect at this boundary
       finish_locked(*job, unix_now());
       finished = true;
       next = PassWork{};
-    } else if (job->def_) {
-      job->engine_ = std::make_shared<const json>(engine_json(*job->def_, r));
-      job->engine_version_ = job->version_;
     }
     const auto now = std::chrono::steady_clock::now();
     if (finished || now - job->last_checkpoint_ >= std::chrono::duration<double>(config_.checkpoint_interval_s)) {
       job->last_checkpoint_ = now;
       checkpoint = true;
     }
+  }
+  if (!finished) {
+    // The heavy views of the pass (progress event, status JSON, tile events: passes over
+    // every pixel of an image) are built here without the job's lock, so status GETs and
+    // watchers never wait for them. The runner is not mutated meanwhile: only this
+    // callback, at a pass boundary, changes it, and the executors call cancelled/failed
+    // for a job only once its pass_done has returned (the next pass starts after that).
+    const JobRunner& r = *job->runner_;
+    auto progress = std::make_shared<const std::string>(dump(progress_event_json(r)));
+    auto engine = job->def_ ? std::make_shared<const json>(engine_json(*job->def_, r)) : nullptr;
+    std::vector<std::string> tiles = tile_events(job->def_->image(), blocks, r.state().passes);
+    std::lock_guard lock(job->mu_);
+    job->events_.append("progress", *progress);
+    for (std::string& t : tiles) job->events_.append("tile", std::move(t));
+    job->watch_progress_ = std::move(progress);
+    job->watch_progress_version_ = version;
+    job->engine_ = std::move(engine);
+    job->engine_version_ = version;
   }
   if (checkpoint) recorder_.persist(*job, true);
   if (finished) job_left_scheduler(*job);
@@ -441,6 +473,7 @@ std::shared_ptr<Job> JobManager::extend(const std::string& id, const StopRule& r
     job->error_.clear();
     job->finished_at_ = 0;
     job->final_result_.reset();
+    job->engine_.reset();
     job->version_++;
     publish_state_locked(*job);
   }

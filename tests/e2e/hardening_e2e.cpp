@@ -253,14 +253,14 @@ TEST(Hardening, DamagedDatabaseIsQuarantinedAndSalvaged) {
   EXPECT_EQ(ready2.body.find("warning"), std::string::npos) << ready2.body;
 }
 
-// A validate whose pilot runs long (a 2-D quadrature grid of 4·10^8 points, cut
+// A validate whose pilot runs long (a 2-D quadrature grid of 6.4·10^7 points, cut
 // at 4 × --pilot-seconds). Before the fix two of them filled the 2-thread pool
 // that submits also use, and a trivial POST /v1/jobs waited for them.
 json heavy_validate_spec() {
   return {{"kind", "integrate"},
           {"integrand", {{"expression", "sin(x0*x1) + cos(x0) * exp(-x1*x1) + sqrt(1 + x0*x0)"}}},
           {"domain", {{"type", "box"}, {"lower", {0, 0}}, {"upper", {1, 1}}}},
-          {"estimator", {{"type", "quadrature"}, {"points_per_dim", 20000}}},
+          {"estimator", {{"type", "quadrature"}, {"points_per_dim", 8000}}},
           {"stop", {{"max_samples", 1}}}};
 }
 
