@@ -70,6 +70,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--event-buffer", mc.event_buffer, "events kept per job for Last-Event-ID resume")->capture_default_str();
   app.add_option("--pilot-seconds", hc.pilot_seconds, "length of the validate pilot run")->capture_default_str();
+  app.add_option("--pilot-threads", http.slow_threads, "threads running validate pilots (their own pool)")
+      ->capture_default_str();
+  app.add_option("--max-pilot-requests", http.max_slow_requests,
+                 "validate requests running or waiting at once (then 503 + Retry-After)")
+      ->capture_default_str();
   std::string log_level = "info", log_format = "text";
   app.add_option("--log-level", log_level, "debug, info, warn, error or off")
       ->check(CLI::IsMember({"debug", "info", "warn", "error", "off"}))

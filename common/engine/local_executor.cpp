@@ -5,6 +5,8 @@
 #include <chrono>
 #include <thread>
 
+#include "common/engine/block_abandon.hpp"
+
 namespace tally {
 
 bool run_blocks(const Kernel& kernel, const std::vector<Block>& blocks, unsigned threads,
@@ -14,6 +16,7 @@ bool run_blocks(const Kernel& kernel, const std::vector<Block>& blocks, unsigned
   results.resize(blocks.size());
   std::atomic<size_t> next{0};
   auto work = [&] {
+    ScopedBlockAbandon scope(cancel);  // a cancelled pass is dropped: blocks may stop early
     for (;;) {
       if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) return;
       const size_t i = next.fetch_add(1, std::memory_order_relaxed);

@@ -7,6 +7,7 @@
 #include <numbers>
 #include <span>
 
+#include "common/engine/block_abandon.hpp"
 #include "common/engine/job_state.hpp"
 #include "common/integrate/integration_counters.hpp"
 #include "common/rng/counter_rng.hpp"
@@ -346,6 +347,7 @@ class SweepKernelBase : public IntegrationKernelBase {
       // Pairwise-style: per-batch sums, then summed in a fixed order.
       double total = 0.0;
       for (uint64_t j0 = 0; j0 < points_; j0 += kB) {
+        if (block_abandoned()) return static_cast<size_t>(k);  // dropped (block_abandon.hpp)
         const size_t n = static_cast<size_t>(std::min<uint64_t>(kB, points_ - j0));
         sweep_uniforms(s, sample, j0, n);
         D.map_uniform(s.u_ptr.data(), n, s.x_ptr.data());
@@ -591,6 +593,7 @@ class TrapezoidKernel final : public Kernel {
     double sum = 0.0;
     std::vector<double> w(kB);
     for (uint64_t j0 = begin; j0 < end; j0 += kB) {
+      if (block_abandoned()) return false;  // its result is dropped (block_abandon.hpp)
       const size_t cnt = static_cast<size_t>(std::min<uint64_t>(kB, end - j0));
       for (size_t i = 0; i < cnt; ++i) {
         uint64_t idx = j0 + i;

@@ -5,6 +5,7 @@
 #include <limits>
 #include <type_traits>
 
+#include "common/engine/block_abandon.hpp"
 #include "common/lighting/embree_device.hpp"
 #include "common/stats/confidence.hpp"
 
@@ -117,6 +118,7 @@ void ImageKernel::run_pixels(const Block& block, BlockResult& out) const {
   const double inv_w = 1.0 / width_, inv_h = 1.0 / height_;
   for (int y = r.y; y < r.y + r.h; ++y) {
     for (int x = r.x; x < r.x + r.w; ++x) {
+      if (block_abandoned()) return;  // its result is dropped (block_abandon.hpp)
       const uint64_t key = stream_key(seed_, static_cast<uint64_t>(y) * static_cast<uint64_t>(width_) + static_cast<uint64_t>(x));
       for (uint32_t q = 0; q < k_; ++q) rep_keys[q] = SobolSample::replicate_key(key, q);
       for (auto& a : v) a.clear();

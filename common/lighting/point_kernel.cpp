@@ -5,6 +5,7 @@
 #include <limits>
 #include <type_traits>
 
+#include "common/engine/block_abandon.hpp"
 #include "common/stats/confidence.hpp"
 
 #include "common/lighting/embree_device.hpp"
@@ -103,6 +104,7 @@ void PointKernel::run_samples(const Block& block, BlockResult& out) const {
     for (uint32_t q = 0; q < k_; ++q) rep_keys[q] = SobolSample::replicate_key(key, q);
     const QueryPoint& q = points_[k];
     for (size_t e = 0; e < strategies_.size(); ++e) {
+      if (block_abandoned()) return;  // its result is dropped (block_abandon.hpp)
       const PathSettings settings{strategies_[e], max_depth_, rr_};
       for (auto& a : v) a.clear();
       const auto t0 = std::chrono::steady_clock::now();

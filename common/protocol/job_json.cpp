@@ -88,6 +88,8 @@ json status_json(const JobSnapshot& job, double now, json links) {
   json j;
   if (is_terminal(job.status) && job.final_result && !job.final_result->is_null()) {
     j = *job.final_result;
+  } else if (job.engine) {
+    j = *job.engine;
   } else if (job.runner && job.def) {
     j = engine_json(*job.def, *job.runner);
   } else {

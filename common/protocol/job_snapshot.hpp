@@ -42,6 +42,9 @@ struct JobSnapshot {
   std::shared_ptr<const JobDefinition> def;      // null if the stored spec no longer compiles
   std::shared_ptr<const JobRunner> runner;       // at the last pass boundary; null if not restorable
   std::shared_ptr<const nlohmann::json> final_result;  // engine part of a finished job's status
+  // Engine part of a running job's status at `version`, built once per pass off the
+  // I/O threads (null: build it from the runner).
+  std::shared_ptr<const nlohmann::json> engine;
   uint64_t last_event_id = 0;                    // the job's event log at the same instant
   ExecutorNote executor;                         // running jobs in cluster mode
 };

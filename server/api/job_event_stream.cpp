@@ -4,7 +4,6 @@
 
 #include <fmt/format.h>
 
-#include "common/protocol/job_json.hpp"
 #include "server/api/route_support.hpp"
 #include "server/jobs/job_manager.hpp"
 
@@ -20,22 +19,6 @@ std::string format_event(const Event& e, StreamFormat format) {
   return fmt::format("id: {}\nevent: {}\ndata: {}\n\n", e.id, e.type, e.data);
 }
 
-std::vector<Event> snapshot_events(const JobSnapshot& job) {
-  const auto dump = [](const nlohmann::json& j) {
-    return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
-  };
-  const uint64_t id = job.last_event_id;
-  std::vector<Event> out;
-  out.push_back(Event{id, "state", dump(state_event_json(job.status, job.runner.get(), job.error, false))});
-  if (job.runner && job.runner->state().passes > 0) {
-    out.push_back(Event{id, "progress", dump(progress_event_json(*job.runner))});
-  }
-  if (is_terminal(job.status)) {
-    out.push_back(Event{id, "end", dump(state_event_json(job.status, job.runner.get(), job.error, true))});
-  }
-  return out;
-}
-
 JobEventStream::JobEventStream(std::shared_ptr<Job> job, const JobManager& manager, StreamFormat format,
                                std::optional<uint64_t> last_event_id)
     : job_(std::move(job)), manager_(manager), format_(format) {
@@ -43,7 +26,7 @@ JobEventStream::JobEventStream(std::shared_ptr<Job> job, const JobManager& manag
     const EventLog::Read r = job_->events().read_after(*last_event_id, 0);
     if (!r.gap) {
       cursor_ = *last_event_id;
-      const bool terminal = is_terminal(manager_.snapshot(*job_).status);
+      const bool terminal = is_terminal(manager_.status(*job_));
       // Resuming after the end of a finished job: repeat the end, don't hang.
       if (terminal && job_->events().last_id() == cursor_) take_snapshot();
       return;
@@ -53,7 +36,10 @@ JobEventStream::JobEventStream(std::shared_ptr<Job> job, const JobManager& manag
 }
 
 void JobEventStream::take_snapshot() {
-  pending_ = snapshot_events(manager_.snapshot(*job_));
+  // Cheap and shared (JobManager::watch_snapshot): a watcher that lags every pass
+  // (more tile events per pass than the replay buffer holds) costs the I/O thread
+  // a copy of a few short strings per catch-up, not a pass over every pixel.
+  pending_ = manager_.watch_snapshot(*job_);
   cursor_ = pending_.empty() ? job_->events().last_id() : pending_.front().id;
 }
 

@@ -2,7 +2,8 @@
 // GET /v1/jobs/{id}/events as Server-Sent Events or NDJSON. A new watcher starts
 // with a snapshot (state + progress); a resuming one (Last-Event-ID) gets the
 // events it missed from the job's replay buffer, or a fresh snapshot when they
-// are gone. The stream ends after `end` (job finished) or `shutdown`.
+// are gone (JobManager::watch_snapshot: cached per job version, so a watcher that
+// lags every pass costs little). The stream ends after `end` (job finished) or `shutdown`.
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -25,9 +26,6 @@ enum class StreamFormat { sse, ndjson };
 std::optional<uint64_t> parse_last_event_id(std::string_view text);
 
 std::string format_event(const Event& e, StreamFormat format);
-// What a new or resuming watcher starts with: state + progress (+ end), built
-// from one snapshot by the protocol layer's builders.
-std::vector<Event> snapshot_events(const JobSnapshot& job);
 
 class JobEventStream final : public EventStream {
  public:

@@ -38,6 +38,7 @@ void RequestHandler::add_routes() {
     HttpResponse r;
     r.set_header("Content-Type", "text/plain; charset=utf-8");
     r.body = config_.access.insecure_no_auth ? "ready (INSECURE: no access control, --insecure-no-auth)\n" : "ready\n";
+    if (auto warning = manager_.ready_warning()) r.body += "warning: " + *warning + "\n";
     return r;
   });
   router_.add("GET", "/metrics", [this](const HttpRequest&, const PathParams&) {
@@ -67,26 +68,26 @@ void RequestHandler::add_routes() {
     r.body = openapi_document();
     return r;
   });
-  router_.add("POST", "/v1/jobs", bind(&RequestHandler::post_job), true);
+  router_.add("POST", "/v1/jobs", bind(&RequestHandler::post_job), Lane::blocking);
   router_.add("GET", "/v1/jobs", bind(&RequestHandler::list_jobs));
-  router_.add("POST", "/v1/jobs/validate", bind(&RequestHandler::validate_job), true);
+  router_.add("POST", "/v1/jobs/validate", bind(&RequestHandler::validate_job), Lane::slow);
   router_.add("GET", "/v1/jobs/{id}", bind(&RequestHandler::get_job));
   router_.add("DELETE", "/v1/jobs/{id}", bind(&RequestHandler::delete_job));
   router_.add("POST", "/v1/jobs/{id}/extend", bind(&RequestHandler::extend_job));
   router_.add("GET", "/v1/jobs/{id}/events", bind(&RequestHandler::job_events));
   router_.add("GET", "/v1/jobs/{id}/tiles/{n}", bind(&RequestHandler::job_tile));
   router_.add("GET", "/v1/jobs/{id}/image.exr",
-              [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, true); }, true);
+              [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, true); }, Lane::blocking);
   router_.add("GET", "/v1/jobs/{id}/image.png",
-              [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, false); }, true);
+              [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, false); }, Lane::blocking);
   router_.add("POST", "/v1/session", bind(&RequestHandler::login));
   router_.add("GET", "/v1/session", bind(&RequestHandler::whoami));
   router_.add("DELETE", "/v1/session", bind(&RequestHandler::logout));
 }
 
-bool RequestHandler::may_block(const HttpRequest& request) const {
+Lane RequestHandler::lane(const HttpRequest& request) const {
   const RouteMatch m = router_.match(request.method, request.path());
-  return m.route && m.route->may_block;
+  return m.route ? m.route->lane : Lane::io;
 }
 
 HttpResponse RequestHandler::handle(HttpRequest request) {

@@ -58,9 +58,9 @@ class RequestHandler {
   RequestHandler(JobManager& manager, Metrics& metrics, HandlerConfig config);
 
   HttpResponse handle(HttpRequest request);
-  // True for requests that may take long (compile, pilot, image encode): the
-  // session runs them off the I/O threads.
-  bool may_block(const HttpRequest& request) const;
+  // Where the session runs a request (http_types.hpp): compiles and image encodes
+  // on the blocking pool, validate pilots on their own slow lane.
+  Lane lane(const HttpRequest& request) const;
   const Router& router() const { return router_; }
   void set_ready(bool ready) { ready_ = ready; }
 

@@ -44,8 +44,8 @@ int match_pattern(const Route& r, const std::vector<std::string_view>& segs, Pat
 
 }  // namespace
 
-void Router::add(std::string method, std::string pattern, RouteHandler handler, bool may_block) {
-  Route r{std::move(method), std::move(pattern), std::move(handler), may_block, {}};
+void Router::add(std::string method, std::string pattern, RouteHandler handler, Lane lane) {
+  Route r{std::move(method), std::move(pattern), std::move(handler), lane, {}};
   for (std::string_view seg : split_path(r.pattern)) r.segments.emplace_back(seg);
   routes_.push_back(std::move(r));
 }

@@ -20,7 +20,7 @@ struct Route {
   std::string method;
   std::string pattern;
   RouteHandler handler;
-  bool may_block = false;  // runs off the I/O threads (e.g. the validate pilot)
+  Lane lane = Lane::io;  // where it runs (http_types.hpp): off the I/O threads if it compiles, pilots or encodes
   std::vector<std::string> segments;  // the pattern split at '/', "{x}" = parameter
 };
 
@@ -32,7 +32,7 @@ struct RouteMatch {
 
 class Router {
  public:
-  void add(std::string method, std::string pattern, RouteHandler handler, bool may_block = false);
+  void add(std::string method, std::string pattern, RouteHandler handler, Lane lane = Lane::io);
   RouteMatch match(std::string_view method, std::string_view path) const;
   const std::vector<Route>& routes() const { return routes_; }
 

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <limits>
 
+#include "common/engine/block_abandon.hpp"
+
 namespace tally {
 
 int clamp_priority(int priority) { return std::clamp(priority, -5, 5); }
@@ -23,6 +25,7 @@ void InProcessExecutor::stop() {
   {
     std::lock_guard lock(mu_);
     stopping_ = true;
+    for (auto& [id, a] : active_) a->abandon = true;  // blocks in flight stop early
   }
   cv_.notify_all();
   for (auto& t : threads_) {
@@ -107,6 +110,7 @@ bool InProcessExecutor::cancel(const std::string& id) {
     Active& a = *it->second;
     if (a.cancel_requested) return true;
     a.cancel_requested = true;
+    a.abandon = true;  // blocks in flight stop early
     if (a.inflight == 0 && !a.committing) {
       erase_locked(it);
       call_now = true;
@@ -162,15 +166,19 @@ void InProcessExecutor::worker_loop() {
     const Block* blocks = a->pass.blocks.data();
     const std::string_view pass_input = a->pass.pass_input;
     BlockResult* results = a->results.data();
+    const std::atomic<bool>* abandon = &a->abandon;  // `a` lives while inflight > 0
     lock.unlock();
 
     busy_.fetch_add(1, std::memory_order_relaxed);
     const auto t0 = std::chrono::steady_clock::now();
     uint64_t samples = 0;
-    for (size_t i = begin; i < end; ++i) {
-      results[i].block_index = blocks[i].index;
-      kernel->run_block_with(blocks[i], pass_input, results[i]);
-      samples += blocks[i].sample_count;
+    {
+      ScopedBlockAbandon scope(abandon);
+      for (size_t i = begin; i < end && !abandon->load(std::memory_order_relaxed); ++i) {
+        results[i].block_index = blocks[i].index;
+        kernel->run_block_with(blocks[i], pass_input, results[i]);
+        samples += blocks[i].sample_count;
+      }
     }
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     busy_.fetch_sub(1, std::memory_order_relaxed);
@@ -195,7 +203,8 @@ void InProcessExecutor::worker_loop() {
       }
       continue;
     }
-    if (a->done < a->pass.blocks.size()) continue;
+    // Stopping: the results may be cut short; never commit them.
+    if (a->abandon.load() || a->done < a->pass.blocks.size()) continue;
 
     // Last chunk of the pass: commit it (without the lock: other jobs keep running).
     a->committing = true;

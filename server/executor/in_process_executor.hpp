@@ -61,6 +61,9 @@ class InProcessExecutor final : public Executor {
     bool pass_started = false;
     bool committing = false;
     bool cancel_requested = false;
+    // Set on cancel and stop: blocks in flight return early (block_abandon.hpp) and
+    // their results are dropped.
+    std::atomic<bool> abandon{false};
   };
 
   void worker_loop();

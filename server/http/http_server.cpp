@@ -93,7 +93,9 @@ struct Shared {
   RequestHandler& handler;
   Metrics& metrics;
   net::thread_pool& blocking;
+  net::thread_pool& slow;
   std::atomic<size_t> connections{0};
+  std::atomic<size_t> slow_requests{0};  // running or waiting on the slow lane
 };
 
 template <class Stream>
@@ -229,7 +231,24 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
     version_ = req.version();
     HttpRequest r = to_http_request(req);
     if (auto res = framing_response(r)) return send(std::move(*res), false);
-    if (shared_.handler.may_block(r)) {
+    const Lane lane = shared_.handler.lane(r);
+    if (lane == Lane::slow && shared_.slow_requests.fetch_add(1) >= shared_.config.max_slow_requests) {
+      shared_.slow_requests.fetch_sub(1);
+      HttpResponse busy = problem_response(
+          503, fmt::format("{} validate requests are running or waiting (the most the server takes); retry later",
+                           shared_.config.max_slow_requests));
+      busy.set_header("Retry-After", "1");
+      return send(std::move(busy), keep_alive_);
+    }
+    if (lane == Lane::slow) {
+      // Own pool: a pilot never delays a submit or an image encode on the blocking pool.
+      net::post(shared_.slow, [self = shared_from_this(), r = std::move(r)]() mutable {
+        HttpResponse res = self->shared_.handler.handle(std::move(r));
+        self->shared_.slow_requests.fetch_sub(1);
+        net::post(self->stream_.get_executor(),
+                  [self, res = std::move(res)]() mutable { self->send(std::move(res), self->keep_alive_); });
+      });
+    } else if (lane == Lane::blocking) {
       net::post(shared_.blocking, [self = shared_from_this(), r = std::move(r)]() mutable {
         HttpResponse res = self->shared_.handler.handle(std::move(r));
         net::post(self->stream_.get_executor(),
@@ -368,7 +387,8 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
 struct HttpServer::Impl {
   Impl(HttpServerConfig cfg, RequestHandler& handler, Metrics& metrics)
       : blocking(2),
-        shared{std::move(cfg), handler, metrics, blocking, {}},
+        slow(std::max(1u, cfg.slow_threads)),
+        shared{std::move(cfg), handler, metrics, blocking, slow, {}, {}},
         acceptor(ioc),
         accept_backoff(ioc),
         signals(ioc, SIGINT, SIGTERM),
@@ -417,6 +437,7 @@ struct HttpServer::Impl {
   }
 
   net::thread_pool blocking;
+  net::thread_pool slow;
   std::optional<net::ssl::context> tls;  // before `shared`'s users: sessions hold a reference
   Shared shared;
   net::io_context ioc;
@@ -486,6 +507,7 @@ void HttpServer::stop(double grace_seconds) {
   for (auto& t : s.threads) t.join();
   s.threads.clear();
   s.blocking.join();
+  s.slow.join();
 }
 
 std::string respond_to_bytes(std::string_view raw, const HttpServerConfig& config, RequestHandler& handler) {

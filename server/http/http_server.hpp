@@ -26,6 +26,10 @@ struct HttpServerConfig {
   double write_timeout_s = 30;
   double heartbeat_s = 15;  // comment line on idle event streams
   size_t max_connections = 1024;
+  // The slow lane (validate pilots): its own threads, and at most this many
+  // requests running or waiting there; beyond that 503 + Retry-After.
+  unsigned slow_threads = 2;
+  size_t max_slow_requests = 8;
   // Both set: HTTPS (PEM certificate chain and private key); both empty: plain HTTP.
   std::string tls_cert, tls_key;
 };

@@ -13,6 +13,12 @@ namespace tally {
 class EventStream;
 struct Principal;
 
+// Where a request runs. `io`: on the I/O thread (must be quick); `blocking`: the
+// small pool for compiles, submits and image encodes; `slow`: the validate pilots'
+// own bounded pool, so a pilot never delays a submit or a GET (a full slow lane
+// answers 503 + Retry-After).
+enum class Lane { io, blocking, slow };
+
 struct HttpRequest {
   using Headers = std::vector<std::pair<std::string, std::string>>;
   std::string method;  // "GET", "POST", ...

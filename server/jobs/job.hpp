@@ -62,6 +62,14 @@ class Job : public std::enable_shared_from_this<Job> {
   uint64_t version_ = 1;  // bumped on every change: keys snapshots, the status cache and saves
   mutable std::shared_ptr<const JobRunner> published_;  // copy of runner_ at published_version_
   mutable uint64_t published_version_ = 0;
+  // The data of a watcher snapshot's progress event, built once per version off
+  // the I/O threads (on_pass_done, finish) and shared by every watcher.
+  mutable std::shared_ptr<const std::string> watch_progress_;
+  mutable uint64_t watch_progress_version_ = 0;
+  // engine_json at engine_version_ for a running job's status, built at the pass
+  // boundary on the worker thread (a status GET then does no pass over every pixel).
+  std::shared_ptr<const nlohmann::json> engine_;
+  uint64_t engine_version_ = 0;
   std::chrono::steady_clock::time_point last_checkpoint_{};
   bool cancel_requested_ = false;
 

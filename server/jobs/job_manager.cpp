@@ -65,6 +65,9 @@ JobSnapshot Job::snapshot_locked() const {
   if (!runner_) published_.reset();
   s.runner = published_;
   s.final_result = final_result_;
+  // A running job's status may lag its runner by the pass being published (built
+  // without the lock in on_pass_done) rather than be rebuilt here, on an I/O thread.
+  if (engine_ && (engine_version_ == version_ || status_ == JobStatus::running)) s.engine = engine_;
   s.last_event_id = events_.last_id();
   return s;
 }
@@ -121,6 +124,39 @@ std::vector<JobSnapshot> JobManager::snapshots() const {
   return out;
 }
 
+std::shared_ptr<const std::string> JobManager::watch_progress_locked(const Job& job) {
+  if (!job.runner_) return nullptr;
+  // While a pass is being published (on_pass_done builds it without the lock) the
+  // previous pass's progress serves: the new one follows as a live event.
+  const bool publishing = job.status_ == JobStatus::running && job.watch_progress_;
+  if (!job.watch_progress_ || (job.watch_progress_version_ != job.version_ && !publishing)) {
+    job.watch_progress_ = std::make_shared<const std::string>(dump(progress_event_json(*job.runner_)));
+    job.watch_progress_version_ = job.version_;
+  }
+  return job.watch_progress_;
+}
+
+std::vector<Event> JobManager::watch_snapshot(const Job& job) const {
+  std::lock_guard lock(job.mu_);
+  const uint64_t id = job.events_.last_id();  // every append happens under job.mu_
+  std::vector<Event> out;
+  out.push_back(Event{id, "state", dump(state_event_json(job.status_, job.runner_.get(), job.error_, false))});
+  if (job.runner_ && job.runner_->state().passes > 0) {
+    // Built on a worker thread at the pass boundary; only a rare transition
+    // (start, cancel of a queued job, extend) leaves it to be built here.
+    out.push_back(Event{id, "progress", *watch_progress_locked(job)});
+  }
+  if (is_terminal(job.status_)) {
+    out.push_back(Event{id, "end", dump(state_event_json(job.status_, job.runner_.get(), job.error_, true))});
+  }
+  return out;
+}
+
+JobStatus JobManager::status(const Job& job) const {
+  std::lock_guard lock(job.mu_);
+  return job.status_;
+}
+
 // ---------------------------------------------------------------- lifecycle
 
 void JobManager::publish_state_locked(Job& job) {
@@ -135,6 +171,7 @@ void JobManager::finish_locked(Job& job, double now) {
   job.final_result_ = job.runner_ && job.def_ ? std::make_shared<const json>(engine_json(*job.def_, *job.runner_))
                                               : std::make_shared<const json>(json::object());
   job.version_++;
+  if (job.runner_ && job.runner_->state().passes > 0) watch_progress_locked(job);
   publish_state_locked(job);
   job.events_.append("end", dump(state_event_json(job.status_, job.runner_.get(), job.error_, true)));
   log::job(job.status_ == JobStatus::failed ? log::Level::warn : log::Level::info, job.id_, "{}{}{}",
@@ -253,6 +290,23 @@ void JobManager::job_left_scheduler(const Job& job) {
   start_queued_locked();
 }
 
+namespace {
+
+// The pass's tile events of an image job (one per tile refined in the pass).
+std::vector<std::string> tile_events(const ImageSource* img, const std::vector<Block>& blocks, uint64_t pass) {
+  std::vector<std::string> out;
+  if (!img) return out;
+  std::set<uint32_t> tiles;
+  for (const Block& b : blocks) tiles.insert(img->tile_of_partition(b.partition));
+  for (uint32_t t : tiles) {
+    const TileRect rc = img->tile_rect(t);
+    out.push_back(dump(json{{"tile", t}, {"x", rc.x}, {"y", rc.y}, {"w", rc.w}, {"h", rc.h}, {"pass", pass}}));
+  }
+  return out;
+}
+
+}  // namespace
+
 PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
                                   double wall) {
   const std::shared_ptr<Job> job = find(id);
@@ -260,6 +314,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
   const std::vector<Block>& blocks = done.blocks;
   PassWork next;
   bool finished = false, checkpoint = false;
+  uint64_t version = 0;
   {
     std::lock_guard lock(job->mu_);
     JobRunner& r = *job->runner_;
@@ -270,23 +325,23 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
       r.fail(fmt::format("internal error committing a pass: {}", e.what()));
     }
     job->version_++;
-    job->events_.append("progress", dump(progress_event_json(r)));
-    if (const ImageSource* img = job->def_->image()) {
-      std::set<uint32_t> tiles;
-      for (const Block& b : blocks) tiles.insert(img->tile_of_partition(b.partition));
-      for (uint32_t t : tiles) {
-        const TileRect rc = img->tile_rect(t);
-        job->events_.append("tile", dump(json{{"tile", t}, {"x", rc.x}, {"y", rc.y}, {"w", rc.w}, {"h", rc.h},
-                                              {"pass", r.state().passes}}));
-      }
-    }
-    if (job->cancel_requested_ && !r.finished()) r.cancel();  // takes effect at this boundary
-    if (!r.finished()) {
+    version = job->version_;
+    const bool cancel_now = job->cancel_requested_ && !r.finished();
+    if (!cancel_now && !r.finished()) {
       next.pass = r.state().passes;
       next.blocks = r.plan_pass();
       next.pass_input = r.pass_input();
     }
-    if (r.finished() || next.empty()) {
+    if (cancel_now || r.finished() || next.empty()) {
+      // The last pass: its events, then state and end, all under the lock (once per job).
+      auto progress = std::make_shared<const std::string>(dump(progress_event_json(r)));
+      job->events_.append("progress", *progress);
+      job->watch_progress_ = progress;
+      job->watch_progress_version_ = job->version_;
+      for (std::string& t : tile_events(job->def_->image(), blocks, r.state().passes)) {
+        job->events_.append("tile", std::move(t));
+      }
+      if (cancel_now) r.cancel();  // takes effect at this boundary
       finish_locked(*job, unix_now());
       finished = true;
       next = PassWork{};
@@ -296,6 +351,24 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
       job->last_checkpoint_ = now;
       checkpoint = true;
     }
+  }
+  if (!finished) {
+    // The heavy views of the pass (progress event, status JSON, tile events: passes over
+    // every pixel of an image) are built here without the job's lock, so status GETs and
+    // watchers never wait for them. The runner is not mutated meanwhile: only this
+    // callback, at a pass boundary, changes it, and the executors call cancelled/failed
+    // for a job only once its pass_done has returned (the next pass starts after that).
+    const JobRunner& r = *job->runner_;
+    auto progress = std::make_shared<const std::string>(dump(progress_event_json(r)));
+    auto engine = job->def_ ? std::make_shared<const json>(engine_json(*job->def_, r)) : nullptr;
+    std::vector<std::string> tiles = tile_events(job->def_->image(), blocks, r.state().passes);
+    std::lock_guard lock(job->mu_);
+    job->events_.append("progress", *progress);
+    for (std::string& t : tiles) job->events_.append("tile", std::move(t));
+    job->watch_progress_ = std::move(progress);
+    job->watch_progress_version_ = version;
+    job->engine_ = std::move(engine);
+    job->engine_version_ = version;
   }
   if (checkpoint) recorder_.persist(*job, true);
   if (finished) job_left_scheduler(*job);
@@ -360,7 +433,7 @@ std::shared_ptr<Job> JobManager::cancel(const std::string& id) {
       was_queued = true;
     } else {
       job->cancel_requested_ = true;
-      log::job(log::Level::info, id, "cancel requested; stops at the next chunk boundary");
+      log::job(log::Level::info, id, "cancel requested; blocks in flight stop early and the partial pass is dropped");
     }
   }
   if (was_queued) {
@@ -400,6 +473,7 @@ std::shared_ptr<Job> JobManager::extend(const std::string& id, const StopRule& r
     job->error_.clear();
     job->finished_at_ = 0;
     job->final_result_.reset();
+    job->engine_.reset();
     job->version_++;
     publish_state_locked(*job);
   }

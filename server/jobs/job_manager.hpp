@@ -84,6 +84,12 @@ class JobManager {
   JobSnapshot snapshot(const std::string& id) const;
   JobSnapshot snapshot(const Job& job) const;
   std::vector<JobSnapshot> snapshots() const;  // every job, in submission order
+  // What a new or lagging watcher starts with: state, progress (once a pass ran)
+  // and end (finished), all with the id of the log's last event. Cheap: copies no
+  // runner; the progress part is built once per job version by the pass-done and
+  // finish paths (worker threads) and shared by every watcher.
+  std::vector<Event> watch_snapshot(const Job& job) const;
+  JobStatus status(const Job& job) const;
   // Queued: cancelled at once; running: at the next chunk boundary. JobError on
   // unknown id (not_found) or a finished job (conflict).
   std::shared_ptr<Job> cancel(const std::string& id);
@@ -95,6 +101,8 @@ class JobManager {
   bool shutting_down() const;
   // Why the server should not be called ready (the store is failing), else nullopt.
   std::optional<std::string> not_ready_reason() const;
+  // Serving, but the operator should know: the store was salvaged at start.
+  std::optional<std::string> ready_warning() const { return recorder_.store_damage(); }
   ManagerStats stats() const;
   const ManagerConfig& config() const { return config_; }
   const JobCompiler& compiler() const { return compiler_; }
@@ -112,6 +120,8 @@ class JobManager {
   // Under job.mu_: marks the job finished from its runner, publishes state + end.
   void finish_locked(Job& job, double now);
   void publish_state_locked(Job& job);
+  // Under job.mu_: the progress event data for the job's current version.
+  static std::shared_ptr<const std::string> watch_progress_locked(const Job& job);
 
   ManagerConfig config_;
   JobCompiler compiler_;

@@ -21,6 +21,7 @@ double unix_now() {
 bool JobRecorder::persist(Job& job, bool with_checkpoint, bool retry) {
   StoredJob s;
   uint64_t version;
+  std::optional<JobState> state;
   {
     std::lock_guard lock(job.mu_);
     version = job.version_;
@@ -35,11 +36,15 @@ bool JobRecorder::persist(Job& job, bool with_checkpoint, bool retry) {
     if (is_terminal(job.status_) && job.final_result_ && !job.final_result_->is_null()) {
       s.result = dump(*job.final_result_);
     }
-    if (with_checkpoint && job.runner_) s.checkpoint = encode_checkpoint(job.runner_->state());
+    if (with_checkpoint && job.runner_) state = job.runner_->state();  // encoded below, without the lock
     s.created_at = job.created_at_;
     s.started_at = job.started_at_;
     s.finished_at = job.finished_at_;
   }
+  // A request that waits for the job's lock waits for a copy, not for the encoding
+  // (an image's checkpoint is hundreds of MB).
+  if (state) s.checkpoint = encode_checkpoint(*state);
+  state.reset();
   std::lock_guard save_lock(job.save_mu_);
   if (version < job.saved_version_) return true;  // a newer state is already stored
   try {

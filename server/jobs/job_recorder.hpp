@@ -36,6 +36,8 @@ class JobRecorder {
   bool persist(Job& job, bool with_checkpoint, bool retry = true);
   // The store's last error while its last save failed, else nullopt.
   std::optional<std::string> store_problem() const { return health_.problem(); }
+  // What a salvage of a damaged store at open lost (JobStore::damage), else nullopt.
+  std::optional<std::string> store_damage() const { return store_.damage(); }
   uint64_t store_failures() const { return health_.failures(); }
 
   struct Recovered {

@@ -32,9 +32,15 @@ class JobStore {
   virtual std::vector<StoredJob> load_all() = 0;
   // Counts server starts; event ids are made unique across restarts with it.
   virtual uint64_t next_epoch() = 0;
+  // Set when the store was found damaged at open and salvaged: what was moved
+  // aside and what was lost (one line for the log and /readyz).
+  virtual std::optional<std::string> damage() const { return std::nullopt; }
 };
 
-// The embedded default: <data_dir>/tally.db, WAL mode.
+// The embedded default: <data_dir>/tally.db, WAL mode. A damaged file (its pages
+// fail SQLite's quick_check, or it is not a database) does not stop the server:
+// it is moved aside and what can be read is salvaged into a fresh one
+// (sqlite_salvage.hpp); damage() then says what was lost.
 std::unique_ptr<JobStore> open_sqlite_store(const std::string& data_dir);
 
 // For tests and --data-dir ":memory:"-like use.

@@ -2,10 +2,13 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <ctime>
 #include <filesystem>
 #include <mutex>
 
+#include "common/log/log.hpp"
 #include "server/jobs/job_store.hpp"
+#include "server/jobs/sqlite_salvage.hpp"
 
 namespace tally {
 
@@ -31,6 +34,29 @@ class SqliteJobStore final : public JobStore {
     db_.exec("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value INTEGER NOT NULL)");
     migrate();
   }
+
+  // "" if SQLite's quick_check (every page's structure) finds nothing wrong.
+  std::string check() {
+    std::string problems;
+    SQLite::Statement q(db_, "PRAGMA quick_check(5)");
+    while (q.executeStep()) {
+      const std::string line = q.getColumn(0).getString();
+      if (line != "ok") problems += (problems.empty() ? "" : "; ") + line;
+    }
+    return problems;
+  }
+
+  // A start counter at least `epoch` (salvage: the old one, or one from the clock).
+  void set_epoch(uint64_t epoch) {
+    std::lock_guard lock(mu_);
+    SQLite::Statement st(db_, "INSERT INTO meta (key, value) VALUES ('epoch', ?)"
+                              " ON CONFLICT(key) DO UPDATE SET value = MAX(value, excluded.value)");
+    st.bind(1, static_cast<int64_t>(epoch));
+    st.exec();
+  }
+
+  void set_damage(std::string note) { damage_ = std::move(note); }
+  std::optional<std::string> damage() const override { return damage_; }
 
   // Databases written before access control have no owner column: their jobs
   // belong to the anonymous owner "" (visible to admins only once auth is on).
@@ -115,7 +141,22 @@ class SqliteJobStore final : public JobStore {
  private:
   std::mutex mu_;
   SQLite::Database db_;
+  std::optional<std::string> damage_;
 };
+
+std::unique_ptr<SqliteJobStore> salvage(const std::string& path, const std::string& cause) {
+  log::error("the job database {} is damaged ({}); moving it aside and salvaging what can be read", path, cause);
+  SalvageResult r = quarantine_and_salvage(path);
+  auto store = std::make_unique<SqliteJobStore>(path);
+  for (const StoredJob& j : r.jobs) store->save(j);
+  // Event ids must keep growing across restarts: with the counter lost, the clock
+  // (seconds since 1970) is larger than any count of starts.
+  store->set_epoch(r.epoch ? *r.epoch : static_cast<uint64_t>(std::time(nullptr)));
+  const std::string note = r.summary(cause);
+  log::error("{}", note);
+  store->set_damage(note);
+  return store;
+}
 
 }  // namespace
 
@@ -123,7 +164,18 @@ std::unique_ptr<JobStore> open_sqlite_store(const std::string& data_dir) {
   std::filesystem::create_directories(data_dir);
   const std::string path = (std::filesystem::path(data_dir) / "tally.db").string();
   try {
-    return std::make_unique<SqliteJobStore>(path);
+    std::unique_ptr<SqliteJobStore> store;
+    std::string damage;
+    try {
+      store = std::make_unique<SqliteJobStore>(path);
+      damage = store->check();
+    } catch (const SQLite::Exception& e) {
+      if (!is_damage_error(e.getErrorCode()) && !is_damage_error(e.getExtendedErrorCode())) throw;
+      damage = e.what();
+    }
+    if (damage.empty()) return store;
+    store.reset();  // closed before it is moved aside
+    return salvage(path, damage);
   } catch (const std::exception& e) {
     // SQLite's messages ("attempt to write a readonly database", "unable to open
     // database file") name no file: the operator needs the path.

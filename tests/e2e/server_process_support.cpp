@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cstdlib>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
@@ -57,7 +58,10 @@ ServerProcess::~ServerProcess() {
 
 void ServerProcess::start() {
   fs::remove(port_file_);
-  std::vector<std::string> args = {TALLY_SERVER_BIN, "--listen", "127.0.0.1:0", "--port-file", port_file_.string(),
+  // TALLY_TEST_SERVER_BIN: run the tests against another build (e.g. an older one,
+  // to see a test reproduce the problem it guards against).
+  const char* bin = std::getenv("TALLY_TEST_SERVER_BIN");
+  std::vector<std::string> args = {bin && *bin ? bin : TALLY_SERVER_BIN, "--listen", "127.0.0.1:0", "--port-file", port_file_.string(),
                                    "--data-dir", data_dir_.string(), "--workers", "2"};
   args.insert(args.end(), extra_.begin(), extra_.end());
   pid_ = spawn_logged(args, log_file_);
