@@ -5,6 +5,7 @@
 #include <numbers>
 
 #include "common/expr/compiled_expression.hpp"
+#include "common/integrate/cubature.hpp"
 #include "common/integrate/domain.hpp"
 #include "common/integrate/estimators.hpp"
 #include "common/integrate/genz.hpp"
@@ -188,7 +189,7 @@ struct EstimatorChoice {
 };
 
 EstimatorChoice parse_estimator(const json* node, const std::string& pointer, IntegrationProblem prob,
-                                const JobLimits& limits) {
+                                const JobLimits& limits, const StopRule& stop, bool stop_has_max_samples) {
   const Domain& D = *prob.domain;
   EstimatorChoice c;
   const bool vector = prob.integrand->components() > 1;
@@ -217,7 +218,7 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
   }
   SpecReader r(*node, pointer);
   const std::string type =
-      r.enumeration("type", {"uniform", "importance", "stratified", "qmc", "rejection", "quadrature", "vegas"});
+      r.enumeration("type", {"uniform", "importance", "stratified", "qmc", "rejection", "quadrature", "vegas", "cubature"});
   c.plan = {{"type", type}};
   auto need_box = [&](const char* what) {
     if (!D.is_box()) {
@@ -225,9 +226,9 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
                       fmt::format("{} needs an interval or box domain, not {}", what, D.type()));
     }
   };
-  if (vector && type != "uniform" && type != "vegas") {
-    throw SpecError(r.pointer_of("type"), fmt::format("vector integrands support the uniform and vegas "
-                                                      "estimators, not {}", type));
+  if (vector && type != "uniform" && type != "vegas" && type != "cubature") {
+    throw SpecError(r.pointer_of("type"), fmt::format("vector integrands support the uniform, vegas and "
+                                                      "cubature estimators, not {}", type));
   }
   if (type == "uniform" && vector) {
     frozen_uniform(r.pointer_of("type"));
@@ -336,6 +337,32 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
       c.plan["steering"] = "sum over components of each one's per-bin (f/p)^2, normalized to 1 per component";
     }
     c.kernel = make_vegas_kernel(prob, vo);
+  } else if (type == "cubature") {
+    need_box("cubature");
+    if (D.dimensions() > kMaxCubatureDimensions) {
+      throw SpecError(r.pointer_of("type"), fmt::format("cubature supports at most {} dimensions, the domain has {}",
+                                                        kMaxCubatureDimensions, D.dimensions()));
+    }
+    CubatureOptions co;
+    co.p_adaptive = r.enumeration_or("rule", "h", {"h", "p"}) == "p";
+    // One evaluation of the integrand is one "sample" of the stop rule's max_samples.
+    if (stop_has_max_samples) {
+      if (stop.max_samples > kMaxCubatureEvaluations) {
+        throw SpecError("/stop/max_samples",
+                        fmt::format("cubature runs at most {} evaluations (one block, so that cancel stays "
+                                    "prompt); got {}", kMaxCubatureEvaluations, stop.max_samples));
+      }
+      co.max_evaluations = stop.max_samples;
+    }
+    co.abs_error = stop.abs_error;
+    co.rel_error = stop.rel_error;
+    c.plan["rule"] = co.p_adaptive ? "pcubature (p-adaptive nested Clenshaw-Curtis)"
+                                   : "hcubature (h-adaptive Genz-Malik degree 7/5)";
+    c.plan["max_evaluations"] = co.max_evaluations;
+    c.plan["error"] = "error estimate of the rule (not a confidence interval)";
+    if (vector) c.plan["components"] = prob.integrand->components();
+    c.kernel = make_cubature_kernel(prob, co);
+    c.deterministic = true;
   } else if (type == "rejection") {
     if (D.is_box() || !D.is_solid()) {
       throw SpecError(r.pointer_of("type"),
@@ -403,7 +430,17 @@ class IntegrationJob final : public JobDefinition {
       const ErrorSummary e = runner.error();
       j["error_estimate"] = std::isfinite(e.abs_error) ? json(e.abs_error) : json(nullptr);
     }
-    if (const size_t m = integrand_->components(); m > 1) {
+    if (const size_t m = integrand_->components(); m > 1 && deterministic_) {
+      // Cubature: each component's value and the rule's error estimate (channel m + c).
+      json comps = json::array();
+      const auto& ch = runner.state().channels;
+      for (size_t c = 0; c < m; ++c) {
+        const bool have = ch.size() == 2 * m && ch[c].n > 0;
+        comps.push_back({{"mean", have ? json(ch[c].mean) : json(nullptr)},
+                         {"error_estimate", have ? json(ch[m + c].mean) : json(nullptr)}});
+      }
+      j["components"] = comps;
+    } else if (m > 1) {
       json comps = json::array();
       const auto rep = vegas_report(runner.state());
       const bool combined = rep && plan_["estimator"].value("combine", "") == "weighted";
@@ -454,7 +491,8 @@ class IntegrationJob final : public JobDefinition {
   std::string summary_line(const JobRunner& runner) const override {
     if (deterministic_) {
       const Estimate e = runner.headline();
-      return fmt::format("{:.12g} (trapezoid, error estimate {:.3g})", e.mean, runner.error().abs_error);
+      return fmt::format("{:.12g} ({}, error estimate {:.3g}, not a confidence interval)", e.mean,
+                         plan_["estimator"].value("type", ""), runner.error().abs_error);
     }
     const Estimate e = runner.headline();  // channel 0, or VEGAS's combined passes
     return fmt::format("{:.10g} ± {:.3g} ({:g}% CI [{:.10g}, {:.10g}])", e.mean, e.std_error, 100.0 * e.confidence,
@@ -506,12 +544,14 @@ std::unique_ptr<JobDefinition> compile_integration_job(const json& spec, const J
     }
   }
   IntegrationProblem prob{in.f, domain, job->seed_};
-  EstimatorChoice est = parse_estimator(top.find("estimator"), "/estimator", prob, limits);
-
   SpecReader stop = top.object("stop");
   job->stop_ = parse_stop_rule(stop, limits);
+  EstimatorChoice est =
+      parse_estimator(top.find("estimator"), "/estimator", prob, limits, job->stop_, stop.has("max_samples"));
+
   if (est.deterministic) {
     job->stop_.max_samples = 1;
+    job->stop_.min_samples = 1;  // one rule: its error estimate decides at once
   } else if (est.sweep && !stop.has("min_samples")) {
     job->stop_.min_samples = 16;  // point sets, not points: 16 randomizations suffice for a t interval
   }
