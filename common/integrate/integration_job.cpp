@@ -1,5 +1,6 @@
 #include "common/integrate/integration_job.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <fmt/format.h>
 #include <numbers>
@@ -323,11 +324,28 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
     vo.warmup_passes = static_cast<uint32_t>(r.integer_or("warmup_passes", vo.warmup_passes, 0, 64));
     vo.max_pass_samples = r.integer_or("max_pass_samples", vo.max_pass_samples, 4096, uint64_t{1} << 26);
     vo.weighted = r.enumeration_or("combine", "weighted", {"weighted", "pooled"}) == "weighted";
+    vo.stratify = r.boolean_or("stratify", vo.stratify);
+    vo.beta = r.number_or("beta", vo.beta, 0.0, 1.0);
+    if (vo.stratify && !vo.weighted) {
+      throw SpecError(r.pointer_of("combine"), "stratify needs the weighted combination (a stratified pass's samples "
+                                               "do not all have the same distribution)");
+    }
+    if (!vo.stratify && r.has("beta")) throw SpecError(r.pointer_of("beta"), "applies only with \"stratify\": true");
     c.plan["bins"] = vo.bins;
     c.plan["alpha"] = vo.alpha;
     c.plan["warmup_passes"] = vo.warmup_passes;
     c.plan["max_pass_samples"] = vo.max_pass_samples;
     c.plan["combine"] = vo.weighted ? "weighted" : "pooled";
+    c.plan["stratify"] = vo.stratify;
+    if (vo.stratify) {
+      c.plan["beta"] = vo.beta;
+      const uint32_t ns = vegas_strata_per_axis(D.dimensions());
+      c.plan["strata_per_axis"] = ns;
+      c.plan["stratification"] = fmt::format(
+          "VEGAS+: {}^{} hypercubes; each round of {} samples gives every hypercube 2 samples plus a share of the "
+          "rest proportional to sigma_h^beta from the previous pass",
+          ns, D.dimensions(), kVegasRound);
+    }
     c.plan["combination"] = vo.weighted ? "inverse-variance weighted mean of the passes after the warm-up; "
                                           "chi^2/dof across them checked"
                                         : "samples of the passes after the warm-up pooled with equal weight; "
@@ -476,6 +494,12 @@ class IntegrationJob final : public JobDefinition {
                     {"p_value", v->p_value},
                     {"consistent", !v->inconsistent},
                     {"error_scale", v->error_scale}};
+      if (v->hypercubes > 0) {
+        const auto [lo, hi] = std::minmax_element(v->next_allocation.begin(), v->next_allocation.end());
+        j["vegas"]["strata_per_axis"] = v->strata_per_axis;
+        j["vegas"]["hypercubes"] = v->hypercubes;
+        j["vegas"]["next_allocation"] = {{"min", *lo}, {"max", *hi}};
+      }
     }
     if (reference_) {
       j["reference"] = *reference_;
