@@ -349,8 +349,8 @@ if Pr:
     out.append("## 6. Peers side by side on the Genz suite\n")
     out.append(
         f"Cuba's protocol (genz_random_instance: u ~ U(0,1)^d, a = w·h/Σw, h = (6, 18, 2.2, 15.2, 16.1, "
-        f"16.4)), six families, d ∈ {nd}, {ninst} instances per family and dimension (Cuba uses 20; halved "
-        "to keep the section to a few minutes on a shared 2-core machine). Every method stops by its own "
+        f"16.4)), six families, d ∈ {nd}, {ninst} instances per family and dimension (Cuba uses 20"
+        + ("" if ninst >= 20 else "; fewer to keep the section short on a shared 2-core machine") + "). Every method stops by its own "
         "reported error: 95% half-width ≤ 5·10⁻⁴·|estimate| (GSL and tally: 1.96σ; SciPy: Student t with "
         "7 degrees of freedom on its 8 randomizations). **3 correct digits** means |Î − I| ≤ 5·10⁻⁴·|I|. "
         "**Time to 3 digits** is the method's wall time to its stop if it stopped by its own rule with 3 "
@@ -359,11 +359,13 @@ if Pr:
         "of runs that stopped by their own rule whose reported 95% half-width covered the true error "
         "(promised: 95%).\n")
     out.append(
-        "Methods: tally's `qmc` estimator (scrambled Sobol; 1024 points per randomization for d ≤ 3, 4096 "
-        "above) on the five smooth families and its `vegas` estimator (adaptive separable grid, 200 bins, "
-        "3 warm-up passes, later passes weighted by n / previous pass's variance) on the discontinuous one; "
-        "chosen from `tally-study peers-tune` and `vegas-tune` on instance seeds 101–105, disjoint from the seeds "
-        "1–10 evaluated here; the job's own rel_error stop rule); Steven G. Johnson's hcubature "
+        "Methods: tally's `cubature` estimator (hcubature_v inside a tally job: one bounded block, evaluation "
+        "cap 2^22 = its stop rule's max_samples, stopped by its error *estimate* like the hcubature peer) on "
+        "the five smooth families and its `vegas` estimator with `stratify: true` (VEGAS+: adaptive separable "
+        "grid, 200 bins, 3 warm-up passes, hypercube allocation ∝ σ^0.75, later passes weighted by n / previous "
+        "pass's variance) on the discontinuous one (the job's own rel_error stop rule); the earlier choice "
+        "(`qmc`, plain `vegas`) came from `tally-study peers-tune` and `vegas-tune` on instance seeds 101–105, "
+        "disjoint from the seeds evaluated here; Steven G. Johnson's hcubature "
         "(h-adaptive Genz–Malik) and pcubature (p-adaptive Clenshaw–Curtis) from Debian's libcubature "
         "via bench/peers/cubature_peer.cpp, stopped by their own error *estimate* ≤ 5·10⁻⁴·|value| (not a "
         "confidence interval; their coverage column is that estimate's); GSL 2.7 plain, MISER and VEGAS via "
