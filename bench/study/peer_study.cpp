@@ -73,6 +73,10 @@ json tally_estimator(GenzFamily f, size_t d) {
     if (const char* v = std::getenv("TALLY_STUDY_PLAIN_VEGAS"); v != nullptr && *v == '1') return {{"type", "vegas"}};
     return {{"type", "vegas"}, {"stratify", true}};
   }
+  // Continuous (a kink |x - u| in every axis): the rules' error estimate is too
+  // optimistic and cubature reached 3 digits on only 46/60 instances (10/20 in 6-D) in
+  // this study's first run; randomized QMC handles the kink (60/60 earlier).
+  if (f == GenzFamily::continuous) return {{"type", "qmc"}, {"points", d <= 3 ? 1024 : 4096}};
   if (d <= 8) return {{"type", "cubature"}};
   return {{"type", "qmc"}, {"points", d <= 3 ? 1024 : 4096}};
 }
