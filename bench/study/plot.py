@@ -361,7 +361,10 @@ if Pr:
     out.append(
         "Methods: tally's `cubature` estimator (hcubature_v inside a tally job: one bounded block, evaluation "
         "cap 2^22 = its stop rule's max_samples, stopped by its error *estimate* like the hcubature peer) on "
-        "the five smooth families and its `vegas` estimator with `stratify: true` (VEGAS+: adaptive separable "
+        "oscillatory, product peak, corner peak and gaussian; its `qmc` estimator (1024 points per randomization "
+        "in d ≤ 3, 4096 above) on continuous (cubature's estimate was too optimistic on the kinks: 46/60 in a "
+        "first run of this suite, whose continuous rows were then rerun with qmc, peers again interleaved); "
+        "and its `vegas` estimator with `stratify: true` (VEGAS+: adaptive separable "
         "grid, 200 bins, 3 warm-up passes, hypercube allocation ∝ σ^0.75, later passes weighted by n / previous "
         "pass's variance) on the discontinuous one (the job's own rel_error stop rule); the earlier choice "
         "(`qmc`, plain `vegas`) came from `tally-study peers-tune` and `vegas-tune` on instance seeds 101–105, "
