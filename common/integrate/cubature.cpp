@@ -9,6 +9,8 @@
 #include <stdexcept>
 #include <vector>
 
+#include "common/integrate/integration_counters.hpp"
+
 namespace tally {
 
 namespace {
@@ -36,7 +38,7 @@ int evaluate(unsigned dim, size_t npts, const double* x, void* data, unsigned fd
     cd->over_cap = true;
     return 1;
   }
-  cd->out->counters.add(Counter::evaluations, npts);
+  cd->out->counters.add(IntegrationCounter::evaluations, npts);
   for (size_t off = 0; off < npts; off += kB) {
     const size_t n = std::min(kB, npts - off);
     for (size_t k = 0; k < dim; ++k) {
@@ -49,7 +51,7 @@ int evaluate(unsigned dim, size_t npts, const double* x, void* data, unsigned fd
       for (size_t i = 0; i < n; ++i) {
         if (!std::isfinite(v[i])) {
           BlockResult& out = *cd->out;
-          out.counters.add(Counter::nonfinite);
+          out.counters.add(IntegrationCounter::nonfinite);
           SampleFault f;
           f.sample_index = 0;
           f.channel = static_cast<uint32_t>(c);
@@ -81,6 +83,8 @@ class CubatureKernel final : public Kernel {
   }
 
   size_t channel_count() const override { return 2 * m_; }
+  std::span<const std::string_view> counter_names() const override { return integration_counter_names(); }
+  std::vector<std::string> warnings(const JobState& st) const override { return integration_counter_warnings(st); }
   PassSchedule schedule() const override { return {1, 1, 1}; }
 
   void run_block(const Block& b, BlockResult& out) const override {

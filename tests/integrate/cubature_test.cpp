@@ -8,6 +8,7 @@
 #include <fmt/format.h>
 
 #include "common/integrate/genz.hpp"
+#include "common/integrate/integration_counters.hpp"
 #include "common/protocol/spec_reader.hpp"
 #include "integrate/run_support.hpp"
 
@@ -55,7 +56,7 @@ TEST(Cubature, GenzClosedFormsMeetTheRequestedTolerance) {
         EXPECT_LE(e.rel_error, target) << what;
         EXPECT_LE(std::fabs(e.mean - exact), target * std::fabs(exact))
             << what << " mean " << e.mean << " exact " << exact << " estimate " << e.abs_error;
-        EXPECT_GT(r->state().counters[Counter::evaluations], 0u);
+        EXPECT_GT(r->state().counters[IntegrationCounter::evaluations], 0u);
       }
     }
   }
@@ -67,7 +68,7 @@ TEST(Cubature, ReportsAnErrorEstimateNotAConfidenceInterval) {
   const GenzParams p = instance(GenzFamily::gaussian, 3);
   const auto r = testing::run_spec(genz_spec(p, {{"type", "cubature"}}, {{"rel_error", 1e-7}}));
   EXPECT_EQ(r->stop_reason(), StopReason::error_target);
-  const json res = r.job->result(*r.runner);
+  const json res = kind_result_json(*r.job, *r.runner);
   ASSERT_TRUE(res.contains("error_estimate")) << res.dump();
   EXPECT_GT(res["error_estimate"].get<double>(), 0.0);
   EXPECT_LE(res["error_estimate"].get<double>(), 1e-7 * std::fabs(genz_exact(p)));
@@ -93,7 +94,7 @@ TEST(Cubature, OneAndTwoThreadsGiveIdenticalBits) {
     for (size_t c = 0; c < 2; ++c) {
       EXPECT_EQ(a->state().channels[c].mean, b->state().channels[c].mean);  // bit for bit
     }
-    EXPECT_EQ(a->state().counters[Counter::evaluations], b->state().counters[Counter::evaluations]);
+    EXPECT_EQ(a->state().counters[IntegrationCounter::evaluations], b->state().counters[IntegrationCounter::evaluations]);
   }
 }
 
@@ -102,7 +103,7 @@ TEST(Cubature, OneAndTwoThreadsGiveIdenticalBits) {
 TEST(Cubature, HonoursTheEvaluationCap) {
   const GenzParams p = instance(GenzFamily::discontinuous, 4);
   const auto r = testing::run_spec(genz_spec(p, {{"type", "cubature"}}, {{"rel_error", 1e-12}, {"max_samples", 20000}}));
-  const uint64_t n = r->state().counters[Counter::evaluations];
+  const uint64_t n = r->state().counters[IntegrationCounter::evaluations];
   EXPECT_GE(n, 20000u);
   EXPECT_LE(n, 20000u + 20000u);
   EXPECT_NE(r->stop_reason(), StopReason::error_target);
@@ -118,7 +119,7 @@ TEST(Cubature, VectorIntegrandComponentsMeetTheirTargets) {
                      {"stop", {{"rel_error", 1e-9}}}};
   const auto r = testing::run_spec(spec);
   EXPECT_EQ(r->stop_reason(), StopReason::error_target);
-  const json res = r.job->result(*r.runner);
+  const json res = kind_result_json(*r.job, *r.runner);
   ASSERT_EQ(res["components"].size(), 2u);
   // int_0^1 int_0^2 exp(-x y) dy dx = int_0^1 (1 - e^{-2x}) / x dx = Ein(2)
   const double ein2 = 1.319263356169539;  // sum_{k>=1} (-1)^{k+1} 2^k / (k k!)
