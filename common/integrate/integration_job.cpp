@@ -1,6 +1,8 @@
 #include "common/integrate/integration_job.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <fmt/format.h>
 
 #include "common/integrate/integration_counters.hpp"
@@ -28,7 +30,17 @@ IntegrationResult IntegrationJob::result(const JobRunner& runner) const {
   r.sample_unit = s_.sweep ? "point set" : (s_.deterministic ? "rule" : "point");
   if (s_.deterministic) r.error_estimate = runner.error().abs_error;
   const auto rep = vegas_report(runner.state());
-  if (const size_t m = s_.integrand->components(); m > 1) {
+  if (const size_t m = s_.integrand->components(); m > 1 && s_.deterministic) {
+    // Cubature: each component's value and the rule's error estimate (channel m + c).
+    const auto& ch = runner.state().channels;
+    for (size_t c = 0; c < m; ++c) {
+      const bool have = ch.size() == 2 * m && ch[c].n > 0;
+      ComponentEstimate e;
+      e.mean = have ? ch[c].mean : std::numeric_limits<double>::quiet_NaN();
+      e.error_estimate = have ? ch[m + c].mean : std::numeric_limits<double>::quiet_NaN();
+      r.components.push_back(e);
+    }
+  } else if (const size_t m = s_.integrand->components(); m > 1) {
     const bool combined = rep && s_.estimator.combine == "weighted";
     for (size_t c = 0; c < m; ++c) {
       Estimate e = runner.estimate(c);  // the pooled samples of component c
@@ -39,7 +51,7 @@ IntegrationResult IntegrationJob::result(const JobRunner& runner) const {
         e.ci_lo = e.mean - z * e.std_error;
         e.ci_hi = e.mean + z * e.std_error;
       }
-      r.components.push_back({e.mean, e.std_error, e.ci_lo, e.ci_hi});
+      r.components.push_back({e.mean, e.std_error, e.ci_lo, e.ci_hi, std::nullopt});
     }
     const std::vector<double> cov = component_mean_covariance(runner.state(), m);
     for (size_t a = 0; a < m; ++a) {
@@ -58,6 +70,13 @@ IntegrationResult IntegrationJob::result(const JobRunner& runner) const {
     v.p_value = rep->p_value;
     v.consistent = !rep->inconsistent;
     v.error_scale = rep->error_scale;
+    if (rep->hypercubes > 0) {
+      const auto [lo, hi] = std::minmax_element(rep->next_allocation.begin(), rep->next_allocation.end());
+      v.strata_per_axis = rep->strata_per_axis;
+      v.hypercubes = rep->hypercubes;
+      v.next_allocation_min = *lo;
+      v.next_allocation_max = *hi;
+    }
     r.vegas = std::move(v);
   }
   if (s_.reference) {
@@ -72,7 +91,8 @@ IntegrationResult IntegrationJob::result(const JobRunner& runner) const {
 std::string IntegrationJob::summary_line(const JobRunner& runner) const {
   if (s_.deterministic) {
     const Estimate e = runner.headline();
-    return fmt::format("{:.12g} (trapezoid, error estimate {:.3g})", e.mean, runner.error().abs_error);
+    return fmt::format("{:.12g} ({}, error estimate {:.3g}, not a confidence interval)", e.mean, s_.estimator.type,
+                       runner.error().abs_error);
   }
   const Estimate e = runner.headline();  // channel 0, or VEGAS's combined passes
   return fmt::format("{:.10g} ± {:.3g} ({:g}% CI [{:.10g}, {:.10g}])", e.mean, e.std_error, 100.0 * e.confidence,

@@ -31,8 +31,14 @@ struct EstimatorPlan {
   std::optional<double> alpha;
   std::optional<uint64_t> warmup_passes, max_pass_samples;
   std::optional<std::string> combine, combination, steering;  // ... vegas
+  std::optional<bool> stratify;                               // vegas+ ...
+  std::optional<double> beta;
+  std::optional<uint64_t> strata_per_axis;
+  std::optional<std::string> stratification;                  // ... vegas+
   std::optional<uint64_t> max_attempts;                       // rejection
-  std::optional<std::string> rule;                            // quadrature ...
+  std::optional<std::string> rule;                            // quadrature, cubature ...
+  std::optional<uint64_t> max_evaluations;                    // cubature
+  std::optional<std::string> error;                           // cubature: what its error is
   std::optional<uint64_t> points_per_dim;
   std::optional<double> points;  // ... (a product, may exceed 2^64 before the limit check)
 };
@@ -51,6 +57,8 @@ struct ComponentEstimate {
   double mean = 0.0;
   double std_error = 0.0;  // non-finite: unknown
   double ci_lo = 0.0, ci_hi = 0.0;
+  // Deterministic rules (cubature): the rule's error estimate instead of std_error/ci.
+  std::optional<double> error_estimate;
 };
 
 struct VegasIterationSummary {
@@ -67,6 +75,8 @@ struct VegasSummary {
   double p_value = 1.0;
   bool consistent = true;
   double error_scale = 1.0;
+  // VEGAS+: strata per axis, hypercubes, min/max samples per hypercube in the next round.
+  std::optional<uint64_t> strata_per_axis, hypercubes, next_allocation_min, next_allocation_max;
 };
 
 struct IntegrationResult {

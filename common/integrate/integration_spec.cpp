@@ -10,6 +10,7 @@
 #include "common/integrate/genz.hpp"
 #include "common/integrate/integrand.hpp"
 #include "common/integrate/vector_integrand.hpp"
+#include "common/integrate/cubature.hpp"
 #include "common/integrate/vegas.hpp"
 #include "common/protocol/spec_reader.hpp"
 #include "common/protocol/stop_rule_json.hpp"
@@ -188,7 +189,7 @@ struct EstimatorChoice {
 };
 
 EstimatorChoice parse_estimator(const json* node, const std::string& pointer, IntegrationProblem prob,
-                                const JobLimits& limits) {
+                                const JobLimits& limits, const StopRule& stop, bool stop_has_max_samples) {
   const Domain& D = *prob.domain;
   EstimatorChoice c;
   const bool vector = prob.integrand->components() > 1;
@@ -218,7 +219,7 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
   }
   SpecReader r(*node, pointer);
   const std::string type =
-      r.enumeration("type", {"uniform", "importance", "stratified", "qmc", "rejection", "quadrature", "vegas"});
+      r.enumeration("type", {"uniform", "importance", "stratified", "qmc", "rejection", "quadrature", "vegas", "cubature"});
   c.plan.type = type;
   auto need_box = [&](const char* what) {
     if (!D.is_box()) {
@@ -226,9 +227,9 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
                       fmt::format("{} needs an interval or box domain, not {}", what, D.type()));
     }
   };
-  if (vector && type != "uniform" && type != "vegas") {
-    throw SpecError(r.pointer_of("type"), fmt::format("vector integrands support the uniform and vegas "
-                                                      "estimators, not {}", type));
+  if (vector && type != "uniform" && type != "vegas" && type != "cubature") {
+    throw SpecError(r.pointer_of("type"), fmt::format("vector integrands support the uniform, vegas and "
+                                                      "cubature estimators, not {}", type));
   }
   if (type == "uniform" && vector) {
     frozen_uniform(r.pointer_of("type"));
@@ -323,6 +324,23 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
     vo.warmup_passes = static_cast<uint32_t>(r.integer_or("warmup_passes", vo.warmup_passes, 0, 64));
     vo.max_pass_samples = r.integer_or("max_pass_samples", vo.max_pass_samples, 4096, uint64_t{1} << 26);
     vo.weighted = r.enumeration_or("combine", "weighted", {"weighted", "pooled"}) == "weighted";
+    vo.stratify = r.boolean_or("stratify", vo.stratify);
+    vo.beta = r.number_or("beta", vo.beta, 0.0, 1.0);
+    if (vo.stratify && !vo.weighted) {
+      throw SpecError(r.pointer_of("combine"), "stratify needs the weighted combination (a stratified pass's samples "
+                                               "do not all have the same distribution)");
+    }
+    if (!vo.stratify && r.has("beta")) throw SpecError(r.pointer_of("beta"), "applies only with \"stratify\": true");
+    c.plan.stratify = vo.stratify;
+    if (vo.stratify) {
+      c.plan.beta = vo.beta;
+      const uint32_t ns = vegas_strata_per_axis(D.dimensions());
+      c.plan.strata_per_axis = ns;
+      c.plan.stratification = fmt::format(
+          "VEGAS+: {}^{} hypercubes; each round of {} samples gives every hypercube 2 samples plus a share of the "
+          "rest proportional to sigma_h^beta from the previous pass",
+          ns, D.dimensions(), kVegasRound);
+    }
     c.plan.bins = vo.bins;
     c.plan.alpha = vo.alpha;
     c.plan.warmup_passes = vo.warmup_passes;
@@ -337,6 +355,32 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
       c.plan.steering = "sum over components of each one's per-bin (f/p)^2, normalized to 1 per component";
     }
     c.kernel = make_vegas_kernel(prob, vo);
+  } else if (type == "cubature") {
+    need_box("cubature");
+    if (D.dimensions() > kMaxCubatureDimensions) {
+      throw SpecError(r.pointer_of("type"), fmt::format("cubature supports at most {} dimensions, the domain has {}",
+                                                        kMaxCubatureDimensions, D.dimensions()));
+    }
+    CubatureOptions co;
+    co.p_adaptive = r.enumeration_or("rule", "h", {"h", "p"}) == "p";
+    // One evaluation of the integrand is one "sample" of the stop rule's max_samples.
+    if (stop_has_max_samples) {
+      if (stop.max_samples > kMaxCubatureEvaluations) {
+        throw SpecError("/stop/max_samples",
+                        fmt::format("cubature runs at most {} evaluations (one block, so that cancel stays "
+                                    "prompt); got {}", kMaxCubatureEvaluations, stop.max_samples));
+      }
+      co.max_evaluations = stop.max_samples;
+    }
+    co.abs_error = stop.abs_error;
+    co.rel_error = stop.rel_error;
+    c.plan.rule = co.p_adaptive ? "pcubature (p-adaptive nested Clenshaw-Curtis)"
+                                : "hcubature (h-adaptive Genz-Malik degree 7/5)";
+    c.plan.max_evaluations = co.max_evaluations;
+    c.plan.error = "error estimate of the rule (not a confidence interval)";
+    if (vector) c.plan.components = prob.integrand->components();
+    c.kernel = make_cubature_kernel(prob, co);
+    c.deterministic = true;
   } else if (type == "rejection") {
     if (D.is_box() || !D.is_solid()) {
       throw SpecError(r.pointer_of("type"),
@@ -419,12 +463,13 @@ std::unique_ptr<IntegrationJob> compile_integration_job(const json& spec, const 
     }
   }
   IntegrationProblem prob{in.f, domain, job.seed};
-  EstimatorChoice est = parse_estimator(top.find("estimator"), "/estimator", prob, limits);
-
   SpecReader stop = top.object("stop");
   job.stop = parse_stop_rule(stop, limits);
+  EstimatorChoice est =
+      parse_estimator(top.find("estimator"), "/estimator", prob, limits, job.stop, stop.has("max_samples"));
   if (est.deterministic) {
     job.stop.max_samples = 1;
+    job.stop.min_samples = 1;  // one rule: its error estimate decides at once
   } else if (est.sweep && !stop.has("min_samples")) {
     job.stop.min_samples = 16;  // point sets, not points: 16 randomizations suffice for a t interval
   }

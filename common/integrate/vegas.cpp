@@ -17,7 +17,8 @@ namespace tally {
 namespace {
 
 constexpr size_t kB = kIntegrandBatch;
-constexpr uint64_t kStateMagic = 0x3153414745565441ULL;  // "ATVEGAS1"
+constexpr uint64_t kStateMagic = 0x3153414745565441ULL;   // "ATVEGAS1"
+constexpr uint64_t kStateMagic2 = 0x3253414745565441ULL;  // "ATVEGAS2": + VEGAS+ hypercube weights
 
 // Little byte-level writer/reader for kernel_state and pass_input (host byte order:
 // both stay on machines of one architecture, like the rest of a job's bits).
@@ -72,17 +73,24 @@ struct Grid {
 struct State {
   Grid grid;
   uint32_t m = 1;
+  // VEGAS+: per hypercube, sigma_h^beta from the last pass (the next pass's allocation
+  // weights); empty without stratification or before the first pass.
+  std::vector<double> hweights;
   std::vector<VegasIteration> iterations;        // component 0 (report)
   std::vector<std::vector<Tally>> components;    // per iteration, all m components
 };
 
 std::string encode_state(const State& s) {
   Out o;
-  o.u64(kStateMagic);
+  o.u64(s.hweights.empty() ? kStateMagic : kStateMagic2);
   o.u64(s.grid.d);
   o.u64(s.grid.nb);
   o.u64(s.m);
   for (double e : s.grid.edges) o.f64(e);
+  if (!s.hweights.empty()) {
+    o.u64(s.hweights.size());
+    for (double w : s.hweights) o.f64(w);
+  }
   o.u64(s.iterations.size());
   for (size_t k = 0; k < s.iterations.size(); ++k) {
     o.u64(s.iterations[k].warmup ? 1 : 0);
@@ -98,7 +106,8 @@ std::string encode_state(const State& s) {
 std::optional<State> decode_state(std::string_view bytes) {
   if (bytes.empty()) return std::nullopt;
   In in(bytes);
-  if (in.u64() != kStateMagic) return std::nullopt;
+  const uint64_t magic = in.u64();
+  if (magic != kStateMagic && magic != kStateMagic2) return std::nullopt;
   State s;
   s.grid.d = static_cast<uint32_t>(in.u64());
   s.grid.nb = static_cast<uint32_t>(in.u64());
@@ -108,6 +117,12 @@ std::optional<State> decode_state(std::string_view bytes) {
   }
   s.grid.edges.resize(static_cast<size_t>(s.grid.d) * (s.grid.nb + 1));
   for (double& e : s.grid.edges) e = in.f64();
+  if (magic == kStateMagic2) {
+    const uint64_t h = in.u64();
+    if (h == 0 || h > kVegasRound) throw std::runtime_error("VEGAS state is corrupt");
+    s.hweights.resize(h);
+    for (double& w : s.hweights) w = in.f64();
+  }
   const uint64_t k = in.u64();
   if (k > (uint64_t{1} << 32)) throw std::runtime_error("VEGAS state is corrupt");
   for (uint64_t i = 0; i < k; ++i) {
@@ -203,6 +218,57 @@ void map_axis(const double* e, const double* wd, uint32_t nb, uint64_t key, uint
   }
 }
 
+// VEGAS+: axis k of samples whose hypercube is hc[i] (digit k of hc in base ns is the
+// stratum along the axis): y = (stratum + u) / ns, then the grid map as above.
+void map_axis_strat(const double* e, const double* wd, uint32_t nb, uint64_t key, uint64_t first, size_t n,
+                    uint32_t k, uint32_t ns, uint64_t stride, const uint32_t* hc, double lo, double w, double* x,
+                    double* jac, uint32_t* bk) {
+  const double fnb = static_cast<double>(nb);
+  const double fns = static_cast<double>(ns);
+  for (size_t i = 0; i < n; ++i) {
+    const uint64_t base = SampleRng::sample_base(key, first + i);
+    const auto bits = static_cast<int64_t>(SampleRng::bits_at(base, k) >> 11);
+    const double u = (static_cast<double>(bits) + 0.5) * 0x1.0p-53;
+    const double stratum = static_cast<double>((hc[i] / stride) % ns);
+    const double t = (stratum + u) / fns * fnb;
+    uint32_t j = static_cast<uint32_t>(t);
+    if (j >= nb) j = nb - 1;
+    const double frac = t - static_cast<double>(j);
+    x[i] = lo + w * (e[j] + frac * wd[j]);
+    jac[i] *= fnb * wd[j];
+    bk[i] = j;
+  }
+}
+
+// Samples per hypercube in one round of R: 2 each, the rest in proportion to the
+// weights, cumulated so that the counts add up to R exactly. Equal weights when they
+// carry no information (first pass, all zero).
+std::vector<uint64_t> allocation_bounds(std::vector<double> w, uint64_t H, uint64_t R) {
+  double total = 0.0;
+  for (double v : w) total += v;
+  if (w.size() != H || !(total > 0.0) || !std::isfinite(total)) {
+    w.assign(H, 1.0);
+    total = static_cast<double>(H);
+  }
+  const uint64_t extra = R - 2 * H;
+  std::vector<uint64_t> c(H + 1, 0);
+  double acc = 0.0;
+  for (uint64_t h = 0; h < H; ++h) {
+    acc += w[h];
+    const double share = std::min(1.0, acc / total);
+    c[h + 1] = 2 * (h + 1) + static_cast<uint64_t>(std::floor(static_cast<double>(extra) * share));
+    c[h + 1] = std::max(c[h + 1], c[h] + 2);
+  }
+  c[H] = R;
+  return c;
+}
+
+uint64_t ipow(uint64_t b, size_t e) {
+  uint64_t r = 1;
+  for (size_t i = 0; i < e; ++i) r *= b;
+  return r;
+}
+
 class VegasKernel final : public Kernel {
  public:
   VegasKernel(IntegrationProblem p, VegasOptions o)
@@ -214,6 +280,10 @@ class VegasKernel final : public Kernel {
     if (!p_.domain->is_box()) throw std::invalid_argument("VEGAS needs a box domain");
     if (o_.bins < 2) throw std::invalid_argument("VEGAS needs at least 2 bins");
     measure_ = p_.domain->measure();
+    if (o_.stratify) {
+      ns_ = vegas_strata_per_axis(d_);
+      H_ = ipow(ns_, d_);
+    }
   }
 
   // Components, then one channel per pair (c < c') holding f_c + f_c' (covariance).
@@ -226,6 +296,7 @@ class VegasKernel final : public Kernel {
     s.block_samples = 2048;
     s.first_pass_samples = 4096;
     s.max_pass_samples = o_.max_pass_samples;
+    if (o_.stratify) s.sample_quantum = kVegasRound;  // passes of whole rounds
     return s;
   }
 
@@ -236,6 +307,13 @@ class VegasKernel final : public Kernel {
     Out o;
     o.u64(st.passes < o_.warmup_passes ? 1 : 0);
     for (double e : g.edges) o.f64(e);
+    if (o_.stratify) {
+      // Where the pass starts (rounds count from there) and its allocation bounds.
+      o.u64(st.partition_samples.empty() ? st.samples : st.partition_samples[0]);
+      const std::vector<uint64_t> c =
+          allocation_bounds(s ? s->hweights : std::vector<double>{}, H_, kVegasRound);
+      for (uint64_t v : c) o.u64(v);
+    }
     return o.take();
   }
 
@@ -246,9 +324,26 @@ class VegasKernel final : public Kernel {
 
   void run_block_with(const Block& b, std::string_view input, BlockResult& out) const override {
     const size_t grid_values = static_cast<size_t>(d_) * (o_.bins + 1);
-    if (input.size() != 8 * (1 + grid_values)) throw std::runtime_error("VEGAS pass input has the wrong size");
+    const size_t strat_values = o_.stratify ? 1 + H_ + 1 : 0;
+    if (input.size() != 8 * (1 + grid_values + strat_values)) {
+      throw std::runtime_error("VEGAS pass input has the wrong size");
+    }
     uint64_t warm_flag;
     std::memcpy(&warm_flag, input.data(), 8);
+    uint64_t pass_start = 0;
+    thread_local std::vector<uint64_t> bounds;
+    thread_local std::vector<uint32_t> hcube;
+    thread_local std::vector<double> hwt;
+    if (o_.stratify) {
+      std::memcpy(&pass_start, input.data() + 8 * (1 + grid_values), 8);
+      bounds.resize(H_ + 1);
+      std::memcpy(bounds.data(), input.data() + 8 * (2 + grid_values), 8 * (H_ + 1));
+      if (b.first_sample < pass_start || bounds[H_] != kVegasRound) {
+        throw std::runtime_error("VEGAS+ pass input does not match the block");
+      }
+      hcube.resize(kB);
+      hwt.resize(kB);
+    }
     const bool warmup = warm_flag != 0;
     const uint32_t nb = o_.bins;
     thread_local std::vector<double> edges, widths, jac, xs, vals;
@@ -276,13 +371,43 @@ class VegasKernel final : public Kernel {
     double* sums = out.aux.data();
     const Domain& D = *p_.domain;
     size_t ok_total = count;
+    // VEGAS+: per hypercube and component, the tally of f/p (unweighted) over this
+    // block's samples; the hypercube of position r in a round is the h with
+    // bounds[h] <= r < bounds[h + 1], walked along as r advances.
+    thread_local std::vector<Tally> htally;
+    if (o_.stratify) htally.assign(H_ * m_, Tally{});
+    uint64_t h_cur = 0;
+    uint64_t h_lo = H_, h_hi = 0;
+    if (o_.stratify) {
+      const uint64_t r0 = (b.first_sample - pass_start) % kVegasRound;
+      h_cur = static_cast<uint64_t>(std::upper_bound(bounds.begin(), bounds.end(), r0) - bounds.begin()) - 1;
+    }
     for (size_t off = 0; off < count; off += kB) {
       const size_t n = std::min(kB, count - off);
       std::fill(jac.begin(), jac.begin() + static_cast<std::ptrdiff_t>(n), measure_);
-      for (size_t k = 0; k < d_; ++k) {
-        map_axis(edges.data() + k * (nb + 1), widths.data() + k * nb, nb, key_, b.first_sample + off, n,
-                 static_cast<uint32_t>(k), D.lower()[k], D.upper()[k] - D.lower()[k], xs.data() + k * kB,
-                 jac.data(), bins.data() + k * kB);
+      if (o_.stratify) {
+        for (size_t i = 0; i < n; ++i) {
+          const uint64_t r = (b.first_sample + off + i - pass_start) % kVegasRound;
+          if (r == 0) h_cur = 0;
+          while (r >= bounds[h_cur + 1]) ++h_cur;
+          hcube[i] = static_cast<uint32_t>(h_cur);
+          // 1 / (sample density in y relative to uniform) = R / (H n_h)
+          hwt[i] = static_cast<double>(kVegasRound) /
+                   (static_cast<double>(H_) * static_cast<double>(bounds[h_cur + 1] - bounds[h_cur]));
+        }
+        uint64_t stride = 1;
+        for (size_t k = 0; k < d_; ++k) {
+          map_axis_strat(edges.data() + k * (nb + 1), widths.data() + k * nb, nb, key_, b.first_sample + off, n,
+                         static_cast<uint32_t>(k), ns_, stride, hcube.data(), D.lower()[k],
+                         D.upper()[k] - D.lower()[k], xs.data() + k * kB, jac.data(), bins.data() + k * kB);
+          stride *= ns_;
+        }
+      } else {
+        for (size_t k = 0; k < d_; ++k) {
+          map_axis(edges.data() + k * (nb + 1), widths.data() + k * nb, nb, key_, b.first_sample + off, n,
+                   static_cast<uint32_t>(k), D.lower()[k], D.upper()[k] - D.lower()[k], xs.data() + k * kB,
+                   jac.data(), bins.data() + k * kB);
+        }
       }
       for (size_t c = 0; c < m_; ++c) vptr[c] = vals.data() + c * count + off;
       p_.integrand->evaluate_components(xptr.data(), n, vptr.data());
@@ -299,12 +424,31 @@ class VegasKernel final : public Kernel {
           }
         }
       }
-      for (size_t c = 0; c < m_; ++c) {
-        const double* v = vptr[c];
-        for (size_t k = 0; k < d_; ++k) {
-          double* s = sums + (c * d_ + k) * nb;
-          const uint32_t* bk = bins.data() + k * kB;
-          for (size_t i = 0; i < ok; ++i) s[bk[i]] += v[i] * v[i];
+      if (o_.stratify) {
+        // Per-hypercube tallies of f/p, then f/p weighted by R / (H n_h): the grid's
+        // training sums and the channels see samples as if drawn uniformly in y.
+        for (size_t c = 0; c < m_; ++c) {
+          double* v = vptr[c];
+          for (size_t i = 0; i < ok; ++i) htally[hcube[i] * m_ + c].add(v[i]);
+          for (size_t k = 0; k < d_; ++k) {
+            double* s = sums + (c * d_ + k) * nb;
+            const uint32_t* bk = bins.data() + k * kB;
+            for (size_t i = 0; i < ok; ++i) s[bk[i]] += v[i] * v[i] * hwt[i];
+          }
+          for (size_t i = 0; i < ok; ++i) v[i] *= hwt[i];
+        }
+        for (size_t i = 0; i < ok; ++i) {
+          h_lo = std::min<uint64_t>(h_lo, hcube[i]);
+          h_hi = std::max<uint64_t>(h_hi, hcube[i]);
+        }
+      } else {
+        for (size_t c = 0; c < m_; ++c) {
+          const double* v = vptr[c];
+          for (size_t k = 0; k < d_; ++k) {
+            double* s = sums + (c * d_ + k) * nb;
+            const uint32_t* bk = bins.data() + k * kB;
+            for (size_t i = 0; i < ok; ++i) s[bk[i]] += v[i] * v[i];
+          }
         }
       }
       if (ok < n) {
@@ -319,6 +463,21 @@ class VegasKernel final : public Kernel {
       out.aux[nsums + 3 * c] = static_cast<double>(comp[c].n);
       out.aux[nsums + 3 * c + 1] = comp[c].mean;
       out.aux[nsums + 3 * c + 2] = comp[c].m2;
+    }
+    if (o_.stratify) {
+      // aux tail: h_lo, count, then per hypercube in [h_lo, h_lo + count) and component
+      // its tally (n, mean, m2).
+      const uint64_t cnt = h_lo <= h_hi ? h_hi - h_lo + 1 : 0;
+      out.aux.push_back(static_cast<double>(h_lo <= h_hi ? h_lo : 0));
+      out.aux.push_back(static_cast<double>(cnt));
+      for (uint64_t h = h_lo; h < h_lo + cnt; ++h) {
+        for (size_t c = 0; c < m_; ++c) {
+          const Tally& t = htally[h * m_ + c];
+          out.aux.push_back(static_cast<double>(t.n));
+          out.aux.push_back(t.mean);
+          out.aux.push_back(t.m2);
+        }
+      }
     }
     out.first_channel = 0;
     out.tallies.assign(channel_count(), Tally{});
@@ -360,8 +519,27 @@ class VegasKernel final : public Kernel {
     const size_t nsums = static_cast<size_t>(m_) * d_ * nb;
     std::vector<double> sums(nsums, 0.0);
     std::vector<Tally> comps(m_);
+    std::vector<Tally> hsum(o_.stratify ? H_ * m_ : 0);
+    const size_t head = nsums + 3 * static_cast<size_t>(m_);
     for (const BlockResult& r : results) {  // block order
-      if (r.aux.size() != nsums + 3 * static_cast<size_t>(m_)) continue;  // cancelled or faulted block
+      if (o_.stratify) {
+        if (r.aux.size() < head + 2) continue;  // cancelled or faulted block
+        const auto h_lo = static_cast<uint64_t>(r.aux[head]);
+        const auto cnt = static_cast<uint64_t>(r.aux[head + 1]);
+        if (h_lo + cnt > H_ || r.aux.size() != head + 2 + 3 * cnt * m_) continue;
+        const double* a = r.aux.data() + head + 2;
+        for (uint64_t h = h_lo; h < h_lo + cnt; ++h) {
+          for (size_t c = 0; c < m_; ++c, a += 3) {
+            Tally t;
+            t.n = static_cast<uint64_t>(a[0]);
+            t.mean = a[1];
+            t.m2 = a[2];
+            hsum[h * m_ + c].merge(t);
+          }
+        }
+      } else if (r.aux.size() != head) {
+        continue;  // cancelled or faulted block
+      }
       for (size_t i = 0; i < nsums; ++i) sums[i] += r.aux[i];
       for (size_t c = 0; c < m_; ++c) {
         Tally t;
@@ -386,9 +564,50 @@ class VegasKernel final : public Kernel {
       }
       refine_axis(s.grid.axis(k), nb, std::move(dk), o_.alpha);
     }
+    bool usable = true;
+    if (o_.stratify) {
+      // The pass estimate per component: sum_h mean_h / H, its variance
+      // sum_h s_h^2 / n_h / H^2, as a tally of the pass's n samples with that mean and
+      // variance per sample n * var (what the combination rule reads). A pass cut short
+      // (fewer than 2 samples in some hypercube: a sample limit below one round) is
+      // not used in the estimate. The next allocation: sigma_h^beta, summed over
+      // components after normalising each to total 1.
+      std::vector<double> w(H_, 0.0);
+      const double fH = static_cast<double>(H_);
+      for (size_t c = 0; c < m_; ++c) {
+        double mean = 0.0, var = 0.0, vtot = 0.0;
+        uint64_t n = 0;
+        for (uint64_t h = 0; h < H_; ++h) {
+          const Tally& t = hsum[h * m_ + c];
+          n += t.n;
+          if (t.n < 2) {
+            usable = false;
+            continue;
+          }
+          mean += t.mean;
+          var += t.variance() / static_cast<double>(t.n);
+          vtot += t.variance();
+        }
+        mean /= fH;
+        var /= fH * fH;
+        Tally pass;
+        pass.n = n;
+        pass.mean = mean;
+        pass.m2 = var * static_cast<double>(n) * static_cast<double>(n > 0 ? n - 1 : 0);
+        comps[c] = pass;
+        if (vtot > 0.0 && std::isfinite(vtot)) {
+          for (uint64_t h = 0; h < H_; ++h) {
+            const Tally& t = hsum[h * m_ + c];
+            if (t.n >= 2) w[h] += t.variance() / vtot;
+          }
+        }
+      }
+      for (double& v : w) v = std::pow(v, 0.5 * o_.beta);
+      s.hweights = std::move(w);
+    }
     VegasIteration it;
     it.tally = comps[0];
-    it.warmup = warm_flag != 0;
+    it.warmup = warm_flag != 0 || !usable;
     s.iterations.push_back(it);
     s.components.push_back(std::move(comps));
     st.kernel_state = encode_state(s);
@@ -482,6 +701,8 @@ class VegasKernel final : public Kernel {
   uint64_t key_;
   uint32_t d_, m_;
   double measure_ = 1.0;
+  uint32_t ns_ = 1;  // VEGAS+: strata per axis
+  uint64_t H_ = 1;   // hypercubes
 };
 
 }  // namespace
@@ -499,6 +720,12 @@ std::optional<VegasReport> vegas_report(const JobState& st) {
   r.iterations = s->iterations;
   for (size_t k = 0; k < s->grid.d; ++k) {
     r.grid.emplace_back(s->grid.axis(k), s->grid.axis(k) + s->grid.nb + 1);
+  }
+  if (!s->hweights.empty()) {
+    r.strata_per_axis = vegas_strata_per_axis(s->grid.d);
+    r.hypercubes = s->hweights.size();
+    const std::vector<uint64_t> c = allocation_bounds(s->hweights, r.hypercubes, kVegasRound);
+    for (uint64_t h = 0; h < r.hypercubes; ++h) r.next_allocation.push_back(c[h + 1] - c[h]);
   }
   // chi^2 per component over the post-warm-up iterations; the worst one is reported.
   r.chi2 = std::numeric_limits<double>::quiet_NaN();
@@ -569,6 +796,46 @@ void vegas_draw(const std::vector<std::vector<double>>& grid, uint64_t seed, uin
   }
   pdf.resize(n);
   for (size_t i = 0; i < n; ++i) pdf[i] = 1.0 / jac[i];
+}
+
+uint32_t vegas_strata_per_axis(size_t d) {
+  // The largest s with s^d <= R / 4 (at least 2 samples per hypercube and room to adapt).
+  uint32_t ns = 1;
+  while (ipow(ns + 1, d) <= kVegasRound / 4) ++ns;
+  return ns;
+}
+
+void vegas_plus_draw(const std::vector<std::vector<double>>& grid, uint32_t ns, const std::vector<uint64_t>& alloc,
+                     uint64_t seed, uint64_t pass_start, uint64_t first, size_t n,
+                     std::vector<std::vector<double>>& points, std::vector<double>& pdf) {
+  const uint64_t key = stream_key(seed, 0);
+  const size_t d = grid.size();
+  const uint64_t H = alloc.size();
+  std::vector<uint64_t> bounds(H + 1, 0);
+  for (uint64_t h = 0; h < H; ++h) bounds[h + 1] = bounds[h] + alloc[h];
+  if (bounds[H] != kVegasRound || ipow(ns, d) != H) throw std::invalid_argument("bad VEGAS+ allocation");
+  std::vector<uint32_t> hc(n);
+  std::vector<double> dens(n);
+  for (size_t i = 0; i < n; ++i) {
+    const uint64_t r = (first + i - pass_start) % kVegasRound;
+    const uint64_t h = static_cast<uint64_t>(std::upper_bound(bounds.begin(), bounds.end(), r) - bounds.begin()) - 1;
+    hc[i] = static_cast<uint32_t>(h);
+    dens[i] = static_cast<double>(H) * static_cast<double>(alloc[h]) / static_cast<double>(kVegasRound);
+  }
+  points.assign(d, std::vector<double>(n));
+  std::vector<double> jac(n, 1.0);
+  std::vector<uint32_t> bk(n);
+  uint64_t stride = 1;
+  for (size_t k = 0; k < d; ++k) {
+    const uint32_t nb = static_cast<uint32_t>(grid[k].size() - 1);
+    std::vector<double> wd(nb);
+    for (uint32_t j = 0; j < nb; ++j) wd[j] = grid[k][j + 1] - grid[k][j];
+    map_axis_strat(grid[k].data(), wd.data(), nb, key, first, n, static_cast<uint32_t>(k), ns, stride, hc.data(),
+                   0.0, 1.0, points[k].data(), jac.data(), bk.data());
+    stride *= ns;
+  }
+  pdf.resize(n);
+  for (size_t i = 0; i < n; ++i) pdf[i] = dens[i] / jac[i];
 }
 
 double vegas_grid_density(const std::vector<std::vector<double>>& grid, const double* x) {

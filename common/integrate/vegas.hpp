@@ -6,7 +6,7 @@
 // pass's per-bin sums of (f / p)^2, merged in block order (Kernel::fold_pass): the
 // grid of pass k is fixed before pass k draws a sample, and it lives in
 // JobState::kernel_state, so any thread or worker count and any resume give the
-// same bits. This is plain VEGAS (no VEGAS+ adaptive stratification).
+// same bits. `stratify` adds VEGAS+'s adaptive stratification (below).
 //
 // The estimate (the stated rule): the first `warmup_passes` passes only adapt the
 // grid. Default (`combine: weighted`): the later passes' means weighted by
@@ -46,7 +46,20 @@ struct VegasOptions {
   bool weighted = true;
   // Steering of vector integrands: the grid follows the sum over components of
   // (f_c / p)^2 / s_c^2, s_c = the component's scale from the previous pass.
+
+  // VEGAS+ adaptive stratification (Lepage 2021, arXiv:2009.05112): the unit cube of
+  // the grid's variables y is cut into H = s^d hypercubes (s = floor((R/4)^(1/d)),
+  // R = kVegasRound samples), and every round of R consecutive samples of a pass puts
+  // n_h = 2 + floor((R - 2H) * sigma_h^beta / sum sigma^beta) (cumulated, so the n_h
+  // add up to R) samples in hypercube h, sigma_h the spread of f/p in h measured in the
+  // previous pass (equal n_h in the first). Passes are whole rounds. The pass estimate
+  // is sum_h |h| mean_h with variance sum_h |h|^2 s_h^2 / n_h (n_h >= 2, fixed before
+  // the pass draws), combined across passes by the rule above.
+  bool stratify = false;
+  double beta = 0.75;
 };
+
+inline constexpr uint64_t kVegasRound = 4096;  // samples per stratification round
 
 struct VegasIteration {
   Tally tally;  // the pass's samples of f / p (component 0 for vector integrands)
@@ -68,6 +81,11 @@ struct VegasReport {
   // each pass, see above) and its standard error (before error_scale).
   std::vector<double> combined_mean, combined_std_error;
   std::vector<std::vector<double>> grid;  // per axis: bins + 1 edges in [0, 1]
+  // VEGAS+ (stratify): strata per axis, hypercubes, and the samples per hypercube in one
+  // round of the next pass (empty without stratification).
+  uint32_t strata_per_axis = 0;
+  uint64_t hypercubes = 0;
+  std::vector<uint64_t> next_allocation;
 };
 
 inline constexpr double kVegasChi2Alarm = 1e-3;
@@ -81,6 +99,15 @@ std::optional<VegasReport> vegas_report(const JobState& state);
 // divides by: points[k][i], pdf[i]. Tests check the sampling against the density.
 void vegas_draw(const std::vector<std::vector<double>>& grid, uint64_t seed, uint64_t first, size_t n,
                 std::vector<std::vector<double>>& points, std::vector<double>& pdf);
+// VEGAS+: the same with stratification, `alloc` the samples per hypercube of one round
+// (kVegasRound in all, >= 2 each), the pass starting at sample `pass_start`; pdf[i] is
+// the density of sample i's position drawn at random within the round:
+// grid density * H * n_h / R.
+void vegas_plus_draw(const std::vector<std::vector<double>>& grid, uint32_t strata_per_axis,
+                     const std::vector<uint64_t>& alloc, uint64_t seed, uint64_t pass_start, uint64_t first,
+                     size_t n, std::vector<std::vector<double>>& points, std::vector<double>& pdf);
+// Strata per axis VEGAS+ uses in d dimensions: floor((kVegasRound / 4)^(1/d)).
+uint32_t vegas_strata_per_axis(size_t d);
 // The grid's density at a point of the unit cube (tests: chi-square of the sampling).
 double vegas_grid_density(const std::vector<std::vector<double>>& grid, const double* unit_point);
 

@@ -67,10 +67,16 @@ json estimator_plan_json(const EstimatorPlan& p) {
   put(j, "combine", p.combine);
   put(j, "combination", p.combination);
   put(j, "steering", p.steering);
+  put(j, "stratify", p.stratify);
+  put(j, "beta", p.beta);
+  put(j, "strata_per_axis", p.strata_per_axis);
+  put(j, "stratification", p.stratification);
   put(j, "max_attempts", p.max_attempts);
   put(j, "rule", p.rule);
   put(j, "points_per_dim", p.points_per_dim);
   put(j, "points", p.points);
+  put(j, "max_evaluations", p.max_evaluations);
+  put(j, "error", p.error);
   return j;
 }
 
@@ -96,12 +102,18 @@ json integration_result_json(const IntegrationResult& r) {
   if (!r.components.empty()) {
     json comps = json::array();
     for (const ComponentEstimate& c : r.components) {
-      comps.push_back({{"mean", c.mean}, {"std_error", finite_or_null(c.std_error)}, {"ci", {c.ci_lo, c.ci_hi}}});
+      if (c.error_estimate) {  // cubature: a value and the rule's error estimate, no interval
+        comps.push_back({{"mean", finite_or_null(c.mean)}, {"error_estimate", finite_or_null(*c.error_estimate)}});
+      } else {
+        comps.push_back({{"mean", c.mean}, {"std_error", finite_or_null(c.std_error)}, {"ci", {c.ci_lo, c.ci_hi}}});
+      }
     }
     j["components"] = comps;
-    json rows = json::array();
-    for (const auto& row : r.covariance_of_means) rows.push_back(row);
-    j["covariance_of_means"] = rows;
+    if (!r.covariance_of_means.empty()) {
+      json rows = json::array();
+      for (const auto& row : r.covariance_of_means) rows.push_back(row);
+      j["covariance_of_means"] = rows;
+    }
   }
   if (r.vegas) {
     const VegasSummary& v = *r.vegas;
@@ -118,6 +130,11 @@ json integration_result_json(const IntegrationResult& r) {
                   {"p_value", v.p_value},
                   {"consistent", v.consistent},
                   {"error_scale", v.error_scale}};
+    if (v.hypercubes) {
+      j["vegas"]["strata_per_axis"] = *v.strata_per_axis;
+      j["vegas"]["hypercubes"] = *v.hypercubes;
+      j["vegas"]["next_allocation"] = {{"min", *v.next_allocation_min}, {"max", *v.next_allocation_max}};
+    }
   }
   if (r.reference) {
     j["reference"] = *r.reference;

@@ -15,6 +15,7 @@
 #include "cluster_process.hpp"
 #include "common/engine/local_executor.hpp"
 #include "common/jobs/job_factory.hpp"
+#include "common/protocol/kind_json.hpp"
 #include "server/cluster/assets.hpp"
 #include "server_process.hpp"
 
@@ -167,6 +168,33 @@ bool holds_entry(cluster::RedisConn& rc, const std::string& worker) {
     }
   }
   return false;
+}
+
+// Issue 15: an adaptive job (VEGAS+: the grid and the hypercube allocation travel as
+// pass input, their per-block sums back as aux) and a deterministic cubature job (one
+// block) on two workers end with the bits and the result of an in-process run.
+TEST(Cluster, VegasPlusAndCubatureJobsMatchInProcessBits) {
+  TempDir tmp;
+  const json genz = {{"builtin", "genz"}, {"family", "discontinuous"}, {"a", {3.0, 5.0, 2.0}}, {"u", {0.6, 0.45, 0.5}}};
+  const json vegas = {{"kind", "integrate"}, {"seed", 5}, {"integrand", genz},
+                      {"estimator", {{"type", "vegas"}, {"stratify", true}}}, {"stop", {{"max_samples", 4096 * 63}}}};
+  const json cubature = {{"kind", "integrate"}, {"integrand", genz}, {"estimator", {{"type", "cubature"}}},
+                         {"stop", {{"rel_error", 1e-6}, {"max_samples", 100000}}}};
+  RedisServer redis(tmp.path);
+  ServerProcess server(tmp.path / "data", cluster_flags(redis));
+  std::vector<std::unique_ptr<WorkerProcess>> workers;
+  for (int i = 0; i < 2; ++i) workers.push_back(std::make_unique<WorkerProcess>(redis.url(), fmt::format("w{}", i), tmp.path));
+  HttpClient c = server.client();
+  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers in /v1/workers");
+  for (const json& spec : {vegas, cubature}) {
+    const std::string id = submit(c, spec);
+    const json s = wait_state(c, id, "succeeded", 120);
+    EXPECT_EQ(s.at("bits"), local_bits(spec)) << spec.at("estimator").dump();
+    const auto def = compile_job(spec, JobLimits{});
+    JobRunner runner(def->kernel(), def->stop_rule(), JobCaps{});
+    run_local(runner, 1);
+    EXPECT_EQ(s.at("result"), kind_result_json(*def, runner)) << spec.at("estimator").dump();
+  }
 }
 
 TEST(Cluster, KilledAndStalledWorkersStillBitIdentical) {

@@ -20,7 +20,10 @@
 #include <sstream>
 #include <thread>
 
+#include "common/engine/local_executor.hpp"
 #include "common/jobs/job_factory.hpp"
+#include "common/protocol/job_json.hpp"
+#include "common/protocol/kind_json.hpp"
 #include "server/jobs/job_manager.hpp"
 #include "server/http/event_stream.hpp"
 #include "server/jobs/job_store.hpp"
@@ -241,6 +244,47 @@ TEST_P(Golden, OutputsAreByteIdentical) {
       for (size_t i = 0; i < g.size(); ++i) EXPECT_EQ(it.value()[i], g[i]) << it.key() << "[" << i << "]";
     } else {
       EXPECT_EQ(it.value(), got.at(it.key())) << it.key();
+    }
+  }
+}
+
+// Adaptive and deterministic integration jobs through the HTTP handler (real job
+// kinds, the in-process executor with 2 workers) end with the same bits as run_local of
+// the same spec on one thread: channel 0's tally, the result document (VEGAS's
+// iterations, chi^2, the VEGAS+ allocation; cubature's error estimate) and the estimate.
+TEST(ServerJobs, VegasAndCubatureJobsOverHttpEqualRunLocal) {
+  const json genz = {{"builtin", "genz"}, {"family", "discontinuous"}, {"a", {3.0, 5.0, 2.0}}, {"u", {0.6, 0.45, 0.5}}};
+  const std::vector<json> estimators = {{{"type", "vegas"}},
+                                        {{"type", "vegas"}, {"stratify", true}},
+                                        {{"type", "cubature"}}};
+  Server s;
+  for (const json& est : estimators) {
+    const json spec = {{"kind", "integrate"},
+                       {"seed", 33},
+                       {"integrand", genz},
+                       {"estimator", est},
+                       {"stop", {{"max_samples", est.at("type") == "cubature" ? 50000 : 4096 * 31}}}};
+    const HttpResponse post = s.call("POST", "/v1/jobs", dump(spec));
+    ASSERT_EQ(post.status, 202) << post.body;
+    const std::string id = json::parse(post.body).at("id");
+    ASSERT_TRUE(wait_until(
+        [&] { return json::parse(s.call("GET", "/v1/jobs/" + id).body).at("state") == "succeeded"; }, 120));
+    const HttpResponse status = s.call("GET", "/v1/jobs/" + id);
+    ASSERT_EQ(status.status, 200);
+    const json st = json::parse(status.body);
+
+    auto job = compile_job(spec, JobLimits{});
+    JobRunner local(job->kernel(), job->stop_rule(), JobCaps{});
+    run_local(local, 1);
+    EXPECT_EQ(st.at("bits"), tally_bits_json(local.state())) << est.dump();
+    EXPECT_EQ(st.at("result"), kind_result_json(*job, local)) << est.dump();
+    EXPECT_EQ(st.at("samples").get<uint64_t>(), local.state().samples);
+    EXPECT_EQ(st.at("estimate").at("mean").get<double>(), local.headline().mean) << est.dump();
+    if (est.at("type") == "vegas") {
+      EXPECT_EQ(st.at("estimate").at("std_error").get<double>(), local.headline().std_error) << est.dump();
+      EXPECT_EQ(st.at("result").at("vegas").contains("hypercubes"), est.contains("stratify"));
+    } else {
+      EXPECT_TRUE(st.at("result").contains("error_estimate"));
     }
   }
 }
