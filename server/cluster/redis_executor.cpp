@@ -148,7 +148,7 @@ bool RedisExecutor::connect() {
       // After a Redis restart everything unmerged is gone: publish it again. After a
       // mere disconnect, publishing again is harmless too (results already stored stay).
       j->published = false;
-      if (restarted) j->swept = false;
+      if (restarted) j->swept = j->hash_written = false;
     }
     if (restarted) {
       counters_.republished += jobs_.size();
@@ -272,10 +272,16 @@ void RedisExecutor::publish(Job& job) {
   const std::string r = pass_key('r', id, job.run, job.pass.pass);
   const size_t n = job.pass.blocks.size();
 
-  conn_->cmd({"HSET", jk, "run", job.run, "cancelled", "0", "spec", job.ej.spec_json, "assets", job.manifest,
-              "max_failures", std::to_string(cfg_.max_failures)});
-  conn_->cmd({"HDEL", jk, "failed", "mismatch"});
-  for (const auto& [rel, a] : job.assets) conn_->cmd({"SET", asset_key(a.sha256), a.bytes, "NX"});
+  if (!job.hash_written) {
+    // Once per run (and again if Redis lost it), not at every pass or reconnect: a
+    // "failed" or "mismatch" mark a worker set while the connection was down must
+    // survive a reconnect, and the spec and assets need not travel again.
+    conn_->cmd({"HSET", jk, "run", job.run, "cancelled", "0", "spec", job.ej.spec_json, "assets", job.manifest,
+                "max_failures", std::to_string(cfg_.max_failures)});
+    conn_->cmd({"HDEL", jk, "failed", "mismatch"});
+    for (const auto& [rel, a] : job.assets) conn_->cmd({"SET", asset_key(a.sha256), a.bytes, "NX"});
+    job.hash_written = true;
+  }
   conn_->cmd({"HSET", p, "n", std::to_string(n), "input", job.pass.pass_input});
 
   // Results already stored (a reconnect without a Redis restart) need no new entry.
@@ -405,6 +411,7 @@ void RedisExecutor::poll(const std::vector<std::string>& ids) {
         std::lock_guard lock(mu_);
         if (auto it = jobs_.find(o.id); it != jobs_.end()) {
           it->second->published = false;
+          it->second->hash_written = false;  // the job hash may be gone too
           counters_.republished++;
           log::job(log::Level::warn, o.id, "its pass vanished from Redis; republishing");
         }

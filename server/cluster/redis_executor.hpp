@@ -79,6 +79,7 @@ class RedisExecutor final : public Executor {
     std::chrono::steady_clock::time_point pass_start;
     bool published = false;  // the current pass is in Redis
     bool swept = false;      // keys of older runs removed
+    bool hash_written = false;  // the job hash (run, spec, assets) written for this run
     bool cancel_requested = false;
     std::deque<uint64_t> digest_passes;
     ExecutorStats::JobBlocks blocks;
