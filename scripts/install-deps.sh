@@ -15,7 +15,8 @@ build_pkgs=(cmake g++ make ninja-build pkg-config
 test_pkgs=(python3 python3-pip python3-numpy python3-mypy openssl curl chromium nodejs redis-server clang-14 libclang-rt-14-dev)
 command -v npm >/dev/null 2>&1 || test_pkgs+=(npm)  # nodesource's nodejs bundles npm
 bench_pkgs=(wrk python3-matplotlib python3-scipy python3-numpy)
-container_pkgs=(podman buildah runc debootstrap uidmap fuse-overlayfs slirp4netns docker-compose podman-compose curl python3)
+container_pkgs=(podman buildah runc debootstrap uidmap fuse-overlayfs slirp4netns docker-compose podman-compose
+  golang-github-containernetworking-plugin-dnsname curl python3 openssl)
 
 pkgs=("${build_pkgs[@]}")
 case "$want" in
