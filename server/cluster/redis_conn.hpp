@@ -32,9 +32,10 @@ class RedisIoError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
-// Redis refused the credentials (WRONGPASS, NOAUTH: a password is required, or the ACL
-// user may not connect). A configuration error, not an outage: processes report it
-// at start instead of retrying forever.
+// Redis refused the connection's set-up: the credentials (WRONGPASS; NOAUTH: a password
+// is required; an ACL user that may not connect) or the database (SELECT). A
+// configuration error, not an outage: processes report it at start instead of
+// retrying forever.
 class RedisAuthError : public RedisIoError {
  public:
   using RedisIoError::RedisIoError;
