@@ -12,6 +12,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <span>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -85,6 +86,7 @@ class FaultKernel final : public Kernel {
   void fold_pass(std::string_view input, const std::vector<BlockResult>& r, tally::JobState& s) const override {
     inner_->fold_pass(input, r, s);
   }
+  std::span<const std::string_view> counter_names() const override { return inner_->counter_names(); }
   std::vector<std::string> warnings(const tally::JobState& s) const override { return inner_->warnings(s); }
   tally::ErrorSummary error_summary(const tally::JobState& s, double c) const override {
     return inner_->error_summary(s, c);
