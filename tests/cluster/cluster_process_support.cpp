@@ -1,4 +1,5 @@
 #include "cluster_process.hpp"
+#include "server_process.hpp"
 
 #include <arpa/inet.h>
 #include <fcntl.h>
@@ -19,25 +20,6 @@ namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
 namespace {
-
-pid_t spawn(const std::vector<std::string>& args, const fs::path& log, const std::vector<std::string>& env = {}) {
-  const pid_t pid = ::fork();
-  if (pid < 0) throw std::runtime_error("fork failed");
-  if (pid == 0) {
-    const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
-    if (fd >= 0) {
-      ::dup2(fd, 1);
-      ::dup2(fd, 2);
-    }
-    for (const auto& e : env) ::putenv(const_cast<char*>(e.c_str()));
-    std::vector<char*> argv;
-    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-    argv.push_back(nullptr);
-    ::execvp(argv[0], argv.data());
-    ::_exit(127);
-  }
-  return pid;
-}
 
 void reap(pid_t& pid, int sig) {
   if (pid <= 0) return;
@@ -95,7 +77,7 @@ void RedisServer::start() {
                                    "--unixsocket", socket_.string(), "--save", "", "--appendonly", "no",
                                    "--maxmemory-policy", "noeviction", "--dir", dir_.string()};
   args.insert(args.end(), extra_.begin(), extra_.end());
-  pid_ = spawn(args, dir_ / "redis.log");
+  pid_ = spawn_logged(args, dir_ / "redis.log");
   const auto deadline = std::chrono::steady_clock::now() + 10s;
   while (std::chrono::steady_clock::now() < deadline) {
     try {
@@ -135,7 +117,7 @@ void WorkerProcess::start() {
                                    std::to_string(threads_)};
   args.insert(args.end(), extra_.begin(), extra_.end());
   exit_code_ = -1;
-  pid_ = spawn(args, log_, options_.env);
+  pid_ = spawn_logged(args, log_, options_.env);
 }
 void WorkerProcess::kill9() { reap(pid_, SIGKILL); }
 void WorkerProcess::pause() {
