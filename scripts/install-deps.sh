@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Installs the Debian 12 packages tally needs, only those that are missing.
-# Usage: scripts/install-deps.sh [build|test|bench|all]   (default: all)
+# Usage: scripts/install-deps.sh [build|test|bench|all|containers]   (default: all)
+# containers: podman and friends for the on-demand image/compose tests in docker/
+# (test-image.sh, test-compose.sh, test-cluster-compose.sh); not part of all / make test.
 set -euo pipefail
 want=${1:-all}
 
@@ -14,12 +16,15 @@ build_pkgs=(cmake g++ make ninja-build pkg-config
 test_pkgs=(python3 python3-pip python3-numpy python3-mypy openssl curl chromium nodejs redis-server clang-14 libclang-rt-14-dev llvm-14)
 command -v npm >/dev/null 2>&1 || test_pkgs+=(npm)  # nodesource's nodejs bundles npm
 bench_pkgs=(wrk python3-matplotlib python3-scipy python3-numpy)
+container_pkgs=(podman buildah runc debootstrap uidmap fuse-overlayfs slirp4netns docker-compose podman-compose
+  golang-github-containernetworking-plugin-dnsname curl python3 openssl)
 
 pkgs=("${build_pkgs[@]}")
 case "$want" in
   build) ;;
   test) pkgs+=("${test_pkgs[@]}") ;;
   bench|all) pkgs+=("${test_pkgs[@]}" "${bench_pkgs[@]}") ;;
+  containers) pkgs=("${container_pkgs[@]}") ;;
   *) echo "install-deps: unknown set '$want'" >&2; exit 2 ;;
 esac
 

@@ -223,6 +223,16 @@ int main(int argc, char** argv) {
     // hiredis writes to its socket with write(2): a Redis that went away must be an
     // error the coordinator handles (jobs pause), not a SIGPIPE that ends the server.
     std::signal(SIGPIPE, SIG_IGN);
+    // Refused credentials are a configuration error: exit with the reason instead of
+    // serving with every job paused. An unreachable Redis is waited for (jobs pause).
+    try {
+      cluster::RedisConn probe(rc.url, std::chrono::milliseconds(3000));
+    } catch (const cluster::RedisAuthError& e) {
+      log::error("--redis: {}", e.what());
+      return 2;
+    } catch (const cluster::RedisIoError& e) {
+      log::warn("--redis: {}; jobs wait until it is reachable", e.what());
+    }
     rc.lease = std::chrono::milliseconds(static_cast<long long>(lease_s * 1000.0));
     rc.max_failures = max_deliveries;
     rc.asset_dir = mc.limits.asset_dir;

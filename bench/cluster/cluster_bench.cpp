@@ -1,8 +1,9 @@
 // Cluster mode figures, from one run (build with -DTALLY_BUILD_BENCH=ON, then
 // build/bench/cluster/cluster_bench). Starts its own redis-server on a Unix socket.
 //  1. Overhead at equal cores: the same job on tally-server --workers 2 (in process) and
-//     on tally-server --redis with one tally-worker --threads 2, interleaved A B B A ...;
-//     the ratio of median wall times (goal: Redis <= 1.03x). Integration and lighting image.
+//     on tally-server --redis with one tally-worker --threads 2, interleaved A B B A ...
+//     (argv[1] pairs, default 9); the median of the pairs' ratios with its spread and the
+//     load average (goal: Redis <= 1.03x). Integration and lighting image.
 //  2. Coordinator ceiling: a RedisExecutor driven directly with one-sample blocks (trivial
 //     work) and 2 worker threads: blocks/s published and merged, with one block per entry
 //     (worst case) and with the default entry sizing.
@@ -14,6 +15,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstdlib>
 #include <chrono>
 #include <condition_variable>
 #include <fcntl.h>
@@ -57,23 +59,45 @@ double job_wall(HttpClient& c, const json& spec, json* bits) {
   return s.at("timing").at("wall_seconds").get<double>();
 }
 
+double load1() {
+  double l[1] = {0};
+  return ::getloadavg(l, 1) == 1 ? l[0] : -1.0;
+}
+
+// `rounds` alternations A B / B A ...: each pair's ratio B/A is measured seconds apart,
+// so a change of the machine's load hits both sides of a pair alike. Prints the median
+// pair ratio with its spread (min, quartiles, max) and the load average around it.
 void overhead(const std::string& what, const json& spec, HttpClient& in_process, HttpClient& cluster, int rounds) {
-  std::vector<double> a, b;
+  std::vector<double> a, b, ratio;
   json bits_a, bits_b;
+  bool equal = true;
   job_wall(in_process, spec, nullptr);  // warm-up (page cache, scene build)
   job_wall(cluster, spec, nullptr);
+  const double load_before = load1();
   for (int r = 0; r < rounds; ++r) {
+    double ta = 0, tb = 0;
     if (r % 2 == 0) {
-      a.push_back(job_wall(in_process, spec, &bits_a));
-      b.push_back(job_wall(cluster, spec, &bits_b));
+      ta = job_wall(in_process, spec, &bits_a);
+      tb = job_wall(cluster, spec, &bits_b);
     } else {
-      b.push_back(job_wall(cluster, spec, &bits_b));
-      a.push_back(job_wall(in_process, spec, &bits_a));
+      tb = job_wall(cluster, spec, &bits_b);
+      ta = job_wall(in_process, spec, &bits_a);
     }
+    equal = equal && bits_a == bits_b;
+    a.push_back(ta);
+    b.push_back(tb);
+    ratio.push_back(tb / ta);
   }
+  std::vector<double> sorted = ratio;
+  std::sort(sorted.begin(), sorted.end());
+  auto q = [&](double f) { return sorted[static_cast<size_t>(f * static_cast<double>(sorted.size() - 1) + 0.5)]; };
   std::fflush(stdout);
-  fmt::print("{:<34} in-process 2 threads {:7.3f} s   redis + 1 worker x 2 threads {:7.3f} s   ratio {:.3f}   bits {}\n",
-             what, median(a), median(b), median(b) / median(a), bits_a == bits_b ? "equal" : "DIFFER");
+  fmt::print("{:<34} in-process 2 threads {:7.3f} s   redis + 1 worker x 2 threads {:7.3f} s (medians)\n", what,
+             median(a), median(b));
+  fmt::print("{:<34} redis/in-process over {} pairs: median {:.3f}  [min {:.3f}, q1 {:.3f}, q3 {:.3f}, max {:.3f}]"
+             "   bits {}   load {:.1f} -> {:.1f}\n",
+             "", rounds, median(ratio), sorted.front(), q(0.25), q(0.75), sorted.back(), equal ? "equal" : "DIFFER",
+             load_before, load1());
 }
 
 // Drives a RedisExecutor with passes of `blocks_per_pass` one-sample blocks.
@@ -133,7 +157,7 @@ void ceiling(const std::string& url, size_t max_entry_blocks, size_t passes, siz
 }  // namespace
 
 int main(int argc, char** argv) {
-  const int rounds = argc > 1 ? std::atoi(argv[1]) : 5;
+  const int rounds = argc > 1 ? std::atoi(argv[1]) : 9;
   const std::string only = argc > 2 ? argv[2] : "";  // "reclaim": part 3 alone
   TempDir tmp;
   const fs::path sock = tmp.path / "r.sock";

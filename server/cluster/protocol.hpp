@@ -108,13 +108,19 @@ return {first, eq, diff, stale}
 
 // An entry threw: count the failed delivery (against its first slot); below the
 // limit, ack it and re-queue its blocks at once (another worker may take them); at
-// the limit, mark the job failed with the worker's error. Returns 0 stale, 1
+// the limit, mark the job failed with the worker's error. Returns 0 stale (or the
+// entry is no longer pending), 1
 // re-queued, 2 job failed.
 // KEYS: stream, job, failures, counters, notify, wake
 // ARGV: entry id, first slot, run, max failures, message, blocks, job id
 inline constexpr std::string_view kFailScript = R"lua(
 local run = redis.call('HGET', KEYS[2], 'run')
 if run ~= ARGV[3] or redis.call('HGET', KEYS[2], 'cancelled') == '1' or redis.call('EXISTS', KEYS[1]) == 0 then
+  return 0
+end
+-- Count a failure only while its entry is pending: a retry after a lost reply, or a
+-- stalled worker failing an entry another one already finished, counts nothing.
+if #redis.call('XPENDING', KEYS[1], 'w', ARGV[1], ARGV[1], 1) == 0 then
   return 0
 end
 redis.call('HINCRBY', KEYS[4], 'failures', 1)

@@ -72,7 +72,7 @@ std::optional<long long> RValue::to_int() const noexcept {
 }
 
 std::string RedisUrl::display() const {
-  if (!unix_path.empty()) return "unix://" + unix_path;
+  if (!unix_path.empty()) return "unix://" + (user.empty() ? std::string() : user + "@") + unix_path;
   return fmt::format("redis://{}{}:{}/{}", user.empty() ? "" : user + "@", host, port, db);
 }
 
@@ -80,6 +80,17 @@ RedisUrl parse_redis_url(std::string_view url) {
   RedisUrl u;
   if (url.starts_with("unix://")) {
     std::string_view rest = url.substr(7);
+    // unix://[[user]:password@]/path: credentials before the absolute path.
+    if (auto at = rest.find("@/"); at != std::string_view::npos) {
+      std::string_view cred = rest.substr(0, at);
+      rest = rest.substr(at + 1);
+      if (auto colon = cred.find(':'); colon != std::string_view::npos) {
+        u.user = std::string(cred.substr(0, colon));
+        u.password = std::string(cred.substr(colon + 1));
+      } else {
+        u.password = std::string(cred);
+      }
+    }
     if (auto q = rest.find("?db="); q != std::string_view::npos) {
       u.db = parse_int(rest.substr(q + 4), "db");
       rest = rest.substr(0, q);
@@ -142,12 +153,29 @@ RedisConn::RedisConn(const RedisUrl& url, std::chrono::milliseconds timeout) {
       } else {
         cmd({"AUTH", url.user, url.password});
       }
+    } else {
+      cmd({"PING"});  // NOAUTH here, not on some later command
     }
+  } catch (const RedisReplyError& e) {
+    redisFree(ctx_);
+    ctx_ = nullptr;
+    throw RedisAuthError(fmt::format("redis at {} refused the credentials{}: {}", url.display(),
+                                     url.password.empty() ? " (the URL has no password)" : "", e.what()));
+  } catch (...) {
+    redisFree(ctx_);
+    ctx_ = nullptr;
+    throw;
+  }
+  try {
     if (url.db != 0) cmd({"SELECT", std::to_string(url.db)});
   } catch (const RedisReplyError& e) {
     redisFree(ctx_);
     ctx_ = nullptr;
-    throw RedisIoError(fmt::format("{}: {}", url.display(), e.what()));
+    throw RedisAuthError(fmt::format("redis at {}: SELECT {}: {}", url.display(), url.db, e.what()));
+  } catch (...) {
+    redisFree(ctx_);
+    ctx_ = nullptr;
+    throw;
   }
 }
 

@@ -14,7 +14,7 @@ struct redisContext;
 
 namespace tally::cluster {
 
-// redis://[[user]:password@]host[:port][/db]  or  unix:///path/to.sock[?db=N]
+// redis://[[user]:password@]host[:port][/db]  or  unix://[[user]:password@]/path/to.sock[?db=N]
 struct RedisUrl {
   std::string host;
   int port = 6379;
@@ -31,6 +31,14 @@ RedisUrl parse_redis_url(std::string_view url);
 class RedisIoError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
+};
+// Redis refused the connection's set-up: the credentials (WRONGPASS; NOAUTH: a password
+// is required; an ACL user that may not connect) or the database (SELECT). A
+// configuration error, not an outage: processes report it at start instead of
+// retrying forever.
+class RedisAuthError : public RedisIoError {
+ public:
+  using RedisIoError::RedisIoError;
 };
 // An error reply (e.g. NOGROUP, WRONGTYPE, NOSCRIPT): the connection is still fine.
 class RedisReplyError : public std::runtime_error {
@@ -54,7 +62,9 @@ struct RValue {
 
 class RedisConn {
  public:
-  // Connects, authenticates and selects the database; throws RedisIoError.
+  // Connects, authenticates (a PING without a password, so a server that requires one
+  // says so here) and selects the database; throws RedisAuthError when the
+  // credentials are refused, RedisIoError when Redis cannot be reached.
   // `timeout`: connect timeout and socket read/write timeout (blocking commands
   // must use a shorter BLOCK/timeout than this).
   RedisConn(const RedisUrl& url, std::chrono::milliseconds timeout = std::chrono::milliseconds(5000));

@@ -148,7 +148,7 @@ bool RedisExecutor::connect() {
       // After a Redis restart everything unmerged is gone: publish it again. After a
       // mere disconnect, publishing again is harmless too (results already stored stay).
       j->published = false;
-      if (restarted) j->swept = false;
+      if (restarted) j->swept = j->hash_written = false;
     }
     if (restarted) {
       counters_.republished += jobs_.size();
@@ -272,17 +272,22 @@ void RedisExecutor::publish(Job& job) {
   const std::string r = pass_key('r', id, job.run, job.pass.pass);
   const size_t n = job.pass.blocks.size();
 
-  conn_->cmd({"HSET", jk, "run", job.run, "cancelled", "0", "spec", job.ej.spec_json, "assets", job.manifest,
-              "max_failures", std::to_string(cfg_.max_failures)});
-  conn_->cmd({"HDEL", jk, "failed", "mismatch"});
-  for (const auto& [rel, a] : job.assets) conn_->cmd({"SET", asset_key(a.sha256), a.bytes, "NX"});
-  conn_->cmd({"HSET", p, "n", std::to_string(n), "input", job.pass.pass_input});
-
-  // Results already stored (a reconnect without a Redis restart) need no new entry.
+  if (!job.hash_written) {
+    // Once per run (and again if Redis lost it), not at every pass or reconnect: a
+    // "failed" or "mismatch" mark a worker set while the connection was down must
+    // survive a reconnect, and the spec and assets need not travel again.
+    conn_->cmd({"HSET", jk, "run", job.run, "cancelled", "0", "spec", job.ej.spec_json, "assets", job.manifest,
+                "max_failures", std::to_string(cfg_.max_failures)});
+    conn_->cmd({"HDEL", jk, "failed", "mismatch"});
+    for (const auto& [rel, a] : job.assets) conn_->cmd({"SET", asset_key(a.sha256), a.bytes, "NX"});
+    job.hash_written = true;
+  }
+  // Results already stored (a republish after a reconnect without a Redis restart) need
+  // no new entry. A pass published for the first time has none: skip the round trip.
   std::set<size_t> have;
-  for (const RValue& k : conn_->cmd({"HKEYS", r}).elems) have.insert(static_cast<size_t>(k.as_int()));
-  conn_->cmd({"DEL", s});
-  conn_->cmd({"XGROUP", "CREATE", s, kGroup, "$", "MKSTREAM"});
+  if (job.pass_published) {
+    for (const RValue& k : conn_->cmd({"HKEYS", r}).elems) have.insert(static_cast<size_t>(k.as_int()));
+  }
   // Entry sizes by guided self-scheduling: each entry takes 1/(2T) of what is left (T:
   // live worker threads), at most ~20 ms and at least ~2 ms of work (from the workers'
   // measured time per block), so a pass starts with few big entries and ends with
@@ -320,16 +325,25 @@ void RedisExecutor::publish(Job& job) {
     std::lock_guard lock(mu_);
     job.entry_blocks = std::max<size_t>(1, largest);
   }
+  // The whole pass in one round trip (the pass boundary is the coordinator's only
+  // serial latency: workers idle until this lands).
+  const std::string n_s = std::to_string(n);
+  conn_->append({"HSET", p, "n", n_s, "input", job.pass.pass_input});
+  conn_->append({"DEL", s});
+  conn_->append({"XGROUP", "CREATE", s, kGroup, "$", "MKSTREAM"});
   for (const auto& [first, bytes] : entries) conn_->append({"XADD", s, "*", "b", bytes, "s", first});
-  for (size_t i = 0; i < entries.size(); ++i) {
-    const RValue v = conn_->get_reply();
-    if (v.type == RValue::Type::error) throw RedisReplyError("XADD: " + v.str);
+  conn_->append({"SADD", kActive, s});
+  conn_->append({"XADD", kWake, "MAXLEN", "~", "1000", "*", "j", id});
+  std::string error;
+  for (size_t i = 0; i < entries.size() + 5; ++i) {
+    const RValue v = conn_->get_reply();  // read every reply, even after an error
+    if (v.type == RValue::Type::error && error.empty()) error = v.str;
   }
-  conn_->cmd({"SADD", kActive, s});
-  conn_->cmd({"XADD", kWake, "MAXLEN", "~", "1000", "*", "j", id});
+  if (!error.empty()) throw RedisReplyError("publishing a pass: " + error);
   std::lock_guard lock(mu_);
   if (job.pass_start == Clock::time_point{}) job.pass_start = Clock::now();
   job.published = true;
+  job.pass_published = true;
   job.blocks.pending = n - have.size();
 }
 
@@ -405,6 +419,7 @@ void RedisExecutor::poll(const std::vector<std::string>& ids) {
         std::lock_guard lock(mu_);
         if (auto it = jobs_.find(o.id); it != jobs_.end()) {
           it->second->published = false;
+          it->second->hash_written = false;  // the job hash may be gone too
           counters_.republished++;
           log::job(log::Level::warn, o.id, "its pass vanished from Redis; republishing");
         }
@@ -426,7 +441,11 @@ void RedisExecutor::merge(const std::string& id) {
   const PassWork& pass = job->pass;
   const size_t n = pass.blocks.size();
   const std::string r = pass_key('r', id, job->run, pass.pass);
-  const RValue all = conn_->cmd({"HGETALL", r});
+  conn_->append({"HGETALL", r});
+  conn_->append({"HMGET", job_key(id), "compute_s", "computed"});
+  const RValue all = conn_->get_reply();
+  const RValue m = conn_->get_reply();
+  if (all.type == RValue::Type::error) throw RedisReplyError("HGETALL: " + all.str);
   std::vector<BlockResult> results(n);
   std::vector<bool> seen(n, false);
   std::string error;
@@ -463,7 +482,6 @@ void RedisExecutor::merge(const std::string& id) {
   }
   const double wall = std::chrono::duration<double>(Clock::now() - job->pass_start).count();
   {
-    const RValue m = conn_->cmd({"HMGET", job_key(id), "compute_s", "computed"});
     try {
       const double secs = m.elems.at(0).is_nil() ? 0.0 : std::stod(m.elems[0].str);
       const long long blocks = m.elems.at(1).as_int();
@@ -475,12 +493,18 @@ void RedisExecutor::merge(const std::string& id) {
   // The pass is merged: its stream, inputs and results go. Digests stay a few passes
   // so a late duplicate is still compared.
   const std::string s = pass_key('s', id, job->run, pass.pass);
-  conn_->cmd({"SREM", kActive, s});
-  conn_->cmd({"DEL", s, pass_key('p', id, job->run, pass.pass), r, pass_key('f', id, job->run, pass.pass)});
+  size_t replies = 2;
+  conn_->append({"SREM", kActive, s});
+  conn_->append({"DEL", s, pass_key('p', id, job->run, pass.pass), r, pass_key('f', id, job->run, pass.pass)});
   job->digest_passes.push_back(pass.pass);
   while (job->digest_passes.size() > cfg_.digest_passes) {
-    conn_->cmd({"DEL", pass_key('d', id, job->run, job->digest_passes.front())});
+    conn_->append({"DEL", pass_key('d', id, job->run, job->digest_passes.front())});
     job->digest_passes.pop_front();
+    ++replies;
+  }
+  for (size_t i = 0; i < replies; ++i) {
+    const RValue v = conn_->get_reply();
+    if (v.type == RValue::Type::error) log::job(log::Level::warn, id, "deleting a merged pass's keys: {}", v.str);
   }
   uint64_t samples = 0;
   for (const Block& b : pass.blocks) samples += b.sample_count;
@@ -498,6 +522,7 @@ void RedisExecutor::merge(const std::string& id) {
     } else {
       job->pass = std::move(next);
       job->published = false;
+      job->pass_published = false;
       job->pass_start = Clock::now();
       job->blocks = {};
       job->blocks.pending = job->pass.blocks.size();

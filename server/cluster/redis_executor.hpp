@@ -78,7 +78,9 @@ class RedisExecutor final : public Executor {
     std::string manifest;
     std::chrono::steady_clock::time_point pass_start;
     bool published = false;  // the current pass is in Redis
+    bool pass_published = false;  // the current pass was published before (a republish)
     bool swept = false;      // keys of older runs removed
+    bool hash_written = false;  // the job hash (run, spec, assets) written for this run
     bool cancel_requested = false;
     std::deque<uint64_t> digest_passes;
     ExecutorStats::JobBlocks blocks;

@@ -192,7 +192,7 @@ class Worker {
               if (!r.elems[1].elems.empty()) {
                 const RValue& e = r.elems[1].elems[0];
                 if (e.is_array() && e.elems.size() == 2 && e.elems[1].is_array()) {
-                  process(*conn, t, consumer, s, e, true, store_sha, fail_sha);
+                  process(conn, t, consumer, s, e, true, store_sha, fail_sha);
                   worked = true;
                 }
               }
@@ -206,7 +206,7 @@ class Worker {
             const std::string& s = streams[(rotate + i) % streams.size()];
             const RValue r = try_cmd(*conn, {"XREADGROUP", "GROUP", kGroup, consumer, "COUNT", "1", "STREAMS", s, ">"});
             if (r.is_array() && !r.elems.empty() && r.elems[0].elems.size() == 2 && !r.elems[0].elems[1].elems.empty()) {
-              process(*conn, t, consumer, s, r.elems[0].elems[1].elems[0], false, store_sha, fail_sha);
+              process(conn, t, consumer, s, r.elems[0].elems[1].elems[0], false, store_sha, fail_sha);
               worked = true;
             }
           }
@@ -259,9 +259,12 @@ class Worker {
       }
       std::shared_ptr<const JobDefinition> def = compile_job(spec, limits);
       c.kernel = def->kernel();
+      if (cfg_.wrap_kernel) c.kernel = cfg_.wrap_kernel(c.kernel);
       c.def = std::move(def);
     } catch (const SpecError& e) {
       c.error = fmt::format("the worker refused the spec: {} (at {})", e.detail(), e.pointer());
+    } catch (const RedisIoError&) {
+      throw;  // lost the connection while fetching assets: retry later, do not cache a failure
     } catch (const std::exception& e) {
       c.error = fmt::format("the worker could not compile the spec: {}", e.what());
     }
@@ -297,8 +300,31 @@ class Worker {
     return m;
   }
 
-  void process(RedisConn& conn, unsigned t, const std::string& consumer, const std::string& stream, const RValue& entry,
-               bool redelivered, const std::string& store_sha, const std::string& fail_sha) {
+  // Runs a result-storing script; if the connection drops (Redis restarted, a proxy or
+  // CLIENT KILL closed it), reconnects and runs it again for a few seconds rather than
+  // dropping computed blocks. Both scripts are idempotent: a repeat of a store that did
+  // land counts as an equal duplicate; a repeat of a failure is ignored unless the entry
+  // is still pending.
+  RValue eval_retrying(std::unique_ptr<RedisConn>& conn, const std::string& sha, std::string_view source,
+                       const std::vector<std::string_view>& keys, const std::vector<std::string_view>& args) {
+    const auto deadline = Clock::now() + 5s;
+    for (;;) {
+      try {
+        if (!conn) conn = std::make_unique<RedisConn>(cfg_.url);
+        return conn->evalsha(sha, source, keys, args);
+      } catch (const RedisIoError& e) {
+        conn.reset();
+        if (stop_ || Clock::now() >= deadline) throw;
+        log(fmt::format("storing results: {}; reconnecting to store them", e.what()));
+        std::this_thread::sleep_for(100ms);
+      }
+    }
+  }
+
+  void process(std::unique_ptr<RedisConn>& conn_owner, unsigned t, const std::string& consumer,
+               const std::string& stream, const RValue& entry, bool redelivered, const std::string& store_sha,
+               const std::string& fail_sha) {
+    RedisConn& conn = *conn_owner;
     const std::string& entry_id = entry.elems[0].str;
     std::string block_bytes, slot;
     const auto& fv = entry.elems[1].elems;
@@ -354,9 +380,9 @@ class Worker {
       held_[t] = Held{};
     }
     if (!error.empty()) {
-      const RValue r = conn.evalsha(fail_sha, kFailScript,
-                                    {stream, jk, pass_key('f', sk->id, sk->run, sk->pass), kCounters, kNotify, kWake},
-                                    {entry_id, slot, sk->run, max_failures, error, block_bytes, sk->id});
+      const RValue r = eval_retrying(conn_owner, fail_sha, kFailScript,
+                                     {stream, jk, pass_key('f', sk->id, sk->run, sk->pass), kCounters, kNotify, kWake},
+                                     {entry_id, slot, sk->run, max_failures, error, block_bytes, sk->id});
       log(fmt::format("{}{}", error, r.as_int() == 2 ? " (delivery limit reached: the job fails)" : " (re-queued)"));
       return;
     }
@@ -364,10 +390,10 @@ class Worker {
     const std::string secs_s = fmt::format("{:.9f}", secs);
     std::vector<std::string_view> args = {slot, entry_id, sk->run, n, sk->id, secs_s};
     for (const auto& r : results) args.push_back(r);
-    const RValue r = conn.evalsha(store_sha, kStoreScript,
-                                  {pass_key('r', sk->id, sk->run, sk->pass), stream, jk,
-                                   pass_key('d', sk->id, sk->run, sk->pass), kCounters, kNotify},
-                                  args);
+    const RValue r = eval_retrying(conn_owner, store_sha, kStoreScript,
+                                   {pass_key('r', sk->id, sk->run, sk->pass), stream, jk,
+                                    pass_key('d', sk->id, sk->run, sk->pass), kCounters, kNotify},
+                                   args);
     blocks_done_.fetch_add(results.size());
     if (r.elems.size() == 4) {
       if (r.elems[1].integer > 0) {

@@ -9,6 +9,8 @@
 // other workers reclaim after the lease.
 #include <atomic>
 #include <filesystem>
+#include <functional>
+#include <memory>
 #include <string>
 
 #include "common/engine/job_definition.hpp"
@@ -25,9 +27,19 @@ struct WorkerConfig {
   std::filesystem::path cache_dir;  // asset cache
   std::string health_file;          // touched at every heartbeat (liveness probes)
   bool verbose = false;
+  // Tests only (tests/cluster's fault-injecting worker): wraps every compiled kernel.
+  // Empty in tally-worker.
+  std::function<std::shared_ptr<const Kernel>(std::shared_ptr<const Kernel>)> wrap_kernel;
 };
 
 // Runs until `stop` becomes true (checked at least every half second). Returns 0.
 int run_worker(const WorkerConfig& config, const std::atomic<bool>& stop);
+
+// tally-worker's command line (worker_cli.cpp): parses flags into a WorkerConfig, checks
+// the credentials once (refused: exit code 2 with the reason; Redis merely unreachable:
+// the worker starts and waits for it), runs until SIGTERM/SIGINT. `wrap_kernel` as in
+// WorkerConfig.
+int worker_main(int argc, char** argv,
+                std::function<std::shared_ptr<const Kernel>(std::shared_ptr<const Kernel>)> wrap_kernel = {});
 
 }  // namespace tally::cluster

@@ -17,6 +17,8 @@
 #include "common/jobs/job_factory.hpp"
 #include "common/protocol/kind_json.hpp"
 #include "server/cluster/assets.hpp"
+#include "server/cluster/protocol.hpp"
+#include "server/cluster/wire.hpp"
 #include "server_process.hpp"
 
 namespace tally::e2e {
@@ -411,6 +413,291 @@ TEST(Cluster, ObjAssetsReachWorkersWithoutASharedDirectory) {
   const std::string sha = cluster::sha256_hex(obj);
   EXPECT_EQ(rc.cmd({"GET", "tally:asset:" + sha}).str, obj);  // content-addressed
   EXPECT_TRUE(fs::exists(tmp.path / "cache1" / "blobs" / sha));
+}
+
+
+// ---------------------------------------------------------------- guarantees that need
+// injected faults: tally-test-worker (tests/cluster/fault_worker_main.cpp) wraps the
+// kernel with slow, throwing or aborting blocks chosen by their first sample.
+
+WorkerOptions faulty(const std::string& faults) { return {{}, {"TALLY_TEST_FAULT=" + faults}, true}; }
+
+size_t count_in(const std::string& text, const std::string& needle) {
+  size_t n = 0;
+  for (size_t p = text.find(needle); p != std::string::npos; p = text.find(needle, p + 1)) ++n;
+  return n;
+}
+
+// Every store outcome so far (first, equal or different duplicate, stale), from Redis.
+uint64_t stores(cluster::RedisConn& rc) {
+  const auto v = rc.cmd({"HMGET", "tally:counters", "first", "dup_equal", "dup_differ", "stale"});
+  uint64_t n = 0;
+  for (const auto& e : v.elems) n += static_cast<uint64_t>(e.to_int().value_or(0));
+  return n;
+}
+
+TEST(Cluster, HeartbeatKeepsALongBlocksLease) {
+  TempDir tmp;
+  // Three passes (1, 2 and 4 blocks); the first block sleeps 3.5 s, 3.5 leases of 1 s.
+  const json spec = disk_spec(7 * 4096, 21);
+  const json expected = local_bits(spec);
+  RedisServer redis(tmp.path);
+  ServerProcess server(tmp.path / "data", cluster_flags(redis, 1.0));
+  // Both run the same faults: whichever takes the long block sleeps, the other is idle
+  // and would reclaim it (XAUTOCLAIM) the moment its lease lapsed.
+  WorkerProcess a(redis.url(), "a", tmp.path, 1, {}, faulty("sleep_at=0:3500"));
+  WorkerProcess b(redis.url(), "b", tmp.path, 1, {}, faulty("sleep_at=0:3500"));
+  HttpClient c = server.client();
+  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  const std::string id = submit(c, spec);
+  const json s = wait_state(c, id, "succeeded", 60);
+  EXPECT_EQ(s.at("bits"), expected);
+  // The long block was delivered once: one worker started it, nobody reclaimed it.
+  const std::string logs = a.log() + b.log();
+  EXPECT_EQ(count_in(logs, "test fault: block at sample 0 sleeps"), 1u) << logs;
+  std::this_thread::sleep_for(1200ms);  // the counts are refreshed twice a second
+  const json r = metrics_counts(c);
+  EXPECT_EQ(r.at("duplicates_equal"), 0) << r.dump();
+  EXPECT_EQ(r.at("stale"), 0) << r.dump();
+  EXPECT_EQ(r.at("first"), r.at("blocks_merged")) << r.dump();
+  EXPECT_EQ(r.at("blocks_merged"), 7) << r.dump();
+}
+
+TEST(Cluster, DifferingDuplicateFailsTheJobLoudly) {
+  TempDir tmp;
+  RedisServer redis(tmp.path);
+  ServerProcess server(tmp.path / "data", cluster_flags(redis));
+  // Slow blocks (150 ms each) keep a pass open long enough to inject into it.
+  WorkerProcess a(redis.url(), "a", tmp.path, 1, {}, faulty("sleep_ms=150"));
+  WorkerProcess b(redis.url(), "b", tmp.path, 1, {}, faulty("sleep_ms=150"));
+  HttpClient c = server.client();
+  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  const std::string id = submit(c, disk_spec(4096ull * 1023, 17));
+  auto rc = redis.connect();
+  // A result already stored in an open pass with at least 8 blocks.
+  std::string rkey, slot, stored;
+  wait_until([&] {
+    for (const auto& k : rc.cmd({"KEYS", "tally:r:" + id + ":*"}).elems) {
+      const auto all = rc.cmd({"HGETALL", k.str});
+      const std::string pkey = "tally:p:" + k.str.substr(8);
+      const long long n = rc.cmd({"HGET", pkey, "n"}).to_int().value_or(0);
+      if (n >= 8 && all.elems.size() >= 2 && static_cast<long long>(all.elems.size() / 2) < n) {
+        rkey = k.str;
+        slot = all.elems[0].str;
+        stored = all.elems[1].str;
+        return true;
+      }
+    }
+    return false;
+  }, 60, "a stored result in an open pass");
+  // The same block, one bit different: what a non-deterministic kernel would send.
+  BlockResult bad = cluster::decode_result(stored);
+  bad.tallies.at(0).mean = std::bit_cast<double>(std::bit_cast<uint64_t>(bad.tallies.at(0).mean) ^ 1u);
+  const std::string bytes = cluster::encode_result(bad);
+  ASSERT_NE(bytes, stored);
+  // tally:r:{id}:{run}:{pass}: store it as a worker would, through the store script.
+  const std::string rest = rkey.substr(8);  // {id}:{run}:{pass}
+  const size_t c1 = rest.find(':'), c2 = rest.find(':', c1 + 1);
+  const std::string run = rest.substr(c1 + 1, c2 - c1 - 1);
+  const std::string pass = rest.substr(c2 + 1);
+  const std::string n = rc.cmd({"HGET", "tally:p:" + rest, "n"}).str;
+  const auto r = rc.cmd({"EVAL", cluster::kStoreScript, "6", rkey, "tally:s:" + rest, "tally:job:" + id,
+                         "tally:d:" + rest, "tally:counters", "tally:notify", slot, "0-1", run, n, id, "0", bytes});
+  ASSERT_EQ(r.elems.size(), 4u);
+  EXPECT_EQ(r.elems[2].integer, 1) << "the script did not see the difference";
+  const json s = wait_state(c, id, "failed", 30);
+  const std::string msg = s.value("error_message", "");
+  EXPECT_NE(msg.find("non-determinism"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("slot " + slot), std::string::npos) << msg;
+  EXPECT_GE(metrics_counts(c).at("duplicates_different").get<uint64_t>(), 1u);
+  // The failed job's keys are gone: no worker keeps computing it.
+  wait_until([&] { return rc.cmd({"KEYS", "tally:[sprf]:" + id + ":*"}).elems.empty(); }, 5, "the job's keys to go");
+}
+
+TEST(Cluster, CrashLoopFailsTheJobAfterNDeliveries) {
+  TempDir tmp;
+  RedisServer redis(tmp.path);
+  std::vector<std::string> flags = cluster_flags(redis, 1.0);
+  flags.insert(flags.end(), {"--max-deliveries", "2"});
+  ServerProcess server(tmp.path / "data", flags);
+  // The first block kills whichever worker computes it (abort), on every delivery; a
+  // supervisor (this loop, like Kubernetes or compose) restarts dead workers.
+  std::vector<std::unique_ptr<WorkerProcess>> ws;
+  for (const char* name : {"c1", "c2"}) {
+    ws.push_back(std::make_unique<WorkerProcess>(redis.url(), name, tmp.path, 1, std::vector<std::string>{},
+                                                 faulty("abort_at=0")));
+  }
+  HttpClient c = server.client();
+  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  const std::string id = submit(c, disk_spec(1'000'000, 19));
+  int crashes = 0;
+  json s;
+  const auto deadline = std::chrono::steady_clock::now() + 60s;
+  while (std::chrono::steady_clock::now() < deadline) {
+    for (auto& w : ws) {
+      if (w->exited()) {
+        EXPECT_EQ(w->exit_code(), 128 + SIGABRT) << w->log();
+        ++crashes;
+        w->start();
+      }
+    }
+    s = get_json(c, "/v1/jobs/" + id);
+    if (s.at("state") != "running") break;
+    std::this_thread::sleep_for(20ms);
+  }
+  ASSERT_EQ(s.at("state"), "failed") << s.dump();
+  const std::string msg = s.value("error_message", "");
+  EXPECT_NE(msg.find("no worker finished it"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("crash"), std::string::npos) << msg;
+  // Delivered --max-deliveries + 2 times at most: the job never loops.
+  std::this_thread::sleep_for(2500ms);  // more than two leases: nothing is delivered again
+  for (auto& w : ws) crashes += w->exited() ? 1 : 0;
+  size_t aborts = 0;
+  for (auto& w : ws) aborts += count_in(w->log(), "aborts the worker");
+  EXPECT_EQ(static_cast<size_t>(crashes), aborts);
+  EXPECT_GE(crashes, 3) << msg;  // --max-deliveries + 1 deliveries without a result
+  EXPECT_LE(crashes, 4) << msg;
+  std::printf("crash loop: %d deliveries (all crashed) before the job failed: %s\n", crashes, msg.c_str());
+}
+
+TEST(Cluster, KernelThrowingFailsTheJobAfterNDeliveriesWithItsError) {
+  TempDir tmp;
+  RedisServer redis(tmp.path);
+  std::vector<std::string> flags = cluster_flags(redis);
+  flags.insert(flags.end(), {"--max-deliveries", "3"});
+  ServerProcess server(tmp.path / "data", flags);
+  WorkerProcess a(redis.url(), "t1", tmp.path, 1, {}, faulty("throw_at=0"));
+  WorkerProcess b(redis.url(), "t2", tmp.path, 1, {}, faulty("throw_at=0"));
+  HttpClient c = server.client();
+  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  const std::string id = submit(c, disk_spec(1'000'000, 23));
+  const json s = wait_state(c, id, "failed", 30);
+  const std::string msg = s.value("error_message", "");
+  EXPECT_NE(msg.find("test fault: the kernel threw on the block at sample 0"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("failed on worker t"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("of job " + id), std::string::npos) << msg;
+  // Exactly --max-deliveries deliveries, each counted once, then nothing more.
+  std::this_thread::sleep_for(1s);
+  EXPECT_EQ(count_in(a.log() + b.log(), "test fault: block at sample 0 throws"), 3u) << a.log() << b.log();
+  EXPECT_EQ(metrics_counts(c).at("failed_deliveries"), 3);
+  EXPECT_EQ(metrics_counts(c).at("blocks_merged"), 0);  // the other blocks of the pass are never merged
+}
+
+TEST(Cluster, DroppedConnectionsReconnectWithoutARedisRestartBitIdentical) {
+  TempDir tmp;
+  const json spec = disk_spec(160'000'000, 29);
+  const json expected = local_bits(spec);
+  RedisServer redis(tmp.path);
+  ServerProcess server(tmp.path / "data", cluster_flags(redis));  // 30 s lease: no reclaim in this test
+  WorkerProcess w1(redis.url(), "w1", tmp.path, 1), w2(redis.url(), "w2", tmp.path, 1);
+  HttpClient c = server.client();
+  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  const std::string id = submit(c, spec);
+  auto rc = redis.connect();
+  const std::string before = rc.cmd({"INFO", "server"}).str;
+  for (uint64_t at : {20'000'000ull, 60'000'000ull, 100'000'000ull}) {
+    wait_until([&] { return get_json(c, "/v1/jobs/" + id).at("samples").get<uint64_t>() >= at; }, 60, "progress");
+    // Every client but this one: the coordinator and all worker connections.
+    const long long killed = rc.cmd({"CLIENT", "KILL", "TYPE", "normal"}).as_int();
+    // The first time: the coordinator + 2 workers x (compute + heartbeat); later, whoever
+    // has reconnected by then.
+    EXPECT_GE(killed, at == 20'000'000ull ? 5 : 1);
+  }
+  const json s = wait_state(c, id, "succeeded", 90);
+  EXPECT_EQ(s.at("bits"), expected);
+  // Reconnected to the same Redis (no restart), so nothing was republished as lost.
+  EXPECT_EQ(rc.run_id(), [&] { auto r2 = redis.connect(); return r2.run_id(); }());
+  const std::string logs = w1.log() + w2.log();
+  EXPECT_NE(logs.find("connected to redis again"), std::string::npos) << logs;
+  std::this_thread::sleep_for(1200ms);
+  const json r = metrics_counts(c);
+  EXPECT_EQ(r.at("first"), r.at("blocks_merged")) << r.dump();
+  EXPECT_EQ(r.at("duplicates_different"), 0) << r.dump();
+}
+
+TEST(Cluster, AuthAndAclAgainstARealRedis) {
+  TempDir tmp;
+  const int port = free_loopback_port();
+  // The default user needs "secret"; the ACL user tally has its own password.
+  RedisServer redis(tmp.path, {"--requirepass", "secret", "--user", "tally", "on", ">pw", "~*", "&*", "+@all"},
+                    "tally:pw", port);
+  const json spec = disk_spec(20'000'000, 31);
+  const json expected = local_bits(spec);
+  const std::string tcp = fmt::format("redis://tally:pw@127.0.0.1:{}", port);
+  const std::string sock = redis.socket();
+  {
+    // Refused credentials: a clear error at start and exit code 2, never a silent wait.
+    WorkerProcess wrong("unix://tally:nope@" + sock, "wrong", tmp.path, 1);
+    WorkerProcess none("unix://" + sock, "none", tmp.path, 1);
+    wait_until([&] { return wrong.exited() && none.exited(); }, 15, "the refused workers to exit");
+    EXPECT_EQ(wrong.exit_code(), 2) << wrong.log();
+    EXPECT_NE(wrong.log().find("refused the credentials"), std::string::npos) << wrong.log();
+    EXPECT_NE(wrong.log().find("WRONGPASS"), std::string::npos) << wrong.log();
+    EXPECT_EQ(wrong.log().find("nope"), std::string::npos) << "the password is logged: " << wrong.log();
+    EXPECT_EQ(none.exit_code(), 2) << none.log();
+    EXPECT_NE(none.log().find("NOAUTH"), std::string::npos) << none.log();
+    try {
+      ServerProcess bad(tmp.path / "bad", {"--redis", fmt::format("redis://tally:nope@127.0.0.1:{}", port)});
+      ADD_FAILURE() << "tally-server started with a wrong Redis password";
+    } catch (const std::runtime_error& e) {
+      const std::string what = e.what();
+      EXPECT_NE(what.find("exited at start"), std::string::npos) << what;
+      EXPECT_NE(what.find("refused the credentials"), std::string::npos) << what;
+    }
+  }
+  // The coordinator over TCP as the ACL user; one worker as the ACL user on the socket,
+  // one as the default user with requirepass's password.
+  ServerProcess server(tmp.path / "data", {"--redis", tcp, "--checkpoint-interval", "0"});
+  WorkerProcess acl(redis.url(), "acl", tmp.path, 1);
+  WorkerProcess def("unix://secret@" + sock, "default", tmp.path, 1);
+  HttpClient c = server.client();
+  wait_until([&] { return live_workers(c) == 2; }, 20, "two authenticated workers");
+  const std::string id = submit(c, spec);
+  const json s = wait_state(c, id, "succeeded", 60);
+  EXPECT_EQ(s.at("bits"), expected);
+  EXPECT_EQ(server.log().find(":pw@"), std::string::npos) << "the password is logged";
+}
+
+TEST(Cluster, CancelStopsWithinAboutOneBlockPerThread) {
+  TempDir tmp;
+  RedisServer redis(tmp.path);
+  ServerProcess server(tmp.path / "data", cluster_flags(redis));
+  // 2 workers x 2 threads, 250 ms blocks (one block per entry once measured).
+  constexpr unsigned kThreads = 4;
+  WorkerProcess a(redis.url(), "a", tmp.path, 2, {}, faulty("sleep_ms=250"));
+  WorkerProcess b(redis.url(), "b", tmp.path, 2, {}, faulty("sleep_ms=250"));
+  HttpClient c = server.client();
+  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  const std::string id = submit(c, disk_spec(4096ull * 4095, 37));
+  auto rc = redis.connect();
+  // Mid-pass with every thread busy: passes of 1, 2, 4, 8 blocks are done, then 16.
+  wait_until([&] { return get_json(c, "/v1/jobs/" + id).at("samples").get<uint64_t>() >= 15 * 4096; }, 60,
+             "four passes");
+  wait_until([&] { return get_json(c, "/v1/jobs/" + id).at("blocks").at("in_flight").get<uint64_t>() >= kThreads; },
+             10, "every thread busy");
+  const uint64_t at_cancel = stores(rc);
+  const auto t0 = std::chrono::steady_clock::now();
+  ASSERT_EQ(c.request("DELETE", "/v1/jobs/" + id).status, 202);
+  wait_state(c, id, "cancelled", 10);
+  // Quiet: no store for a whole block time (with a bound on the wait).
+  uint64_t last = stores(rc);
+  auto quiet_since = std::chrono::steady_clock::now();
+  wait_until([&] {
+    const uint64_t now = stores(rc);
+    if (now != last) {
+      last = now;
+      quiet_since = std::chrono::steady_clock::now();
+    }
+    return std::chrono::steady_clock::now() - quiet_since > 600ms;
+  }, 20, "the workers to go quiet");
+  const double quiet_after = std::chrono::duration<double>(quiet_since - t0).count();
+  const uint64_t after = last - at_cancel;
+  std::printf("cancel: %llu blocks stored after DELETE (threads %u), the last %.3f s after it\n",
+              static_cast<unsigned long long>(after), kThreads, quiet_after);
+  // The blocks in flight finish (one per thread); a thread that finished just before the
+  // cancel reached Redis may start one more. Never the rest of the pass.
+  EXPECT_LE(after, 2 * kThreads);
+  EXPECT_TRUE(rc.cmd({"KEYS", "tally:[sprf]:" + id + ":*"}).elems.empty());
 }
 
 }  // namespace

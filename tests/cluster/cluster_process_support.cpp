@@ -1,7 +1,10 @@
 #include "cluster_process.hpp"
 #include "server_process.hpp"
 
+#include <arpa/inet.h>
 #include <fcntl.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -45,14 +48,36 @@ std::string slurp(const fs::path& p) {
 
 }  // namespace
 
-RedisServer::RedisServer(fs::path dir) : dir_(std::move(dir)), socket_(dir_ / "r.sock") { start(); }
+RedisServer::RedisServer(fs::path dir, std::vector<std::string> extra, std::string credentials, int tcp_port)
+    : dir_(std::move(dir)), socket_(dir_ / "r.sock"), extra_(std::move(extra)), credentials_(std::move(credentials)),
+      tcp_port_(tcp_port) {
+  start();
+}
+
+int free_loopback_port() {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  a.sin_port = 0;
+  socklen_t len = sizeof a;
+  if (fd < 0 || ::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0 ||
+      ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len) != 0) {
+    if (fd >= 0) ::close(fd);
+    throw std::runtime_error("cannot find a free loopback port");
+  }
+  ::close(fd);
+  return ntohs(a.sin_port);
+}
 RedisServer::~RedisServer() { stop(); }
 
 void RedisServer::start() {
   fs::remove(socket_);
-  pid_ = spawn_logged({"redis-server", "--port", "0", "--unixsocket", socket_.string(), "--save", "", "--appendonly", "no",
-                "--maxmemory-policy", "noeviction", "--dir", dir_.string()},
-               dir_ / "redis.log");
+  std::vector<std::string> args = {"redis-server", "--port", std::to_string(tcp_port_), "--bind", "127.0.0.1",
+                                   "--unixsocket", socket_.string(), "--save", "", "--appendonly", "no",
+                                   "--maxmemory-policy", "noeviction", "--dir", dir_.string()};
+  args.insert(args.end(), extra_.begin(), extra_.end());
+  pid_ = spawn_logged(args, dir_ / "redis.log");
   const auto deadline = std::chrono::steady_clock::now() + 10s;
   while (std::chrono::steady_clock::now() < deadline) {
     try {
@@ -70,18 +95,29 @@ void RedisServer::stop() { reap(pid_, SIGKILL); }
 cluster::RedisConn RedisServer::connect() const { return cluster::RedisConn(cluster::parse_redis_url(url()), 2000ms); }
 
 WorkerProcess::WorkerProcess(std::string url, std::string name, fs::path log_dir, unsigned threads,
-                             std::vector<std::string> extra)
+                             std::vector<std::string> extra, WorkerOptions options)
     : url_(std::move(url)), name_(std::move(name)), log_(log_dir / (name_ + ".log")), threads_(threads),
-      extra_(std::move(extra)) {
+      extra_(std::move(extra)), options_(std::move(options)) {
+  if (options_.bin.empty()) options_.bin = options_.test_worker ? TALLY_TEST_WORKER_BIN : TALLY_WORKER_BIN;
   start();
+}
+
+bool WorkerProcess::exited() {
+  if (pid_ <= 0) return true;
+  int status = 0;
+  if (::waitpid(pid_, &status, WNOHANG) != pid_) return false;
+  exit_code_ = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  pid_ = -1;
+  return true;
 }
 WorkerProcess::~WorkerProcess() { reap(pid_, SIGKILL); }
 
 void WorkerProcess::start() {
-  std::vector<std::string> args = {TALLY_WORKER_BIN, "--redis", url_, "--name", name_, "--threads",
+  std::vector<std::string> args = {options_.bin, "--redis", url_, "--name", name_, "--threads",
                                    std::to_string(threads_)};
   args.insert(args.end(), extra_.begin(), extra_.end());
-  pid_ = spawn_logged(args, log_);
+  exit_code_ = -1;
+  pid_ = spawn_logged(args, log_, options_.env);
 }
 void WorkerProcess::kill9() { reap(pid_, SIGKILL); }
 void WorkerProcess::pause() {

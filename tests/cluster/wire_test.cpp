@@ -85,6 +85,16 @@ TEST(ClusterUrl, ParsesTheDocumentedForms) {
   EXPECT_EQ(u.port, 6379);
   u = parse_redis_url("unix:///run/redis/r.sock");
   EXPECT_EQ(u.unix_path, "/run/redis/r.sock");
+  EXPECT_TRUE(u.password.empty());
+  u = parse_redis_url("unix://tally:p@ss@/run/redis/r.sock?db=3");
+  EXPECT_EQ(u.unix_path, "/run/redis/r.sock");
+  EXPECT_EQ(u.user, "tally");
+  EXPECT_EQ(u.password, "p@ss");
+  EXPECT_EQ(u.db, 3);
+  EXPECT_EQ(u.display(), "unix://tally@/run/redis/r.sock");
+  u = parse_redis_url("unix://secret@/r.sock");
+  EXPECT_EQ(u.password, "secret");
+  EXPECT_TRUE(u.user.empty());
   EXPECT_THROW(parse_redis_url("rediss://host"), std::invalid_argument);
   EXPECT_THROW(parse_redis_url("redis://host:99999"), std::invalid_argument);
   EXPECT_THROW(parse_redis_url("redis://host:x"), std::invalid_argument);

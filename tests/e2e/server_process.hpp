@@ -17,7 +17,9 @@ namespace tally::e2e {
 // Starts `args` (argv[0] by path or looked up in PATH) with stdout and stderr appended
 // to `log`; returns its pid. The one process launcher of the process tests and the
 // cluster benchmark.
-pid_t spawn_logged(const std::vector<std::string>& args, const std::filesystem::path& log);
+// `env`: NAME=value entries added to the child's environment.
+pid_t spawn_logged(const std::vector<std::string>& args, const std::filesystem::path& log,
+                   const std::vector<std::string>& env = {});
 
 struct TempDir {
   TempDir();

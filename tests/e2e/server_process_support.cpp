@@ -16,7 +16,7 @@ namespace tally::e2e {
 using nlohmann::json;
 namespace fs = std::filesystem;
 
-pid_t spawn_logged(const std::vector<std::string>& args, const fs::path& log) {
+pid_t spawn_logged(const std::vector<std::string>& args, const fs::path& log, const std::vector<std::string>& env) {
   const pid_t pid = ::fork();
   if (pid < 0) throw std::runtime_error("fork failed");
   if (pid == 0) {
@@ -25,6 +25,7 @@ pid_t spawn_logged(const std::vector<std::string>& args, const fs::path& log) {
       ::dup2(fd, 1);
       ::dup2(fd, 2);
     }
+    for (const auto& e : env) ::putenv(const_cast<char*>(e.c_str()));
     std::vector<char*> argv;
     for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
     argv.push_back(nullptr);
