@@ -26,13 +26,19 @@ std::vector<Event> snapshot_events(const JobSnapshot& job) {
   };
   const uint64_t id = job.last_event_id;
   std::vector<Event> out;
-  out.push_back(Event{id, "state", dump(state_event_json(job.status, job.runner.get(), job.error, false))});
+  // A job whose state is not in memory (queued, or finished and on disk) shows the
+  // figures kept when it left (RunFacts): the same bytes the runner would give.
+  const auto state_event = [&](bool end) {
+    return job.runner ? state_event_json(job.status, job.runner.get(), job.error, end)
+                      : state_event_json(job.status, job.facts.get(), job.error, end);
+  };
+  out.push_back(Event{id, "state", dump(state_event(false))});
   if (job.runner && job.runner->state().passes > 0) {
     out.push_back(Event{id, "progress", dump(progress_event_json(*job.runner))});
+  } else if (!job.runner && job.facts && !job.facts->progress_event.empty()) {
+    out.push_back(Event{id, "progress", job.facts->progress_event});
   }
-  if (is_terminal(job.status)) {
-    out.push_back(Event{id, "end", dump(state_event_json(job.status, job.runner.get(), job.error, true))});
-  }
+  if (is_terminal(job.status)) out.push_back(Event{id, "end", dump(state_event(true))});
   return out;
 }
 

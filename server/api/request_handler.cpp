@@ -74,7 +74,8 @@ void RequestHandler::add_routes() {
   router_.add("DELETE", "/v1/jobs/{id}", bind(&RequestHandler::delete_job));
   router_.add("POST", "/v1/jobs/{id}/extend", bind(&RequestHandler::extend_job));
   router_.add("GET", "/v1/jobs/{id}/events", bind(&RequestHandler::job_events));
-  router_.add("GET", "/v1/jobs/{id}/tiles/{n}", bind(&RequestHandler::job_tile));
+  // May read a finished job's state from the store: off the I/O threads.
+  router_.add("GET", "/v1/jobs/{id}/tiles/{n}", bind(&RequestHandler::job_tile), true);
   router_.add("GET", "/v1/jobs/{id}/image.exr",
               [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, true); }, true);
   router_.add("GET", "/v1/jobs/{id}/image.png",
