@@ -113,7 +113,10 @@ TEST(ServerE2E, CancelRunningJob) {
   EXPECT_EQ(s.at("stop_reason"), "cancelled");
   const auto ev = read_events(c, id);
   EXPECT_EQ(ev.back().event, "end");
-  expect_problem(c.request("DELETE", "/v1/jobs/" + id), 409);
+  // Finished: a second DELETE deletes it (issue 13), then it is gone.
+  EXPECT_EQ(c.request("DELETE", "/v1/jobs/" + id).status, 204);
+  expect_problem(c.request("GET", "/v1/jobs/" + id), 404);
+  expect_problem(c.request("DELETE", "/v1/jobs/" + id), 404);
 }
 
 TEST(ServerE2E, ExtendFinishedJob) {
@@ -200,7 +203,8 @@ TEST(ServerE2E, EveryErrorStatusIsProblemJson) {
   expect_problem(c.request("POST", "/v1/jobs/" + id + "/extend", R"({"max_samples": 5})", js), 409);
   c.request("DELETE", "/v1/jobs/" + id);
   wait_state(c, id, "cancelled", 10);
-  expect_problem(c.request("DELETE", "/v1/jobs/" + id), 409);
+  EXPECT_EQ(c.request("DELETE", "/v1/jobs/" + id).status, 204);  // finished: deleted
+  expect_problem(c.request("DELETE", "/v1/jobs/" + id), 404);
   // Still alive and well.
   EXPECT_EQ(c.request("GET", "/livez").status, 200);
 }
