@@ -116,7 +116,7 @@ TEST(Memory, QueuedJobsHoldNoState) {
   EXPECT_EQ(entry.at("passes"), 0);
   EXPECT_EQ(entry.at("stop_reason"), "none");
   for (const auto& id : ids) EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + id).status, 200);
-  EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + blocker).status, 202);
+  EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + blocker).status / 100, 2);  // cancelled (200) or cancelling (202)
 }
 
 // A job whose state could never fit the budget is refused naming the field that
@@ -155,10 +155,10 @@ TEST(Memory, JobWaitsUntilItsStateFitsAndThenStarts) {
   EXPECT_EQ(h.metric("tally_memory_budget_bytes"), static_cast<double>(mc.memory_budget));
   EXPECT_EQ(h.metric("tally_memory_used_bytes"), one);
   // a stops, its state leaves memory, b starts.
-  EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + a).status, 202);
+  EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + a).status / 100, 2);  // cancelled (200) or cancelling (202)
   ASSERT_TRUE(h.wait_state(b, "running"));
   EXPECT_TRUE(wait_until([&] { return h.metric("tally_memory_used_bytes") == one; }, 10));
-  EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + b).status, 202);
+  EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + b).status / 100, 2);  // cancelled (200) or cancelling (202)
   ASSERT_TRUE(h.wait_state(b, "cancelled"));
   EXPECT_TRUE(wait_until([&] { return h.metric("tally_memory_used_bytes") == 0; }, 10));
 }
@@ -241,7 +241,7 @@ TEST(Memory, RestartServesTheSameDocumentsWithoutLoadingState) {
     ASSERT_TRUE(h.wait_state(ids[1], "running"));
     ids.push_back(h.submit(fake_spec(1000)));  // queued behind it (max_running 1)
     EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + ids[2]).status, 200);
-    EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + ids[1]).status, 202);
+    EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + ids[1]).status / 100, 2);
     ASSERT_TRUE(h.wait_state(ids[1], "cancelled"));
     for (const auto& id : ids) docs.push_back(doc(h, id) + snapshot_events(h, id));
   }
@@ -285,7 +285,7 @@ TEST(Delete, UnfinishedJobIsCancelledNotDeleted) {
   } catch (const JobError& e) {
     EXPECT_EQ(e.kind(), JobError::Kind::conflict);
   }
-  EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + id).status, 202);
+  EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + id).status / 100, 2);  // cancelled (200) or cancelling (202)
 }
 
 std::vector<std::string> listed_ids(Harness& h) {
