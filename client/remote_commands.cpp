@@ -285,18 +285,50 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
   {
     auto opt = std::make_shared<RemoteOptions>();
     auto id = std::make_shared<std::string>();
-    CLI::App* cmd = app.add_subcommand("cancel", "Cancel a queued or running job (a finished one is deleted)");
+    CLI::App* cmd = app.add_subcommand("cancel", "Cancel a queued or running job");
     cmd->add_option("id", *id, "job id")->required();
     add_server_option(cmd, *opt);
     cmd->callback([=, &exit_code] {
       run_guarded(exit_code, [&] {
         HttpClient c = make_client(*opt);
+        // DELETE of a finished job deletes it: cancel never sends it to one.
+        const json st = get_json(c, "/v1/jobs/" + *id);
+        const std::string state = st.value("state", "");
+        if (state != "queued" && state != "running") {
+          fmt::print(stderr, "tally: job {} has already finished ({}); `tally delete {}` deletes it\n", *id, state,
+                     *id);
+          return exit_code::usage;
+        }
         const ClientResponse r = c.request("DELETE", "/v1/jobs/" + *id);
-        if (r.status != 200 && r.status != 202 && r.status != 204) fail_response(r);
-        fmt::print("{} {}\n", *id,
-                   r.status == 204   ? "deleted (it had finished)"
-                   : r.status == 200 ? "cancelled"
-                                     : "cancelling (stops at the next chunk)");
+        if (r.status == 204) {  // it finished in between, and was deleted
+          fmt::print("{} deleted (it had just finished)\n", *id);
+          return exit_code::ok;
+        }
+        if (r.status != 200 && r.status != 202) fail_response(r);
+        fmt::print("{} {}\n", *id, r.status == 200 ? "cancelled" : "cancelling (stops at the next chunk)");
+        return exit_code::ok;
+      });
+    });
+  }
+  // delete
+  {
+    auto opt = std::make_shared<RemoteOptions>();
+    auto id = std::make_shared<std::string>();
+    CLI::App* cmd = app.add_subcommand("delete", "Delete a finished job and its stored state");
+    cmd->add_option("id", *id, "job id")->required();
+    add_server_option(cmd, *opt);
+    cmd->callback([=, &exit_code] {
+      run_guarded(exit_code, [&] {
+        HttpClient c = make_client(*opt);
+        const json st = get_json(c, "/v1/jobs/" + *id);
+        const std::string state = st.value("state", "");
+        if (state == "queued" || state == "running") {
+          fmt::print(stderr, "tally: job {} is still {}; `tally cancel {}` first\n", *id, state, *id);
+          return exit_code::usage;
+        }
+        const ClientResponse r = c.request("DELETE", "/v1/jobs/" + *id);
+        if (r.status != 204) fail_response(r);
+        fmt::print("{} deleted\n", *id);
         return exit_code::ok;
       });
     });

@@ -417,7 +417,8 @@ TEST(ServerE2E, CliSubmitWatchGetListCancelExtend) {
   EXPECT_EQ(r.code, 0);
   EXPECT_NE(r.out.find(id), std::string::npos);
   r = run_cli("cancel " + id, url);
-  EXPECT_EQ(r.code, 4) << r.out;  // already finished: 409
+  EXPECT_EQ(r.code, 4) << r.out;  // already finished: not sent (DELETE would delete it)
+  EXPECT_EQ(run_cli("delete " + id + "x", url).code, 4);  // unknown job
   r = run_cli("extend " + id + " --max-samples 8000000", url);
   EXPECT_EQ(r.code, 0) << r.out;
   r = run_cli("watch " + id, url);
@@ -441,6 +442,10 @@ TEST(ServerE2E, CliSubmitWatchGetListCancelExtend) {
   EXPECT_EQ(run_cli("get nope", url).code, 4);
   EXPECT_EQ(run_cli("list", "http://127.0.0.1:1").code, 5);
   EXPECT_EQ(run_cli("extend " + id, url).code, 4);  // no target given
+  // delete: a running job is refused, a finished one deleted, then unknown.
+  EXPECT_EQ(run_cli("delete " + long_id, url).code, 0);  // cancelled above: finished
+  EXPECT_EQ(run_cli("get " + long_id, url).code, 4);
+  EXPECT_EQ(run_cli("delete " + long_id, url).code, 4);
 }
 
 }  // namespace
