@@ -85,13 +85,22 @@ json state_event_json(JobStatus status, const RunFacts* facts, const std::string
   return st;
 }
 
-RunFacts run_facts(const JobRunner& r) {
+namespace {
+// run_facts without the progress event (the list does not show it).
+RunFacts run_facts_light(const JobRunner& r) {
   RunFacts f;
   const JobState& s = r.state();
   f.samples = s.samples;
   f.passes = s.passes;
   if (!s.channels.empty() && s.channels[0].n > 0) f.headline = r.headline();
   f.stop_reason = r.stop_reason();
+  return f;
+}
+}  // namespace
+
+RunFacts run_facts(const JobRunner& r) {
+  RunFacts f = run_facts_light(r);
+  const JobState& s = r.state();
   f.target_met = r.target_met();
   f.rule = r.rule();
   f.compute_seconds = s.compute_seconds;
@@ -199,19 +208,6 @@ json status_json(const JobSnapshot& job, double now, json links) {
   j["links"] = std::move(links);
   return j;
 }
-
-namespace {
-// run_facts without the progress event (the list does not show it).
-RunFacts run_facts_light(const JobRunner& r) {
-  RunFacts f;
-  const JobState& s = r.state();
-  f.samples = s.samples;
-  f.passes = s.passes;
-  if (!s.channels.empty() && s.channels[0].n > 0) f.headline = r.headline();
-  f.stop_reason = r.stop_reason();
-  return f;
-}
-}  // namespace
 
 json summary_json(const JobSnapshot& job) {
   json j;

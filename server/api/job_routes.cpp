@@ -172,6 +172,7 @@ HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathPara
   const json spec = parse_json_body(req);
   const JobLimits limits = *submitter(req).limits;
   std::unique_ptr<JobDefinition> def = manager_.compiler()(spec, limits);
+  manager_.check_memory(spec, limits, *def);  // the pilot would allocate the state too
   json out = {{"valid", true},
               {"kind", std::string(def->kind())},
               {"plan", def->plan()},

@@ -169,28 +169,32 @@ void JobManager::finish_locked(Job& job, double now, std::optional<JobStatus> st
            job.error_.empty() ? std::string() : ": " + job.error_);
 }
 
+void JobManager::check_memory(const json& spec, const JobLimits& limits, const JobDefinition& def) const {
+  const uint64_t need = state_bytes(def);
+  if (config_.memory_budget == 0 || need <= config_.memory_budget) return;
+  const auto mib = [](uint64_t b) { return fmt::format("{:.1f} MiB", static_cast<double>(b) / (1 << 20)); };
+  const std::string why = fmt::format("the job needs {} of memory for its state, more than the server's memory "
+                                      "budget of {} (--memory-budget)",
+                                      mib(need), mib(config_.memory_budget));
+  // The kind's own channel limit names the field: compile again with the channels
+  // the budget allows.
+  JobLimits fit = limits;
+  fit.max_channels = std::min<size_t>(limits.max_channels, config_.memory_budget / (2 * sizeof(Tally)));
+  try {
+    compiler_(spec, fit);
+  } catch (const SpecError& e) {
+    throw SpecError(e.pointer(), fmt::format("{}: {}", why, e.detail()));
+  }
+  throw SpecError("", why);
+}
+
 std::shared_ptr<Job> JobManager::submit(const json& spec, int priority, const Submitter& who) {
   const JobLimits& limits = who.limits ? *who.limits : config_.limits;
   std::shared_ptr<const JobDefinition> def = compiler_(spec, limits);  // throws SpecError
   // The state is allocated when the job starts; a job whose state could never fit
-  // the budget is refused now, naming the field that makes it big.
+  // the budget is refused now.
+  check_memory(spec, limits, *def);
   const uint64_t need = state_bytes(*def);
-  if (config_.memory_budget > 0 && need > config_.memory_budget) {
-    const auto mib = [](uint64_t b) { return fmt::format("{:.1f} MiB", static_cast<double>(b) / (1 << 20)); };
-    const std::string why = fmt::format("the job needs {} of memory for its state, more than the server's memory "
-                                        "budget of {} (--memory-budget)",
-                                        mib(need), mib(config_.memory_budget));
-    // The kind's own channel limit names the field: compile again with the channels
-    // the budget allows.
-    JobLimits fit = limits;
-    fit.max_channels = std::min<size_t>(limits.max_channels, config_.memory_budget / (2 * sizeof(Tally)));
-    try {
-      compiler_(spec, fit);
-    } catch (const SpecError& e) {
-      throw SpecError(e.pointer(), fmt::format("{}: {}", why, e.detail()));
-    }
-    throw SpecError("", why);
-  }
   std::shared_ptr<Job> job;
   {
     std::lock_guard lock(mu_);

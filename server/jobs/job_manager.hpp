@@ -97,6 +97,9 @@ class JobManager {
   // from their last checkpoint. Call once, before serving.
   void recover();
 
+  // SpecError naming the field that makes the job big if its state could never fit
+  // the memory budget (`def` compiled from `spec` with `limits`).
+  void check_memory(const nlohmann::json& spec, const JobLimits& limits, const JobDefinition& def) const;
   // Throws SpecError (invalid spec) or JobError (queue full, shutting down).
   std::shared_ptr<Job> submit(const nlohmann::json& spec, int priority = 0, const Submitter& who = {});
   std::shared_ptr<Job> find(const std::string& id) const;  // null if unknown

@@ -148,6 +148,10 @@ TEST(Memory, JobOverTheBudgetIs422NamingTheResolution) {
   EXPECT_EQ(p.at("pointer"), "/scene/camera/resolution") << r.body;
   EXPECT_NE(p.at("detail").get<std::string>().find("memory budget"), std::string::npos) << r.body;
   EXPECT_EQ(h.call_json("GET", "/v1/jobs").at("jobs").size(), 0u);
+  // validate says the same (its pilot would allocate the state).
+  const HttpResponse v = h.call("POST", "/v1/jobs/validate", image_spec(512, 512).dump());
+  EXPECT_EQ(v.status, 422) << v.body;
+  EXPECT_EQ(json::parse(v.body).at("pointer"), "/scene/camera/resolution") << v.body;
   // 128 × 128 (2 × 9 MiB) fits.
   const HttpResponse ok = h.call("POST", "/v1/jobs", image_spec(128, 128).dump());
   EXPECT_EQ(ok.status, 202) << ok.body;
