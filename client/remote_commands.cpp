@@ -263,14 +263,19 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
     cmd->callback([=, &exit_code] {
       run_guarded(exit_code, [&] {
         HttpClient c = make_client(*opt);
-        const json j = get_json(c, state->empty() ? std::string("/v1/jobs") : "/v1/jobs?state=" + *state);
         fmt::print("{:<18} {:<10} {:<10} {:>10} {:>20} {:>12}\n", "ID", "STATE", "KIND", "SAMPLES", "MEAN", "STDERR");
+        // Pages of up to 1000 jobs, each naming the next one (docs/api.md).
+        std::string page = state->empty() ? std::string("/v1/jobs?limit=1000") : "/v1/jobs?limit=1000&state=" + *state;
+        for (int pages = 0; !page.empty() && pages < 100000; ++pages) {
+        const json j = get_json(c, page);
+        page = j.contains("next") && j["next"].is_string() ? j["next"].get<std::string>() : std::string();
         for (const auto& s : j.at("jobs")) {
           auto num = [&](const char* k) {
             return s.contains(k) && s[k].is_number() ? fmt::format("{:.10g}", s[k].get<double>()) : std::string("-");
           };
           fmt::print("{:<18} {:<10} {:<10} {:>10} {:>20} {:>12}\n", s.value("id", ""), s.value("state", ""),
                      s.value("kind", ""), format_count(s.value("samples", 0.0)), num("mean"), num("std_error"));
+        }
         }
         return exit_code::ok;
       });
@@ -286,11 +291,44 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
     cmd->callback([=, &exit_code] {
       run_guarded(exit_code, [&] {
         HttpClient c = make_client(*opt);
+        // DELETE of a finished job deletes it: cancel never sends it to one.
+        const json st = get_json(c, "/v1/jobs/" + *id);
+        const std::string state = st.value("state", "");
+        if (state != "queued" && state != "running") {
+          fmt::print(stderr, "tally: job {} has already finished ({}); `tally delete {}` deletes it\n", *id, state,
+                     *id);
+          return exit_code::usage;
+        }
         const ClientResponse r = c.request("DELETE", "/v1/jobs/" + *id);
+        if (r.status == 204) {  // it finished in between, and was deleted
+          fmt::print("{} deleted (it had just finished)\n", *id);
+          return exit_code::ok;
+        }
         if (r.status != 200 && r.status != 202) fail_response(r);
-        const json s = json::parse(r.body);
         fmt::print("{} {}\n", *id, r.status == 200 ? "cancelled" : "cancelling (stops at the next chunk)");
-        (void)s;
+        return exit_code::ok;
+      });
+    });
+  }
+  // delete
+  {
+    auto opt = std::make_shared<RemoteOptions>();
+    auto id = std::make_shared<std::string>();
+    CLI::App* cmd = app.add_subcommand("delete", "Delete a finished job and its stored state");
+    cmd->add_option("id", *id, "job id")->required();
+    add_server_option(cmd, *opt);
+    cmd->callback([=, &exit_code] {
+      run_guarded(exit_code, [&] {
+        HttpClient c = make_client(*opt);
+        const json st = get_json(c, "/v1/jobs/" + *id);
+        const std::string state = st.value("state", "");
+        if (state == "queued" || state == "running") {
+          fmt::print(stderr, "tally: job {} is still {}; `tally cancel {}` first\n", *id, state, *id);
+          return exit_code::usage;
+        }
+        const ClientResponse r = c.request("DELETE", "/v1/jobs/" + *id);
+        if (r.status != 204) fail_response(r);
+        fmt::print("{} deleted\n", *id);
         return exit_code::ok;
       });
     });

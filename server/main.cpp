@@ -21,6 +21,7 @@
 #include "server/http/fd_limit.hpp"
 #include "server/http/http_server.hpp"
 #include "server/jobs/job_manager.hpp"
+#include "server/jobs/memory_budget.hpp"
 #include "server/jobs/job_store.hpp"
 #include "server/http/listen_address.hpp"
 #include "server/api/metrics.hpp"
@@ -67,6 +68,22 @@ int main(int argc, char** argv) {
   app.add_option("--max-seconds", mc.limits.max_seconds, "per-job cap: compute seconds")->capture_default_str();
   app.add_option("--max-pixels", mc.limits.max_pixels, "per-job cap: image pixels")->capture_default_str();
   app.add_option("--checkpoint-interval", mc.checkpoint_interval_s, "least seconds between a job's checkpoints")
+      ->capture_default_str();
+  std::string memory_budget = "auto", finished_cache = "256MiB", retain_max_age = "0", retain_max_bytes = "0";
+  app.add_option("--memory-budget", memory_budget,
+                 "memory for jobs' state, e.g. 4GiB; a job needing more is refused (422), others wait to start; "
+                 "auto: half of the machine's or cgroup's memory; 0: no budget")
+      ->capture_default_str();
+  app.add_option("--finished-cache", finished_cache, "finished jobs' states kept in memory for their images")
+      ->capture_default_str();
+  app.add_option("--retain-max-age", retain_max_age, "delete finished jobs older than this (e.g. 7d, 12h; 0: keep)")
+      ->capture_default_str();
+  app.add_option("--retain-max-jobs", mc.retain_max_jobs, "keep at most this many finished jobs (0: no limit)")
+      ->capture_default_str();
+  app.add_option("--retain-max-bytes", retain_max_bytes,
+                 "keep finished jobs' stored rows under this size, e.g. 20GiB (0: no limit)")
+      ->capture_default_str();
+  app.add_option("--retention-interval", mc.retention_interval_s, "seconds between retention sweeps")
       ->capture_default_str();
   app.add_option("--event-buffer", mc.event_buffer, "events kept per job for Last-Event-ID resume")->capture_default_str();
   app.add_option("--pilot-seconds", hc.pilot_seconds, "length of the validate pilot run")->capture_default_str();
@@ -189,6 +206,30 @@ int main(int argc, char** argv) {
                http.address);
   }
   mc.workers = workers > 0 ? workers : default_worker_count();
+  {
+    const auto budget = memory_budget == "auto" ? std::optional<uint64_t>(default_memory_budget())
+                                                : parse_byte_size(memory_budget);
+    const auto cache = parse_byte_size(finished_cache);
+    const auto age = parse_duration_s(retain_max_age);
+    const auto bytes = parse_byte_size(retain_max_bytes);
+    if (!budget || !cache || !age || !bytes) {
+      fmt::print(stderr, "tally-server: {} is not a {}\n",
+                 !budget ? "--memory-budget " + memory_budget
+                 : !cache ? "--finished-cache " + finished_cache
+                 : !age   ? "--retain-max-age " + retain_max_age
+                          : "--retain-max-bytes " + retain_max_bytes,
+                 !age && budget && cache ? "duration (90s, 15m, 12h, 7d)" : "size (4GiB, 512MiB, bytes)");
+      return 2;
+    }
+    mc.memory_budget = *budget;
+    mc.finished_cache_bytes = *cache;
+    mc.retain_max_age_s = *age;
+    mc.retain_max_bytes = *bytes;
+    if (mc.retention_interval_s <= 0) {
+      fmt::print(stderr, "tally-server: --retention-interval must be positive\n");
+      return 2;
+    }
+  }
 #ifdef TALLY_HAVE_IMAGE_IO
   // The image module is loaded on the first image; without it the image routes answer 501.
   hc.images.exr = [](const ImageSnapshot& s, const nlohmann::json& meta) {
@@ -285,6 +326,10 @@ int main(int argc, char** argv) {
     log::info("listening on {}://{}:{} ({}, data in {}, access control {})", http.tls_cert.empty() ? "http" : "https",
               http.address, port, computing, std::filesystem::absolute(data_dir).string(),
               access ? fmt::format("on, {} principals", access->principal_count()) : std::string("off"));
+    log::info("memory budget for jobs' state {}; retention: max age {} s, max jobs {}, max bytes {} (0: none)",
+              mc.memory_budget ? fmt::format("{:.0f} MiB", static_cast<double>(mc.memory_budget) / (1 << 20))
+                               : std::string("none"),
+              mc.retain_max_age_s, mc.retain_max_jobs, mc.retain_max_bytes);
 
     const int sig = signalled.get_future().get();
     log::info("signal {}: checkpointing jobs and shutting down", sig);

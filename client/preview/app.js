@@ -1,7 +1,7 @@
 // tally preview: a dependency-free page over the server's JSON API and event stream.
 //
 // Data flow (docs/preview.md):
-//   GET /v1/jobs            the job list, polled every 2 s
+//   GET /v1/jobs            the job list (every page), polled every 2 s
 //   GET /examples/index.json, /examples/NAME.json   bundled specs for the form
 //   POST /v1/jobs/validate, POST /v1/jobs            the form
 //   GET /v1/jobs/ID         status: spec, plan, stop rule, image size, trace
@@ -133,10 +133,17 @@
   async function refreshJobs() {
     if (!loggedIn) return;
     try {
-      const data = await api('GET', '/v1/jobs');
+      // The list comes in pages (submission order); follow each page's `next` link.
+      const jobs = [];
+      let page = '/v1/jobs?limit=1000';
+      for (let n = 0; page && n < 100; n++) {
+        const data = await api('GET', page);
+        jobs.push(...(data.jobs || []));
+        page = typeof data.next === 'string' ? data.next : null;
+      }
       $('server-status').textContent = 'server ok';
       $('server-status').classList.remove('down');
-      renderJobs(data.jobs || []);
+      renderJobs(jobs);
     } catch (e) {
       $('server-status').textContent = 'server unreachable';
       $('server-status').classList.add('down');

@@ -76,6 +76,90 @@ json state_event_json(JobStatus status, const JobRunner* runner, const std::stri
   return st;
 }
 
+json state_event_json(JobStatus status, const RunFacts* facts, const std::string& error, bool end) {
+  json st = {{"state", std::string(job_status_name(status))}};
+  if (facts) {
+    st["stop_reason"] = std::string(stop_reason_name(facts->stop_reason));
+    if (end) st["target_met"] = facts->target_met;
+  }
+  if (!error.empty()) st["error_message"] = error;
+  return st;
+}
+
+namespace {
+// run_facts without the progress event (the list does not show it).
+RunFacts run_facts_light(const JobRunner& r) {
+  RunFacts f;
+  const JobState& s = r.state();
+  f.samples = s.samples;
+  f.passes = s.passes;
+  if (!s.channels.empty() && s.channels[0].n > 0) f.headline = r.headline();
+  f.stop_reason = r.stop_reason();
+  return f;
+}
+}  // namespace
+
+RunFacts run_facts(const JobRunner& r) {
+  RunFacts f = run_facts_light(r);
+  const JobState& s = r.state();
+  f.target_met = r.target_met();
+  f.rule = r.rule();
+  f.compute_seconds = s.compute_seconds;
+  if (s.passes > 0) f.progress_event = progress_event_json(r).dump(-1, ' ', false, json::error_handler_t::replace);
+  return f;
+}
+
+RunFacts fresh_run_facts(const StopRule& rule) {
+  RunFacts f;
+  f.rule = rule;
+  return f;
+}
+
+json run_facts_json(const RunFacts& f) {
+  json j = {{"samples", f.samples},
+            {"passes", f.passes},
+            {"stop_reason", std::string(stop_reason_name(f.stop_reason))},
+            {"target_met", f.target_met},
+            {"compute_seconds", f.compute_seconds},
+            {"progress_event", f.progress_event}};
+  if (f.headline) {
+    // Non-finite values are stored as null and read back as NaN (the views print null).
+    const auto num = [](double x) { return std::isfinite(x) ? json(x) : json(nullptr); };
+    j["headline"] = {{"mean", num(f.headline->mean)}, {"std_error", num(f.headline->std_error)}};
+  }
+  return j;
+}
+
+RunFacts parse_run_facts(const json& j, const StopRule& rule) {
+  RunFacts f;
+  f.rule = rule;
+  f.samples = j.at("samples").get<uint64_t>();
+  f.passes = j.at("passes").get<uint64_t>();
+  const std::string reason = j.at("stop_reason").get<std::string>();
+  bool known = false;
+  for (StopReason r : {StopReason::none, StopReason::max_samples, StopReason::time_budget, StopReason::error_target,
+                       StopReason::cancelled, StopReason::failed, StopReason::sample_cap}) {
+    if (stop_reason_name(r) == reason) {
+      f.stop_reason = r;
+      known = true;
+    }
+  }
+  if (!known) throw std::invalid_argument("unknown stop_reason \"" + reason + "\"");
+  f.target_met = j.at("target_met").get<bool>();
+  f.compute_seconds = j.at("compute_seconds").get<double>();
+  f.progress_event = j.at("progress_event").get<std::string>();
+  if (j.contains("headline")) {
+    const auto num = [](const json& x) {
+      return x.is_null() ? std::numeric_limits<double>::quiet_NaN() : x.get<double>();
+    };
+    Estimate e;
+    e.mean = num(j.at("headline").at("mean"));
+    e.std_error = num(j.at("headline").at("std_error"));
+    f.headline = e;
+  }
+  return f;
+}
+
 json engine_json(const JobDefinition& def, const JobRunner& runner) {
   json j = result_json(runner, def);
   j["summary"] = def.summary_line(runner);
@@ -101,7 +185,11 @@ json status_json(const JobSnapshot& job, double now, json links) {
   if (!job.owner.empty()) j["owner"] = job.owner;
   j["spec"] = job.spec ? *job.spec : json(nullptr);
   j["plan"] = job.def ? plan_json(*job.def) : json(nullptr);
-  if (job.runner) j["stop_rule"] = stop_rule_to_json(job.runner->rule());
+  if (job.runner) {
+    j["stop_rule"] = stop_rule_to_json(job.runner->rule());
+  } else if (job.facts) {
+    j["stop_rule"] = stop_rule_to_json(job.facts->rule);
+  }
   if (!job.error.empty()) j["error_message"] = job.error;
   if (job.status == JobStatus::running) {
     if (!job.executor.waiting_reason.empty()) j["waiting_reason"] = job.executor.waiting_reason;
@@ -117,7 +205,9 @@ json status_json(const JobSnapshot& job, double now, json links) {
                  {"finished_at", time_json(job.finished_at)},
                  {"queued_seconds", (job.started_at > 0 ? job.started_at : now) - job.created_at},
                  {"wall_seconds", job.started_at > 0 ? end - job.started_at : 0.0},
-                 {"compute_seconds", job.runner ? job.runner->state().compute_seconds : 0.0}};
+                 {"compute_seconds", job.runner  ? job.runner->state().compute_seconds
+                                     : job.facts ? job.facts->compute_seconds
+                                                 : 0.0}};
   j["links"] = std::move(links);
   return j;
 }
@@ -130,16 +220,18 @@ json summary_json(const JobSnapshot& job) {
   j["priority"] = job.priority;
   if (!job.owner.empty()) j["owner"] = job.owner;
   j["created_at"] = time_json(job.created_at);
-  if (job.runner) {
-    const JobState& s = job.runner->state();
-    j["samples"] = s.samples;
-    j["passes"] = s.passes;
-    if (!s.channels.empty() && s.channels[0].n > 0) {
-      const Estimate e = job.runner->headline();  // an image job's mean radiance, else channel 0
-      j["mean"] = std::isfinite(e.mean) ? json(e.mean) : json(nullptr);
-      j["std_error"] = std::isfinite(e.std_error) ? json(e.std_error) : json(nullptr);
+  // The runner's figures, or the same figures kept when its state left memory.
+  const std::optional<RunFacts> f = job.runner ? std::optional<RunFacts>(run_facts_light(*job.runner))
+                                    : job.facts ? std::optional<RunFacts>(*job.facts)
+                                                : std::nullopt;
+  if (f) {
+    j["samples"] = f->samples;
+    j["passes"] = f->passes;
+    if (f->headline) {  // an image job's mean radiance, else channel 0
+      j["mean"] = std::isfinite(f->headline->mean) ? json(f->headline->mean) : json(nullptr);
+      j["std_error"] = std::isfinite(f->headline->std_error) ? json(f->headline->std_error) : json(nullptr);
     }
-    j["stop_reason"] = std::string(stop_reason_name(job.runner->stop_reason()));
+    j["stop_reason"] = std::string(stop_reason_name(f->stop_reason));
   }
   if (!job.error.empty()) j["error_message"] = job.error;
   return j;

@@ -24,6 +24,17 @@ nlohmann::json progress_event_json(const JobRunner& runner);
 // A `state` event, or with `end` the final `end` event (adds target_met).
 nlohmann::json state_event_json(JobStatus status, const JobRunner* runner, const std::string& error, bool end);
 
+// The same for a job whose runner is not in memory (RunFacts, job_snapshot.hpp).
+nlohmann::json state_event_json(JobStatus status, const RunFacts* facts, const std::string& error, bool end);
+
+// What the views need of a runner once its state is released (or before it exists).
+RunFacts run_facts(const JobRunner& runner);
+RunFacts fresh_run_facts(const StopRule& rule);  // a job that has not started
+// Stored beside a finished job (the store's `facts` column), without the rule (stored
+// on its own). parse_run_facts throws std::exception on a malformed document.
+nlohmann::json run_facts_json(const RunFacts& facts);
+RunFacts parse_run_facts(const nlohmann::json& j, const StopRule& rule);
+
 // The engine part of a job's status: result_json + summary, eta_seconds, bits.
 nlohmann::json engine_json(const JobDefinition& def, const JobRunner& runner);
 // GET /v1/jobs/{id}. `links`: the job's URLs (the API layer builds them).

@@ -29,6 +29,21 @@ struct ExecutorNote {
   uint64_t pending = 0, in_flight = 0, redelivered = 0;  // blocks of the current pass
 };
 
+// What the views show of a job whose channel state is not in memory: a queued job
+// that has not started (its state is allocated when it starts) or a finished one
+// (its state lives in the store's checkpoint and is read back for images only).
+// Taken from the runner (run_facts, job_json.hpp) when its state is released, so the
+// documents read the same as when the runner was there.
+struct RunFacts {
+  uint64_t samples = 0, passes = 0;
+  std::optional<Estimate> headline;  // set once channel 0 has samples
+  StopReason stop_reason = StopReason::none;
+  bool target_met = false;
+  StopRule rule;
+  double compute_seconds = 0;
+  std::string progress_event;  // data of the job's last `progress` event, "" before its first pass
+};
+
 struct JobSnapshot {
   std::string id;
   int64_t seq = 0;
@@ -40,7 +55,8 @@ struct JobSnapshot {
   std::string error;
   uint64_t version = 0;                          // bumped on every change of the job
   std::shared_ptr<const JobDefinition> def;      // null if the stored spec no longer compiles
-  std::shared_ptr<const JobRunner> runner;       // at the last pass boundary; null if not restorable
+  std::shared_ptr<const JobRunner> runner;       // at the last pass boundary; null if not in memory
+  std::shared_ptr<const RunFacts> facts;         // when runner is null: what it would show (null: unknown)
   std::shared_ptr<const nlohmann::json> final_result;  // engine part of a finished job's status
   // Engine part of a running job's status at `version`, built once per pass off the
   // I/O threads (null: build it from the runner).

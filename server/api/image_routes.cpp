@@ -1,5 +1,6 @@
 // The image routes: GET /v1/jobs/{id}/tiles/{n}, image.exr, image.png. They read
-// the immutable runner of a JobSnapshot, so encoding never holds a job's lock.
+// the immutable state of a JobSnapshot (a finished job's is read back from the
+// store, JobManager::state), so encoding never holds a job's lock.
 #include <fmt/format.h>
 
 #include "common/protocol/job_json.hpp"
@@ -27,12 +28,13 @@ HttpResponse RequestHandler::job_tile(const HttpRequest& req, const PathParams& 
   if (!n || *n >= img.tile_count()) {
     throw HttpError(404, fmt::format("tile \"{}\" does not exist; the image has {} tiles", p.at("n"), img.tile_count()));
   }
-  if (!s.runner) throw HttpError(409, "the job's state is not available");
+  const std::shared_ptr<const JobState> state = manager_.state(s);  // a finished job's: from the store
+  if (!state) throw HttpError(409, "the job's state is not available");
   const TileRect rc = img.tile_rect(static_cast<uint32_t>(*n));
-  const ImageSnapshot t = img.snapshot(s.runner->state(), rc);
+  const ImageSnapshot t = img.snapshot(*state, rc);
   return json_response(200, {{"tile", *n},
                              {"x", rc.x}, {"y", rc.y}, {"w", rc.w}, {"h", rc.h},
-                             {"pass", s.runner->state().passes},
+                             {"pass", state->passes},
                              {"mean", t.rgb},
                              {"std_error", t.stderr_rgb},
                              {"samples", t.samples}});
@@ -41,15 +43,16 @@ HttpResponse RequestHandler::job_tile(const HttpRequest& req, const PathParams& 
 HttpResponse RequestHandler::job_image(const HttpRequest& req, const PathParams& p, bool exr) {
   const JobSnapshot s = visible_snapshot(req, p.at("id"));
   const ImageSource& img = image_of(s);
-  if (!s.runner) throw HttpError(409, "the job's state is not available");
   if ((exr && !config_.images.exr) || (!exr && !config_.images.png)) {
     throw HttpError(501, "image encoding is not available in this build");
   }
-  const ImageSnapshot snap = img.snapshot(s.runner->state());
+  const std::shared_ptr<const JobState> state = manager_.state(s);  // a finished job's: from the store
+  if (!state) throw HttpError(409, "the job's state is not available");
+  const ImageSnapshot snap = img.snapshot(*state);
   const json meta = {{"job_id", s.id},
                      {"state", std::string(job_status_name(s.status))},
-                     {"samples", s.runner->state().samples},
-                     {"passes", s.runner->state().passes},
+                     {"samples", state->samples},
+                     {"passes", state->passes},
                      {"spec", *s.spec}};
   HttpResponse r;
   r.set_header("Content-Type", exr ? "image/x-exr" : "image/png");

@@ -31,6 +31,7 @@ std::string StatusCache::body(const JobSnapshot& job, const std::function<std::s
   }
   std::string body = build();
   std::lock_guard lock(mu_);
+  if (entries_.size() >= kMaxEntries) entries_.clear();  // bounded: deleted jobs leave no entry behind for long
   Entry& e = entries_[job.id];
   if (e.version <= job.version) e = Entry{job.version, body, now};
   return body;
@@ -84,13 +85,48 @@ HttpResponse RequestHandler::list_jobs(const HttpRequest& req, const PathParams&
                                        "cancelled; got \"{}\"", req.query_param("state")));
     }
   }
-  json jobs = json::array();
-  for (const JobSnapshot& s : manager_.snapshots()) {
-    if (filter && s.status != *filter) continue;
-    if (!req.principal->may_see(s.owner)) continue;
-    jobs.push_back(summary_json(s));
+  // Pages in submission order; the cursor is the last listed job's sequence number,
+  // so jobs submitted or deleted meanwhile neither repeat nor shift the pages.
+  uint64_t limit = kListDefaultLimit;
+  if (req.has_query_param("limit")) {
+    const auto l = parse_u64(req.query_param("limit"));
+    if (!l || *l < 1 || *l > kListMaxLimit) {
+      throw HttpError(400, fmt::format("query parameter limit must be an integer from 1 to {}; got \"{}\"",
+                                       kListMaxLimit, req.query_param("limit")));
+    }
+    limit = *l;
   }
-  return json_response(200, {{"jobs", jobs}});
+  int64_t after = 0;
+  if (req.has_query_param("cursor")) {
+    const auto c = parse_u64(req.query_param("cursor"));
+    if (!c || *c > static_cast<uint64_t>(INT64_MAX)) {
+      throw HttpError(400, fmt::format("query parameter cursor is not a cursor this server gave: \"{}\"",
+                                       req.query_param("cursor")));
+    }
+    after = static_cast<int64_t>(*c);
+  }
+  json jobs = json::array();
+  int64_t last = 0;
+  bool more = false;
+  for (const auto& job : manager_.list()) {
+    if (job->seq() <= after || !req.principal->may_see(job->owner())) continue;
+    const JobSnapshot s = manager_.snapshot(*job);
+    if (filter && s.status != *filter) continue;
+    if (jobs.size() == limit) {
+      more = true;
+      break;
+    }
+    jobs.push_back(summary_json(s));
+    last = s.seq;
+  }
+  json body = {{"jobs", std::move(jobs)}};
+  if (!more) return json_response(200, body);  // the last page reads as before pagination
+  std::string next = fmt::format("/v1/jobs?limit={}&cursor={}", limit, last);
+  if (filter) next += fmt::format("&state={}", job_status_name(*filter));
+  body["next"] = next;
+  HttpResponse r = json_response(200, body);
+  r.set_header("Link", fmt::format("<{}>; rel=\"next\"", next));
+  return r;
 }
 
 HttpResponse RequestHandler::get_job(const HttpRequest& req, const PathParams& p) {
@@ -108,7 +144,15 @@ HttpResponse RequestHandler::get_job(const HttpRequest& req, const PathParams& p
 }
 
 HttpResponse RequestHandler::delete_job(const HttpRequest& req, const PathParams& p) {
-  auto job = manager_.cancel(visible_job(req, p.at("id"))->id());
+  const std::string id = visible_job(req, p.at("id"))->id();
+  if (is_terminal(manager_.snapshot(id).status)) {
+    // A finished job is deleted with its stored state: 204, then 404.
+    manager_.remove(id);
+    HttpResponse r;
+    r.status = 204;
+    return r;
+  }
+  auto job = manager_.cancel(id);
   const JobSnapshot s = manager_.snapshot(*job);
   // 200 when the job is already cancelled, 202 when it stops at the next chunk boundary.
   return json_response(s.status == JobStatus::cancelled ? 200 : 202, summary_json(s));
@@ -118,7 +162,7 @@ HttpResponse RequestHandler::extend_job(const HttpRequest& req, const PathParams
   const JobSnapshot before = visible_snapshot(req, p.at("id"));
   const json body = parse_json_body(req);
   // The job keeps its confidence and min_samples; the body sets the new targets.
-  const StopRule keep = before.runner ? before.runner->rule() : StopRule{};
+  const StopRule keep = before.runner ? before.runner->rule() : before.facts ? before.facts->rule : StopRule{};
   SpecReader rd(body, "");
   const StopRule rule = parse_stop_rule(rd, *submitter(req).limits, &keep);
   manager_.extend(before.id, rule);
@@ -129,6 +173,7 @@ HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathPara
   const json spec = parse_json_body(req);
   const JobLimits limits = *submitter(req).limits;
   std::unique_ptr<JobDefinition> def = manager_.compiler()(spec, limits);
+  manager_.check_memory(spec, limits, *def);  // the pilot would allocate the state too
   json out = {{"valid", true},
               {"kind", std::string(def->kind())},
               {"plan", plan_json(*def)},

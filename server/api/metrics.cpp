@@ -2,7 +2,23 @@
 
 #include <fmt/format.h>
 
+#include <fstream>
+#include <optional>
+#include <sstream>
+
 namespace tally {
+
+std::optional<uint64_t> resident_bytes() {
+  std::ifstream in("/proc/self/status");
+  for (std::string line; std::getline(in, line);) {
+    if (line.rfind("VmRSS:", 0) == 0) {
+      std::istringstream f(line.substr(6));
+      uint64_t kib = 0;
+      if (f >> kib) return kib * 1024;
+    }
+  }
+  return std::nullopt;
+}
 
 std::string_view Metrics::method_label(std::string_view method) {
   static constexpr std::array<std::string_view, 9> known = {"GET",     "HEAD",    "POST",  "PUT",  "DELETE",
@@ -45,6 +61,26 @@ std::string Metrics::render(const ManagerStats& jobs) const {
   o += "# HELP tally_store_ok 1 while the job store takes writes, 0 while its last save failed.\n"
        "# TYPE tally_store_ok gauge\n";
   o += fmt::format("tally_store_ok {}\n", jobs.store_ok ? 1 : 0);
+  o += "# HELP tally_memory_budget_bytes Memory for jobs' state (--memory-budget; 0: none).\n"
+       "# TYPE tally_memory_budget_bytes gauge\n";
+  o += fmt::format("tally_memory_budget_bytes {}\n", jobs.memory_budget);
+  o += "# HELP tally_memory_used_bytes State of the jobs holding it in memory (running, resumed, extended).\n"
+       "# TYPE tally_memory_used_bytes gauge\n";
+  o += fmt::format("tally_memory_used_bytes {}\n", jobs.memory_used);
+  o += "# HELP tally_finished_state_cache_bytes Finished jobs' states read back for images and kept (LRU).\n"
+       "# TYPE tally_finished_state_cache_bytes gauge\n";
+  o += fmt::format("tally_finished_state_cache_bytes {}\n", jobs.finished_cache_bytes);
+  o += "# HELP tally_finished_state_loads_total Finished jobs' states read back from the store.\n"
+       "# TYPE tally_finished_state_loads_total counter\n";
+  o += fmt::format("tally_finished_state_loads_total {}\n", jobs.state_loads);
+  o += "# HELP tally_jobs_deleted_total Finished jobs deleted (DELETE or retention) since start.\n"
+       "# TYPE tally_jobs_deleted_total counter\n";
+  o += fmt::format("tally_jobs_deleted_total {}\n", jobs.jobs_removed);
+  if (const auto rss = resident_bytes()) {
+    o += "# HELP tally_process_resident_bytes Resident memory of the server process (VmRSS).\n"
+         "# TYPE tally_process_resident_bytes gauge\n";
+    o += fmt::format("tally_process_resident_bytes {}\n", *rss);
+  }
   o += "# HELP tally_http_connections Open connections.\n# TYPE tally_http_connections gauge\n";
   o += fmt::format("tally_http_connections {}\n", connections.load());
   o += "# HELP tally_http_event_streams Open event streams.\n# TYPE tally_http_event_streams gauge\n";

@@ -1,6 +1,7 @@
 #pragma once
 // Prometheus text exposition for GET /metrics: request counts and latency
 // histograms by route, plus job gauges from the manager.
+#include <optional>
 #include <array>
 #include <atomic>
 #include <map>
@@ -12,6 +13,9 @@
 #include "server/jobs/job_manager.hpp"
 
 namespace tally {
+
+// The process's resident memory (VmRSS of /proc/self/status), nullopt off Linux.
+std::optional<uint64_t> resident_bytes();
 
 class Metrics {
  public:

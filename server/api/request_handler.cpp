@@ -72,10 +72,12 @@ void RequestHandler::add_routes() {
   router_.add("GET", "/v1/jobs", bind(&RequestHandler::list_jobs));
   router_.add("POST", "/v1/jobs/validate", bind(&RequestHandler::validate_job), Lane::slow);
   router_.add("GET", "/v1/jobs/{id}", bind(&RequestHandler::get_job));
-  router_.add("DELETE", "/v1/jobs/{id}", bind(&RequestHandler::delete_job));
-  router_.add("POST", "/v1/jobs/{id}/extend", bind(&RequestHandler::extend_job));
+  // Deleting a finished job, and extending one, touch its stored state: off the I/O threads.
+  router_.add("DELETE", "/v1/jobs/{id}", bind(&RequestHandler::delete_job), Lane::blocking);
+  router_.add("POST", "/v1/jobs/{id}/extend", bind(&RequestHandler::extend_job), Lane::blocking);
   router_.add("GET", "/v1/jobs/{id}/events", bind(&RequestHandler::job_events));
-  router_.add("GET", "/v1/jobs/{id}/tiles/{n}", bind(&RequestHandler::job_tile));
+  // May read a finished job's state from the store: off the I/O threads.
+  router_.add("GET", "/v1/jobs/{id}/tiles/{n}", bind(&RequestHandler::job_tile), Lane::blocking);
   router_.add("GET", "/v1/jobs/{id}/image.exr",
               [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, true); }, Lane::blocking);
   router_.add("GET", "/v1/jobs/{id}/image.png",

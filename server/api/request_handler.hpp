@@ -49,9 +49,14 @@ class StatusCache {
     std::string body;
     std::chrono::steady_clock::time_point at{};
   };
+  static constexpr size_t kMaxEntries = 4096;  // then it starts over
   std::mutex mu_;
   std::map<std::string, Entry> entries_;
 };
+
+// GET /v1/jobs pages (docs/api.md).
+inline constexpr uint64_t kListDefaultLimit = 100;
+inline constexpr uint64_t kListMaxLimit = 1000;
 
 class RequestHandler {
  public:

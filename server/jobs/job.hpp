@@ -3,6 +3,7 @@
 // its mutable state. The state is private: only the manager (lifecycle) and the
 // recorder (persistence, recovery) touch it, under the job's lock. Everyone else
 // reads a JobSnapshot (JobManager::snapshot) and never locks a job.
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <memory>
@@ -50,11 +51,22 @@ class Job : public std::enable_shared_from_this<Job> {
   mutable EventLog events_;
   // The owner's running-jobs quota at submission; guarded by the manager's mutex.
   uint64_t owner_max_running_ = UINT64_MAX;
+  // Memory the job's state takes while it is in memory (JobManager::state_bytes), and
+  // whether it is counted against the budget now; guarded by the manager's mutex.
+  uint64_t state_bytes_ = 0;
+  bool charged_ = false;
+  // Bytes of the job's row in the store (spec, result, checkpoint), for retention.
+  std::atomic<uint64_t> stored_bytes_{0};
 
   mutable std::mutex mu_;
   // --- guarded by mu_ ---
   std::shared_ptr<const JobDefinition> def_;  // null if the stored spec no longer compiles
-  std::unique_ptr<JobRunner> runner_;         // null if it could not be restored
+  // The channel state, in memory only while the job runs (and for queued jobs resumed
+  // from a checkpoint or extended): null before it starts, once finished and stored,
+  // or if it could not be restored. facts_ then says what the views show.
+  std::unique_ptr<JobRunner> runner_;
+  std::shared_ptr<const RunFacts> facts_;
+  JobCaps caps_;  // the runner's caps, fixed at submission
   JobStatus status_ = JobStatus::queued;
   std::string error_;
   double started_at_ = 0, finished_at_ = 0;
@@ -75,7 +87,8 @@ class Job : public std::enable_shared_from_this<Job> {
 
   // Serialises store writes of this job; a save older than the last one is skipped.
   std::mutex save_mu_;
-  uint64_t saved_version_ = 0;  // guarded by save_mu_
+  uint64_t saved_version_ = 0;     // guarded by save_mu_
+  uint64_t checkpoint_bytes_ = 0;  // guarded by save_mu_: size of the stored checkpoint
 };
 
 }  // namespace tally

@@ -7,8 +7,10 @@
 #include <random>
 #include <set>
 
+#include "common/engine/checkpoint.hpp"
 #include "common/log/log.hpp"
 #include "common/protocol/job_json.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "server/executor/in_process_executor.hpp"
 
 namespace tally {
@@ -64,6 +66,7 @@ JobSnapshot Job::snapshot_locked() const {
   }
   if (!runner_) published_.reset();
   s.runner = published_;
+  if (!runner_) s.facts = facts_;
   s.final_result = final_result_;
   // A running job's status may lag its runner by the pass being published (built
   // without the lock in on_pass_done) rather than be rebuilt here, on an I/O thread.
@@ -74,7 +77,7 @@ JobSnapshot Job::snapshot_locked() const {
 
 JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compiler)
     : config_(std::move(config)), compiler_(std::move(compiler)),
-      recorder_(store, compiler_, config_.limits, config_.event_buffer) {
+      recorder_(store, compiler_, config_.limits, config_.event_buffer), store_(store) {
   ExecutorCallbacks cb;
   cb.pass_done = [this](const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
                         double wall) { return on_pass_done(id, done, std::move(results), wall); };
@@ -85,7 +88,17 @@ JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compil
                   : std::make_unique<InProcessExecutor>(config_.workers, std::move(cb), config_.chunk_target_s);
 }
 
-JobManager::~JobManager() { executor_->stop(); }
+JobManager::~JobManager() {
+  retention_.request_stop();
+  if (retention_.joinable()) retention_.join();
+  executor_->stop();
+}
+
+uint64_t JobManager::state_bytes(const JobDefinition& def) {
+  const Kernel& k = *def.kernel();
+  return 2 * (static_cast<uint64_t>(k.channel_count()) * sizeof(Tally) +
+              static_cast<uint64_t>(k.partition_count()) * sizeof(uint64_t));
+}
 
 std::optional<std::string> JobManager::not_ready_reason() const {
   if (auto p = recorder_.store_problem()) return fmt::format("the job store is failing: {}", *p);
@@ -136,18 +149,30 @@ std::shared_ptr<const std::string> JobManager::watch_progress_locked(const Job& 
   return job.watch_progress_;
 }
 
+namespace {
+json state_event_of(JobStatus status, const JobRunner* runner, const RunFacts* facts,
+                    const std::string& error, bool end) {
+  return runner ? state_event_json(status, runner, error, end) : state_event_json(status, facts, error, end);
+}
+}  // namespace
+
 std::vector<Event> JobManager::watch_snapshot(const Job& job) const {
   std::lock_guard lock(job.mu_);
   const uint64_t id = job.events_.last_id();  // every append happens under job.mu_
   std::vector<Event> out;
-  out.push_back(Event{id, "state", dump(state_event_json(job.status_, job.runner_.get(), job.error_, false))});
+  // A job whose state is not in memory (queued, or finished and on disk) shows the
+  // figures kept when it left (RunFacts): the same bytes the runner would give.
+  const RunFacts* facts = job.facts_.get();
+  out.push_back(Event{id, "state", dump(state_event_of(job.status_, job.runner_.get(), facts, job.error_, false))});
   if (job.runner_ && job.runner_->state().passes > 0) {
     // Built on a worker thread at the pass boundary; only a rare transition
     // (start, cancel of a queued job, extend) leaves it to be built here.
     out.push_back(Event{id, "progress", *watch_progress_locked(job)});
+  } else if (!job.runner_ && facts && !facts->progress_event.empty()) {
+    out.push_back(Event{id, "progress", facts->progress_event});
   }
   if (is_terminal(job.status_)) {
-    out.push_back(Event{id, "end", dump(state_event_json(job.status_, job.runner_.get(), job.error_, true))});
+    out.push_back(Event{id, "end", dump(state_event_of(job.status_, job.runner_.get(), facts, job.error_, true))});
   }
   return out;
 }
@@ -159,21 +184,26 @@ JobStatus JobManager::status(const Job& job) const {
 
 // ---------------------------------------------------------------- lifecycle
 
+
 void JobManager::publish_state_locked(Job& job) {
-  job.events_.append("state", dump(state_event_json(job.status_, job.runner_.get(), job.error_, false)));
+  job.events_.append("state",
+                     dump(state_event_of(job.status_, job.runner_.get(), job.facts_.get(), job.error_, false)));
 }
 
-void JobManager::finish_locked(Job& job, double now) {
-  job.status_ = job.runner_ ? status_of(*job.runner_) : JobStatus::failed;
+void JobManager::finish_locked(Job& job, double now, std::optional<JobStatus> status) {
+  job.status_ = status ? *status : job.runner_ ? status_of(*job.runner_) : JobStatus::failed;
   if (job.status_ == JobStatus::running) job.status_ = JobStatus::succeeded;  // plan_pass had nothing left
   if (job.runner_ && job.runner_->error_message() && job.error_.empty()) job.error_ = *job.runner_->error_message();
   job.finished_at_ = now;
   job.final_result_ = job.runner_ && job.def_ ? std::make_shared<const json>(engine_json(*job.def_, *job.runner_))
                                               : std::make_shared<const json>(json::object());
+  // What the views show once the state leaves memory (release_state).
+  if (job.runner_) job.facts_ = std::make_shared<const RunFacts>(run_facts(*job.runner_));
   job.version_++;
   if (job.runner_ && job.runner_->state().passes > 0) watch_progress_locked(job);
   publish_state_locked(job);
-  job.events_.append("end", dump(state_event_json(job.status_, job.runner_.get(), job.error_, true)));
+  job.events_.append("end",
+                     dump(state_event_of(job.status_, job.runner_.get(), job.facts_.get(), job.error_, true)));
   log::job(job.status_ == JobStatus::failed ? log::Level::warn : log::Level::info, job.id_, "{}{}{}",
            job_status_name(job.status_),
            job.runner_ ? fmt::format(" ({}, {} samples)", stop_reason_name(job.runner_->stop_reason()),
@@ -182,10 +212,32 @@ void JobManager::finish_locked(Job& job, double now) {
            job.error_.empty() ? std::string() : ": " + job.error_);
 }
 
+void JobManager::check_memory(const json& spec, const JobLimits& limits, const JobDefinition& def) const {
+  const uint64_t need = state_bytes(def);
+  if (config_.memory_budget == 0 || need <= config_.memory_budget) return;
+  const auto mib = [](uint64_t b) { return fmt::format("{:.1f} MiB", static_cast<double>(b) / (1 << 20)); };
+  const std::string why = fmt::format("the job needs {} of memory for its state, more than the server's memory "
+                                      "budget of {} (--memory-budget)",
+                                      mib(need), mib(config_.memory_budget));
+  // The kind's own channel limit names the field: compile again with the channels
+  // the budget allows.
+  JobLimits fit = limits;
+  fit.max_channels = std::min<size_t>(limits.max_channels, config_.memory_budget / (2 * sizeof(Tally)));
+  try {
+    compiler_(spec, fit);
+  } catch (const SpecError& e) {
+    throw SpecError(e.pointer(), fmt::format("{}: {}", why, e.detail()));
+  }
+  throw SpecError("", why);
+}
+
 std::shared_ptr<Job> JobManager::submit(const json& spec, int priority, const Submitter& who) {
   const JobLimits& limits = who.limits ? *who.limits : config_.limits;
   std::shared_ptr<const JobDefinition> def = compiler_(spec, limits);  // throws SpecError
-  auto runner = std::make_unique<JobRunner>(def->kernel(), def->stop_rule(), limits.caps());
+  // The state is allocated when the job starts; a job whose state could never fit
+  // the budget is refused now.
+  check_memory(spec, limits, *def);
+  const uint64_t need = state_bytes(*def);
   std::shared_ptr<Job> job;
   {
     std::lock_guard lock(mu_);
@@ -210,8 +262,10 @@ std::shared_ptr<Job> JobManager::submit(const json& spec, int priority, const Su
     job = std::make_shared<Job>(new_job_id(), next_seq_++, spec, clamp_priority(priority), unix_now(), epoch_,
                                 config_.event_buffer, who.owner);
     job->owner_max_running_ = who.max_running;
+    job->state_bytes_ = need;
+    job->caps_ = limits.caps();
+    job->facts_ = std::make_shared<const RunFacts>(fresh_run_facts(def->stop_rule()));
     job->def_ = std::move(def);
-    job->runner_ = std::move(runner);
   }
   // Acknowledged only once stored: a job the store did not take is not kept.
   if (!recorder_.persist(*job, false, false)) {
@@ -232,25 +286,25 @@ std::shared_ptr<Job> JobManager::submit(const json& spec, int priority, const Su
 
 void JobManager::start_queued_locked() {
   while (running_ < config_.max_running && !queue_.empty() && !shutting_down_) {
-    // Highest priority first, then submission order; skipping owners at their
-    // running-jobs quota.
-    auto it = queue_.end();
-    for (auto c = queue_.begin(); c != queue_.end(); ++c) {
-      const auto r = running_by_owner_.find((*c)->owner());
-      if (r != running_by_owner_.end() && r->second >= (*c)->owner_max_running_) continue;
-      if (it == queue_.end() || ((*c)->priority() != (*it)->priority() ? (*c)->priority() > (*it)->priority()
-                                                                       : (*c)->seq() < (*it)->seq())) {
-        it = c;
-      }
-    }
-    if (it == queue_.end()) break;
-    std::shared_ptr<Job> job = *it;
-    queue_.erase(it);
+    std::shared_ptr<Job> job = next_to_start_locked();
+    if (!job) break;
+    queue_.erase(std::find(queue_.begin(), queue_.end(), job));
     PassWork pass;
     ExecutorJob ej;
     {
       std::lock_guard jl(job->mu_);
-      if (job->status_ != JobStatus::queued || !job->runner_) continue;
+      if (job->status_ != JobStatus::queued) continue;
+      if (!job->runner_) {
+        // The state is allocated now, not at submission.
+        if (!job->def_) continue;
+        const StopRule rule = job->facts_ ? job->facts_->rule : job->def_->stop_rule();
+        job->runner_ = std::make_unique<JobRunner>(job->def_->kernel(), rule, job->caps_);
+        job->facts_.reset();
+      }
+      if (!job->charged_) {
+        job->charged_ = true;
+        memory_used_ += job->state_bytes_;
+      }
       job->status_ = JobStatus::running;
       if (job->started_at_ <= 0) job->started_at_ = unix_now();
       job->version_++;
@@ -279,6 +333,47 @@ void JobManager::start_queued_locked() {
     ++running_by_owner_[job->owner()];
     executor_->add(std::move(ej), std::move(pass));
   }
+}
+
+std::shared_ptr<Job> JobManager::next_to_start_locked() {
+  // Highest priority first, then submission order; skipping owners at their
+  // running-jobs quota. The first in that order waits while its state does not fit
+  // the memory budget (no smaller job overtakes it), except that jobs already
+  // holding their state (resumed or extended) may start: they need nothing more.
+  const auto before = [](const std::shared_ptr<Job>& a, const std::shared_ptr<Job>& b) {
+    return a->priority() != b->priority() ? a->priority() > b->priority() : a->seq() < b->seq();
+  };
+  std::shared_ptr<Job> best, best_charged;
+  for (const auto& c : queue_) {
+    const auto r = running_by_owner_.find(c->owner());
+    if (r != running_by_owner_.end() && r->second >= c->owner_max_running_) continue;
+    if (!best || before(c, best)) best = c;
+    if (c->charged_ && (!best_charged || before(c, best_charged))) best_charged = c;
+  }
+  if (!best) return nullptr;
+  // With nothing in memory a job always starts (the budget may have shrunk since it
+  // was admitted).
+  if (best->charged_ || config_.memory_budget == 0 || memory_used_ == 0 ||
+      memory_used_ + best->state_bytes_ <= config_.memory_budget) {
+    return best;
+  }
+  return best_charged;
+}
+
+void JobManager::release_state(Job& job) {
+  std::lock_guard lock(mu_);
+  {
+    std::lock_guard jl(job.mu_);
+    if (!is_terminal(job.status_) || !job.runner_) return;
+    if (!job.facts_) job.facts_ = std::make_shared<const RunFacts>(run_facts(*job.runner_));
+    job.runner_.reset();
+    job.published_.reset();
+  }
+  if (job.charged_) {
+    job.charged_ = false;
+    memory_used_ -= job.state_bytes_;
+  }
+  start_queued_locked();  // the memory freed may let a waiting job start
 }
 
 void JobManager::job_left_scheduler(const Job& job) {
@@ -370,8 +465,13 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     job->engine_ = std::move(engine);
     job->engine_version_ = version;
   }
-  if (checkpoint) recorder_.persist(*job, true);
-  if (finished) job_left_scheduler(*job);
+  const bool stored = checkpoint && recorder_.persist(*job, true);
+  if (finished) {
+    // Stored with its final checkpoint: the state leaves memory (else it stays until
+    // a later save succeeds, and the image routes read it from memory).
+    if (stored) release_state(*job);
+    job_left_scheduler(*job);
+  }
   return next;
 }
 
@@ -385,7 +485,7 @@ void JobManager::on_failed(const std::string& id, const std::string& error) {
     job->runner_->fail(error);
     finish_locked(*job, unix_now());
   }
-  recorder_.persist(*job, true);
+  if (recorder_.persist(*job, true)) release_state(*job);
   job_left_scheduler(*job);
 }
 
@@ -399,7 +499,7 @@ void JobManager::on_cancelled(const std::string& id) {
     job->runner_->cancel();
     finish_locked(*job, unix_now());
   }
-  recorder_.persist(*job, true);
+  if (recorder_.persist(*job, true)) release_state(*job);
   job_left_scheduler(*job);
 }
 
@@ -427,9 +527,15 @@ std::shared_ptr<Job> JobManager::cancel(const std::string& id) {
     }
     if (job->status_ == JobStatus::queued) {
       queue_.erase(std::remove(queue_.begin(), queue_.end(), job), queue_.end());
-      if (job->runner_) job->runner_->cancel();
-      finish_locked(*job, unix_now());
-      job->status_ = JobStatus::cancelled;
+      if (job->runner_) {
+        job->runner_->cancel();
+      } else {
+        // Never started: no state, the facts say it was cancelled.
+        RunFacts f = job->facts_ ? *job->facts_ : RunFacts{};
+        f.stop_reason = StopReason::cancelled;
+        job->facts_ = std::make_shared<const RunFacts>(std::move(f));
+      }
+      finish_locked(*job, unix_now(), JobStatus::cancelled);
       was_queued = true;
     } else {
       job->cancel_requested_ = true;
@@ -437,7 +543,7 @@ std::shared_ptr<Job> JobManager::cancel(const std::string& id) {
     }
   }
   if (was_queued) {
-    recorder_.persist(*job, false);
+    if (recorder_.persist(*job, true)) release_state(*job);
     return job;
   }
   executor_->cancel(id);  // may run on_cancelled right here
@@ -447,15 +553,35 @@ std::shared_ptr<Job> JobManager::cancel(const std::string& id) {
 std::shared_ptr<Job> JobManager::extend(const std::string& id, const StopRule& rule) {
   std::shared_ptr<Job> job = find(id);
   if (!job) throw JobError(JobError::Kind::not_found, fmt::format("no job with id \"{}\"", id));
+  // A finished job's state is on disk: read it back (outside the locks) to go on.
+  std::unique_ptr<JobRunner> loaded;
+  if (const JobSnapshot s = snapshot(*job);
+      is_terminal(s.status) && s.status != JobStatus::failed && !s.runner && s.def && s.facts) {
+    std::optional<std::string> cp;
+    try {
+      cp = store_.load_checkpoint(id);
+      loaded = cp ? std::make_unique<JobRunner>(s.def->kernel(), s.facts->rule, job->caps_, decode_checkpoint(*cp))
+                  : std::make_unique<JobRunner>(s.def->kernel(), s.facts->rule, job->caps_);
+    } catch (const std::exception& e) {
+      log::job(log::Level::warn, id, "reading the stored state to extend failed: {}", e.what());
+      throw JobError(JobError::Kind::conflict, fmt::format("job {}'s stored state cannot be read: {}", id, e.what()));
+    }
+  }
   {
     std::lock_guard lock(mu_);
     if (shutting_down_) throw JobError(JobError::Kind::unavailable, "the server is shutting down");
     std::lock_guard jl(job->mu_);
+    bool from_disk = false;  // read back for this extend: dropped again if it is refused
+    if (!job->runner_ && loaded && is_terminal(job->status_)) {
+      job->runner_ = std::move(loaded);
+      from_disk = true;
+    }
     if (!is_terminal(job->status_)) {
       throw JobError(JobError::Kind::conflict,
                      fmt::format("job {} is still {}; extend a finished job", id, job_status_name(job->status_)));
     }
     if (job->status_ == JobStatus::failed || !job->runner_ || !job->def_) {
+      if (from_disk) job->runner_.reset();
       throw JobError(JobError::Kind::conflict,
                      fmt::format("job {} failed{}; a failed job cannot be extended", id,
                                  job->error_.empty() ? "" : ": " + job->error_));
@@ -463,11 +589,17 @@ std::shared_ptr<Job> JobManager::extend(const std::string& id, const StopRule& r
     JobRunner trial = *job->runner_;  // leave the job untouched if the rule is refused
     trial.extend(rule);
     if (trial.finished()) {
+      if (from_disk) job->runner_.reset();
       throw JobError(JobError::Kind::conflict,
                      fmt::format("the new rule is already met by job {} ({}); ask for more", id,
                                  stop_reason_name(trial.stop_reason())));
     }
     *job->runner_ = std::move(trial);
+    job->facts_.reset();
+    if (!job->charged_) {
+      job->charged_ = true;
+      memory_used_ += job->state_bytes_;
+    }
     job->status_ = JobStatus::queued;
     job->cancel_requested_ = false;
     job->error_.clear();
@@ -491,22 +623,197 @@ void JobManager::recover() {
   JobRecorder::Recovered rec = recorder_.recover();
   epoch_ = rec.epoch;
   size_t resumed = 0;
-  std::lock_guard lock(mu_);
-  for (auto& job : rec.jobs) {
-    jobs_[job->id()] = job;
-    order_.push_back(job);
-    next_seq_ = std::max(next_seq_, job->seq() + 1);
+  {
+    std::lock_guard lock(mu_);
+    for (auto& job : rec.jobs) {
+      jobs_[job->id()] = job;
+      order_.push_back(job);
+      next_seq_ = std::max(next_seq_, job->seq() + 1);
+      std::lock_guard jl(job->mu_);
+      if (job->def_) job->state_bytes_ = state_bytes(*job->def_);
+      if (job->runner_) {  // resumed from a checkpoint: its state is in memory
+        job->charged_ = true;
+        memory_used_ += job->state_bytes_;
+      }
+      if (!is_terminal(job->status_)) {
+        job->status_ = JobStatus::queued;
+        queue_.push_back(job);
+        ++resumed;
+        log::job(log::Level::info, job->id(), "resumes from its checkpoint ({} samples)",
+                 job->runner_ ? job->runner_->state().samples : 0);
+      }
+    }
+    if (!rec.jobs.empty()) log::info("recovered {} jobs ({} resume), epoch {}", rec.jobs.size(), resumed, epoch_);
+    start_queued_locked();
+  }
+  apply_retention();
+  if (config_.retain_max_age_s > 0 || config_.retain_max_jobs > 0 || config_.retain_max_bytes > 0) {
+    retention_ = std::jthread([this](std::stop_token st) { retention_loop(st); });
+  }
+}
+
+// ---------------------------------------------------------------- removal, retention
+
+void JobManager::remove(const std::string& id) {
+  std::shared_ptr<Job> job;
+  {
+    std::lock_guard lock(mu_);
+    auto it = jobs_.find(id);
+    if (it == jobs_.end()) throw JobError(JobError::Kind::not_found, fmt::format("no job with id \"{}\"", id));
+    job = it->second;
     std::lock_guard jl(job->mu_);
     if (!is_terminal(job->status_)) {
-      job->status_ = JobStatus::queued;
-      queue_.push_back(job);
-      ++resumed;
-      log::job(log::Level::info, job->id(), "resumes from its checkpoint ({} samples)",
-               job->runner_ ? job->runner_->state().samples : 0);
+      throw JobError(JobError::Kind::conflict,
+                     fmt::format("job {} is still {}; cancel it before deleting it", id, job_status_name(job->status_)));
+    }
+    // The row first (a quick SQLite delete): if the store fails, the job stays whole.
+    try {
+      store_.remove(id);
+    } catch (const std::exception& e) {
+      log::job(log::Level::warn, id, "deleting the job from the store failed: {}", e.what());
+      throw JobError(JobError::Kind::unavailable, fmt::format("the job store is failing ({}); retry later", e.what()));
+    }
+    jobs_.erase(it);
+    order_.erase(std::remove(order_.begin(), order_.end(), job), order_.end());
+    if (job->charged_) {
+      job->charged_ = false;
+      memory_used_ -= job->state_bytes_;
+    }
+    ++jobs_removed_;
+  }
+  {
+    std::lock_guard lock(cache_mu_);
+    for (auto it = cache_.begin(); it != cache_.end();) {
+      if (it->id == id) {
+        cache_bytes_ -= it->bytes;
+        it = cache_.erase(it);
+      } else {
+        ++it;
+      }
     }
   }
-  if (!rec.jobs.empty()) log::info("recovered {} jobs ({} resume), epoch {}", rec.jobs.size(), resumed, epoch_);
-  start_queued_locked();
+  job->events_.close();
+  log::job(log::Level::info, id, "deleted");
+}
+
+std::vector<std::string> JobManager::apply_retention() {
+  const ManagerConfig& c = config_;
+  if (c.retain_max_age_s <= 0 && c.retain_max_jobs == 0 && c.retain_max_bytes == 0) return {};
+  struct Finished {
+    std::string id;
+    double finished_at;
+    int64_t seq;
+    uint64_t bytes;
+  };
+  std::vector<Finished> done;
+  for (const auto& job : list()) {
+    std::lock_guard jl(job->mu_);
+    if (is_terminal(job->status_)) done.push_back({job->id(), job->finished_at_, job->seq(), job->stored_bytes_});
+  }
+  std::sort(done.begin(), done.end(), [](const Finished& a, const Finished& b) {
+    return a.finished_at != b.finished_at ? a.finished_at < b.finished_at : a.seq < b.seq;
+  });
+  size_t count = done.size();
+  uint64_t bytes = 0;
+  for (const Finished& f : done) bytes += f.bytes;
+  const double now = unix_now();
+  std::vector<std::string> removed;
+  for (const Finished& f : done) {  // oldest first
+    std::string why;
+    if (c.retain_max_age_s > 0 && now - f.finished_at > c.retain_max_age_s) {
+      why = fmt::format("finished {:.0f} s ago (--retain-max-age {} s)", now - f.finished_at, c.retain_max_age_s);
+    } else if (c.retain_max_jobs > 0 && count > c.retain_max_jobs) {
+      why = fmt::format("{} finished jobs (--retain-max-jobs {})", count, c.retain_max_jobs);
+    } else if (c.retain_max_bytes > 0 && bytes > c.retain_max_bytes) {
+      why = fmt::format("finished jobs take {} bytes (--retain-max-bytes {})", bytes, c.retain_max_bytes);
+    } else {
+      break;  // every later job is newer, and the totals only shrink
+    }
+    --count;
+    bytes -= f.bytes;
+    try {
+      remove(f.id);
+      log::job(log::Level::info, f.id, "deleted by retention: {}", why);
+      removed.push_back(f.id);
+    } catch (const JobError& e) {
+      // Extended or deleted meanwhile: it is no longer a finished job to retire.
+      log::job(log::Level::debug, f.id, "retention skipped it: {}", e.what());
+    }
+  }
+  if (!removed.empty()) log::info("retention deleted {} finished jobs", removed.size());
+  return removed;
+}
+
+void JobManager::retention_loop(std::stop_token st) {
+  std::unique_lock lock(retention_mu_);
+  while (!st.stop_requested()) {
+    retention_cv_.wait_for(lock, st, std::chrono::duration<double>(config_.retention_interval_s),
+                           [] { return false; });
+    if (st.stop_requested()) break;
+    lock.unlock();
+    try {
+      apply_retention();
+    } catch (const std::exception& e) {
+      log::warn("retention failed: {}", e.what());
+    }
+    lock.lock();
+  }
+}
+
+// ---------------------------------------------------------------- finished states
+
+std::shared_ptr<const JobState> JobManager::state(const JobSnapshot& s) {
+  if (s.runner) return std::shared_ptr<const JobState>(s.runner, &s.runner->state());
+  if (!is_terminal(s.status) || !s.def || !s.facts) return nullptr;
+  {
+    std::lock_guard lock(cache_mu_);
+    for (auto it = cache_.begin(); it != cache_.end(); ++it) {
+      if (it->id == s.id && it->version == s.version) {
+        cache_.splice(cache_.begin(), cache_, it);
+        return cache_.front().state;
+      }
+    }
+  }
+  return load_finished_state(s);
+}
+
+std::shared_ptr<const JobState> JobManager::load_finished_state(const JobSnapshot& s) {
+  std::optional<std::string> cp;
+  std::shared_ptr<const JobState> st;
+  try {
+    cp = store_.load_checkpoint(s.id);
+    if (!cp) return nullptr;
+    st = std::make_shared<const JobState>(decode_checkpoint(*cp));
+  } catch (const std::exception& e) {
+    log::job(log::Level::warn, s.id, "reading the finished job's state from the store failed: {}", e.what());
+    return nullptr;
+  }
+  const Kernel& k = *s.def->kernel();
+  if (st->channels.size() != k.channel_count() || st->partition_samples.size() != k.partition_count()) {
+    log::job(log::Level::warn, s.id, "the stored state does not match the job ({} channels, expected {})",
+             st->channels.size(), k.channel_count());
+    return nullptr;
+  }
+  const uint64_t bytes = state_bytes(*s.def) / 2;
+  std::lock_guard lock(cache_mu_);
+  ++state_loads_;
+  for (auto it = cache_.begin(); it != cache_.end();) {  // an older version of the same job
+    if (it->id == s.id) {
+      cache_bytes_ -= it->bytes;
+      it = cache_.erase(it);
+    } else {
+      ++it;
+    }
+  }
+  if (bytes <= config_.finished_cache_bytes) {
+    cache_.push_front(CachedState{s.id, s.version, st, bytes});
+    cache_bytes_ += bytes;
+    while (cache_bytes_ > config_.finished_cache_bytes) {
+      cache_bytes_ -= cache_.back().bytes;
+      cache_.pop_back();
+    }
+  }
+  return st;
 }
 
 void JobManager::shutdown() {
@@ -515,6 +822,8 @@ void JobManager::shutdown() {
     if (shutting_down_) return;
     shutting_down_ = true;
   }
+  retention_.request_stop();
+  if (retention_.joinable()) retention_.join();
   executor_->stop();  // chunks in flight finish; partial passes are dropped
   for (const auto& job : list()) {
     bool unfinished;
@@ -561,6 +870,17 @@ ManagerStats JobManager::stats() const {
   s.store_failures = recorder_.store_failures();
   s.store_ok = !recorder_.store_problem().has_value();
   s.cpu_seconds_by_owner = es.cpu_seconds_by_owner;
+  {
+    std::lock_guard lock(mu_);
+    s.memory_budget = config_.memory_budget;
+    s.memory_used = memory_used_;
+    s.jobs_removed = jobs_removed_;
+  }
+  {
+    std::lock_guard lock(cache_mu_);
+    s.finished_cache_bytes = cache_bytes_;
+    s.state_loads = state_loads_;
+  }
   return s;
 }
 

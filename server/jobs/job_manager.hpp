@@ -4,7 +4,11 @@
 // the snapshots routes read. Persistence and recovery are the recorder's
 // (job_recorder.hpp); JSON views are the protocol layer's (job_json.hpp). Knows
 // nothing about HTTP: failures are JobError, mapped to statuses by the routes.
+#include <condition_variable>
+#include <list>
 #include <map>
+#include <stop_token>
+#include <thread>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -41,6 +45,18 @@ struct ManagerConfig {
   double checkpoint_interval_s = 0.5;
   size_t event_buffer = 1024;
   double chunk_target_s = 0.004;
+  // Memory for jobs' state (JobManager::state_bytes): a job that needs more is refused
+  // (SpecError naming the field that makes it big); jobs start only while their state
+  // fits beside the others in memory. 0: no budget.
+  uint64_t memory_budget = 0;
+  // Decoded states of finished jobs kept for their image routes (LRU).
+  uint64_t finished_cache_bytes = 256ULL << 20;
+  // Finished jobs are deleted, oldest first, beyond any of these (0: no limit); applied
+  // at recover() and every retention_interval_s.
+  double retain_max_age_s = 0;
+  size_t retain_max_jobs = 0;
+  uint64_t retain_max_bytes = 0;
+  double retention_interval_s = 60;
   // Builds the executor (e.g. cluster mode's RedisExecutor); unset: the in-process
   // worker pool with `workers` threads.
   std::function<std::unique_ptr<Executor>(ExecutorCallbacks)> make_executor;
@@ -65,6 +81,11 @@ struct ManagerStats {
   uint64_t store_failures = 0;  // failed saves since start
   bool store_ok = true;         // the last save succeeded
   std::map<std::string, double> cpu_seconds_by_owner;  // the executor's fair-share accounting
+  uint64_t memory_budget = 0;        // 0: none
+  uint64_t memory_used = 0;          // state of the jobs that hold it in memory
+  uint64_t finished_cache_bytes = 0; // decoded finished states kept for image routes
+  uint64_t state_loads = 0;          // finished jobs' states read back from the store
+  uint64_t jobs_removed = 0;         // by DELETE or retention since start
 };
 
 class JobManager {
@@ -76,6 +97,9 @@ class JobManager {
   // from their last checkpoint. Call once, before serving.
   void recover();
 
+  // SpecError naming the field that makes the job big if its state could never fit
+  // the memory budget (`def` compiled from `spec` with `limits`).
+  void check_memory(const nlohmann::json& spec, const JobLimits& limits, const JobDefinition& def) const;
   // Throws SpecError (invalid spec) or JobError (queue full, shutting down).
   std::shared_ptr<Job> submit(const nlohmann::json& spec, int priority = 0, const Submitter& who = {});
   std::shared_ptr<Job> find(const std::string& id) const;  // null if unknown
@@ -95,6 +119,20 @@ class JobManager {
   std::shared_ptr<Job> cancel(const std::string& id);
   // Reopens a finished job with a new rule. JobError: not_found, conflict.
   std::shared_ptr<Job> extend(const std::string& id, const StopRule& rule);
+
+  // Deletes a finished job from memory and the store. JobError: not_found, conflict
+  // (still queued or running: cancel it first).
+  void remove(const std::string& id);
+  // Deletes finished jobs beyond the retention limits (oldest finished first); returns
+  // their ids. Queued and running jobs are never touched.
+  std::vector<std::string> apply_retention();
+  // The job's channel state: the runner's while it is in memory, else read back from
+  // the store's checkpoint (finished jobs; cached, bounded). Null if not available.
+  // May read the disk: call it off the I/O threads.
+  std::shared_ptr<const JobState> state(const JobSnapshot& s);
+  // Bytes a job's state takes in memory: its channels and partitions, twice (the
+  // runner's and the copy published to readers at each pass boundary).
+  static uint64_t state_bytes(const JobDefinition& def);
 
   // Stop computing, checkpoint every unfinished job, end every event stream.
   void shutdown();
@@ -117,11 +155,18 @@ class JobManager {
   void on_cancelled(const std::string& id);
   void start_queued_locked();
   void job_left_scheduler(const Job& job);
-  // Under job.mu_: marks the job finished from its runner, publishes state + end.
-  void finish_locked(Job& job, double now);
+  // Under job.mu_: marks the job finished from its runner (or `status` for a job that
+  // never started), keeps its facts, publishes state + end.
+  void finish_locked(Job& job, double now, std::optional<JobStatus> status = std::nullopt);
   void publish_state_locked(Job& job);
   // Under job.mu_: the progress event data for the job's current version.
   static std::shared_ptr<const std::string> watch_progress_locked(const Job& job);
+  // Once a finished job is stored with its final checkpoint: frees its state.
+  void release_state(Job& job);
+  // Under mu_: picks the next job to start, or null (memory budget, quotas).
+  std::shared_ptr<Job> next_to_start_locked();
+  void retention_loop(std::stop_token st);
+  std::shared_ptr<const JobState> load_finished_state(const JobSnapshot& s);
 
   ManagerConfig config_;
   JobCompiler compiler_;
@@ -136,6 +181,25 @@ class JobManager {
   std::map<std::string, uint64_t> running_by_owner_;
   int64_t next_seq_ = 1;
   bool shutting_down_ = false;
+  uint64_t memory_used_ = 0;   // sum of state_bytes_ of charged jobs
+  uint64_t jobs_removed_ = 0;
+
+  JobStore& store_;
+  // Decoded finished states (LRU, at most config_.finished_cache_bytes).
+  struct CachedState {
+    std::string id;
+    uint64_t version;
+    std::shared_ptr<const JobState> state;
+    uint64_t bytes;
+  };
+  mutable std::mutex cache_mu_;
+  std::list<CachedState> cache_;  // most recent first
+  uint64_t cache_bytes_ = 0;
+  uint64_t state_loads_ = 0;
+
+  std::mutex retention_mu_;
+  std::condition_variable_any retention_cv_;
+  std::jthread retention_;  // runs retention_loop when a limit is set
 
   std::unique_ptr<Executor> executor_;  // last: its workers call back into us
 };

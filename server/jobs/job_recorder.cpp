@@ -4,6 +4,7 @@
 
 #include "common/engine/checkpoint.hpp"
 #include "common/log/log.hpp"
+#include "common/protocol/job_json.hpp"
 #include "common/protocol/spec_reader.hpp"
 #include "common/protocol/stop_rule_json.hpp"
 
@@ -31,11 +32,14 @@ bool JobRecorder::persist(Job& job, bool with_checkpoint, bool retry) {
     s.priority = job.priority_;
     s.owner = job.owner_;
     s.state = std::string(job_status_name(job.status_));
-    s.stop_rule = job.runner_ ? dump(stop_rule_to_json(job.runner_->rule())) : std::string("{}");
+    s.stop_rule = job.runner_  ? dump(stop_rule_to_json(job.runner_->rule()))
+                  : job.facts_ ? dump(stop_rule_to_json(job.facts_->rule))
+                               : std::string("{}");
     s.error = job.error_;
     if (is_terminal(job.status_) && job.final_result_ && !job.final_result_->is_null()) {
       s.result = dump(*job.final_result_);
     }
+    if (is_terminal(job.status_) && job.facts_) s.facts = dump(run_facts_json(*job.facts_));
     if (with_checkpoint && job.runner_) state = job.runner_->state();  // encoded below, without the lock
     s.created_at = job.created_at_;
     s.started_at = job.started_at_;
@@ -62,6 +66,8 @@ bool JobRecorder::persist(Job& job, bool with_checkpoint, bool retry) {
     return false;
   }
   job.saved_version_ = version;
+  if (s.checkpoint) job.checkpoint_bytes_ = s.checkpoint->size();
+  job.stored_bytes_ = s.spec.size() + s.result.size() + s.facts.size() + job.checkpoint_bytes_;
   health_.succeeded();
   return true;
 }
@@ -119,6 +125,8 @@ JobRecorder::Recovered JobRecorder::recover() {
     }
     auto job = std::make_shared<Job>(row.id, row.seq, spec, row.priority, row.created_at, out.epoch, event_buffer_,
                                      row.owner);
+    job->caps_ = limits_.caps();
+    job->stored_bytes_ = row.stored_bytes;
     const auto status = parse_job_status(row.state).value_or(JobStatus::failed);
     job->status_ = status;
     job->error_ = row.error;
@@ -146,11 +154,34 @@ JobRecorder::Recovered JobRecorder::recover() {
         log::job(log::Level::warn, row.id,
                  "stored stop rule is unreadable ({}); the spec's rule applies (an extend is lost)", e.what());
       }
-      if (row.checkpoint) {
+      if (is_terminal(status)) {
+        // A finished job's state stays on disk; the views read its stored facts.
+        bool have_facts = false;
+        if (!row.facts.empty()) {
+          try {
+            job->facts_ = std::make_shared<const RunFacts>(parse_run_facts(json::parse(row.facts), rule));
+            have_facts = true;
+          } catch (const std::exception& e) {
+            log::job(log::Level::warn, row.id, "stored facts are unreadable ({}); rebuilt from the checkpoint",
+                     e.what());
+          }
+        }
+        if (!have_facts) {
+          // Written before facts were stored: read the checkpoint once, keep the facts.
+          if (const auto cp = store_.load_checkpoint(row.id)) {
+            const JobRunner r(job->def_->kernel(), rule, limits_.caps(), decode_checkpoint(*cp));
+            RunFacts f = run_facts(r);
+            if (status == JobStatus::cancelled) f.stop_reason = StopReason::cancelled;
+            job->facts_ = std::make_shared<const RunFacts>(std::move(f));
+            to_save.push_back(job);
+          }
+        }
+      } else if (row.checkpoint) {
         JobState st = decode_checkpoint(*row.checkpoint);
         job->runner_ = std::make_unique<JobRunner>(job->def_->kernel(), rule, limits_.caps(), std::move(st));
       } else {
-        job->runner_ = std::make_unique<JobRunner>(job->def_->kernel(), rule, limits_.caps());
+        // Queued and never started: its state is allocated when it starts.
+        job->facts_ = std::make_shared<const RunFacts>(fresh_run_facts(rule));
       }
     } catch (const CheckpointError& e) {
       problem = fmt::format("the job's checkpoint is corrupt and it cannot resume: {}", e.what());
@@ -161,6 +192,7 @@ JobRecorder::Recovered JobRecorder::recover() {
     }
     if (!problem.empty()) {
       job->runner_.reset();
+      job->facts_.reset();
       if (!is_terminal(status)) {
         job->status_ = JobStatus::failed;
         job->error_ = problem;

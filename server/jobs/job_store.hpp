@@ -20,6 +20,9 @@ struct StoredJob {
   std::string error;          // failure message, "" if none
   std::string result;         // final status JSON of a finished job, "" otherwise
   std::optional<std::string> checkpoint;  // encode_checkpoint bytes; nullopt on save = keep
+                                          // (load_all: unfinished jobs only; see load_checkpoint)
+  std::string facts;          // a finished job's RunFacts (run_facts_json), "" if none
+  uint64_t stored_bytes = 0;  // load_all: bytes the row takes (spec, result, checkpoint)
   double created_at = 0, started_at = 0, finished_at = 0;  // unix seconds, 0 = not yet
 };
 
@@ -28,8 +31,13 @@ class JobStore {
   virtual ~JobStore() = default;
   // Insert or update one job atomically. A nullopt checkpoint keeps the stored one.
   virtual void save(const StoredJob& job) = 0;
-  // Every job, in submission order (checkpoints included).
+  // Every job, in submission order. Checkpoints only of unfinished jobs (queued,
+  // running): a finished job's state stays on disk until asked for.
   virtual std::vector<StoredJob> load_all() = 0;
+  // One job's checkpoint (nullopt if the job or its checkpoint is not stored).
+  virtual std::optional<std::string> load_checkpoint(const std::string& id) = 0;
+  // Deletes the job and its checkpoint; false if it was not stored.
+  virtual bool remove(const std::string& id) = 0;
   // Counts server starts; event ids are made unique across restarts with it.
   virtual uint64_t next_epoch() = 0;
   // Set when the store was found damaged at open and salvaged: what was moved

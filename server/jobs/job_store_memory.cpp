@@ -23,9 +23,23 @@ class MemoryJobStore final : public JobStore {
   std::vector<StoredJob> load_all() override {
     std::lock_guard lock(mu_);
     std::vector<StoredJob> out;
-    for (const auto& [id, j] : jobs_) out.push_back(j);
+    for (const auto& [id, j] : jobs_) {
+      out.push_back(j);
+      StoredJob& o = out.back();
+      o.stored_bytes = o.spec.size() + o.result.size() + o.facts.size() + (o.checkpoint ? o.checkpoint->size() : 0);
+      if (o.state != "queued" && o.state != "running") o.checkpoint.reset();
+    }
     std::sort(out.begin(), out.end(), [](const StoredJob& a, const StoredJob& b) { return a.seq < b.seq; });
     return out;
+  }
+  std::optional<std::string> load_checkpoint(const std::string& id) override {
+    std::lock_guard lock(mu_);
+    auto it = jobs_.find(id);
+    return it == jobs_.end() ? std::nullopt : it->second.checkpoint;
+  }
+  bool remove(const std::string& id) override {
+    std::lock_guard lock(mu_);
+    return jobs_.erase(id) > 0;
   }
   uint64_t next_epoch() override {
     std::lock_guard lock(mu_);

@@ -60,11 +60,17 @@ class SqliteJobStore final : public JobStore {
 
   // Databases written before access control have no owner column: their jobs
   // belong to the anonymous owner "" (visible to admins only once auth is on).
+  // Databases written before finished jobs kept their state on disk have no facts
+  // column: their finished jobs' facts are rebuilt once from the checkpoint.
   void migrate() {
-    bool has_owner = false;
+    bool has_owner = false, has_facts = false;
     SQLite::Statement q(db_, "PRAGMA table_info(jobs)");
-    while (q.executeStep()) has_owner = has_owner || q.getColumn(1).getString() == "owner";
+    while (q.executeStep()) {
+      has_owner = has_owner || q.getColumn(1).getString() == "owner";
+      has_facts = has_facts || q.getColumn(1).getString() == "facts";
+    }
     if (!has_owner) db_.exec("ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT ''");
+    if (!has_facts) db_.exec("ALTER TABLE jobs ADD COLUMN facts TEXT NOT NULL DEFAULT ''");
   }
 
   void save(const StoredJob& j) override {
@@ -72,9 +78,9 @@ class SqliteJobStore final : public JobStore {
     SQLite::Transaction tx(db_);
     SQLite::Statement st(db_,
                          "INSERT INTO jobs (id, seq, spec, priority, state, stop_rule, error, result,"
-                         " checkpoint, created_at, started_at, finished_at, owner) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)"
+                         " checkpoint, created_at, started_at, finished_at, owner, facts) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?)"
                          " ON CONFLICT(id) DO UPDATE SET state=excluded.state, stop_rule=excluded.stop_rule,"
-                         " error=excluded.error, result=excluded.result,"
+                         " error=excluded.error, result=excluded.result, facts=excluded.facts,"
                          " checkpoint=COALESCE(excluded.checkpoint, jobs.checkpoint),"
                          " started_at=excluded.started_at, finished_at=excluded.finished_at,"
                          " updated_at=(julianday('now') - 2440587.5) * 86400.0");
@@ -95,6 +101,7 @@ class SqliteJobStore final : public JobStore {
     st.bind(11, j.started_at);
     st.bind(12, j.finished_at);
     st.bind(13, j.owner);
+    st.bind(14, j.facts);
     st.exec();
     tx.commit();
   }
@@ -103,8 +110,11 @@ class SqliteJobStore final : public JobStore {
     std::lock_guard lock(mu_);
     std::vector<StoredJob> out;
     SQLite::Statement q(db_,
-                        "SELECT id, seq, spec, priority, state, stop_rule, error, result, checkpoint,"
-                        " created_at, started_at, finished_at, owner FROM jobs ORDER BY seq");
+                        "SELECT id, seq, spec, priority, state, stop_rule, error, result,"
+                        " CASE WHEN state IN ('queued', 'running') THEN checkpoint END,"
+                        " created_at, started_at, finished_at, owner, facts,"
+                        " length(spec) + length(result) + length(facts) + COALESCE(length(checkpoint), 0)"
+                        " FROM jobs ORDER BY seq");
     while (q.executeStep()) {
       StoredJob j;
       j.id = q.getColumn(0).getString();
@@ -123,9 +133,28 @@ class SqliteJobStore final : public JobStore {
       j.started_at = q.getColumn(10).getDouble();
       j.finished_at = q.getColumn(11).getDouble();
       j.owner = q.getColumn(12).getString();
+      j.facts = q.getColumn(13).getString();
+      j.stored_bytes = static_cast<uint64_t>(q.getColumn(14).getInt64());
       out.push_back(std::move(j));
     }
     return out;
+  }
+
+  std::optional<std::string> load_checkpoint(const std::string& id) override {
+    std::lock_guard lock(mu_);
+    SQLite::Statement q(db_, "SELECT checkpoint FROM jobs WHERE id = ?");
+    q.bind(1, id);
+    if (!q.executeStep()) return std::nullopt;
+    const SQLite::Column cp = q.getColumn(0);
+    if (cp.isNull()) return std::nullopt;
+    return std::string(static_cast<const char*>(cp.getBlob()), static_cast<size_t>(cp.getBytes()));
+  }
+
+  bool remove(const std::string& id) override {
+    std::lock_guard lock(mu_);
+    SQLite::Statement st(db_, "DELETE FROM jobs WHERE id = ?");
+    st.bind(1, id);
+    return st.exec() > 0;
   }
 
   uint64_t next_epoch() override {

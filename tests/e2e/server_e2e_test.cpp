@@ -113,7 +113,10 @@ TEST(ServerE2E, CancelRunningJob) {
   EXPECT_EQ(s.at("stop_reason"), "cancelled");
   const auto ev = read_events(c, id);
   EXPECT_EQ(ev.back().event, "end");
-  expect_problem(c.request("DELETE", "/v1/jobs/" + id), 409);
+  // Finished: a second DELETE deletes it (issue 13), then it is gone.
+  EXPECT_EQ(c.request("DELETE", "/v1/jobs/" + id).status, 204);
+  expect_problem(c.request("GET", "/v1/jobs/" + id), 404);
+  expect_problem(c.request("DELETE", "/v1/jobs/" + id), 404);
 }
 
 TEST(ServerE2E, ExtendFinishedJob) {
@@ -200,7 +203,8 @@ TEST(ServerE2E, EveryErrorStatusIsProblemJson) {
   expect_problem(c.request("POST", "/v1/jobs/" + id + "/extend", R"({"max_samples": 5})", js), 409);
   c.request("DELETE", "/v1/jobs/" + id);
   wait_state(c, id, "cancelled", 10);
-  expect_problem(c.request("DELETE", "/v1/jobs/" + id), 409);
+  EXPECT_EQ(c.request("DELETE", "/v1/jobs/" + id).status, 204);  // finished: deleted
+  expect_problem(c.request("DELETE", "/v1/jobs/" + id), 404);
   // Still alive and well.
   EXPECT_EQ(c.request("GET", "/livez").status, 200);
 }
@@ -413,7 +417,8 @@ TEST(ServerE2E, CliSubmitWatchGetListCancelExtend) {
   EXPECT_EQ(r.code, 0);
   EXPECT_NE(r.out.find(id), std::string::npos);
   r = run_cli("cancel " + id, url);
-  EXPECT_EQ(r.code, 4) << r.out;  // already finished: 409
+  EXPECT_EQ(r.code, 4) << r.out;  // already finished: not sent (DELETE would delete it)
+  EXPECT_EQ(run_cli("delete " + id + "x", url).code, 4);  // unknown job
   r = run_cli("extend " + id + " --max-samples 8000000", url);
   EXPECT_EQ(r.code, 0) << r.out;
   r = run_cli("watch " + id, url);
@@ -437,6 +442,10 @@ TEST(ServerE2E, CliSubmitWatchGetListCancelExtend) {
   EXPECT_EQ(run_cli("get nope", url).code, 4);
   EXPECT_EQ(run_cli("list", "http://127.0.0.1:1").code, 5);
   EXPECT_EQ(run_cli("extend " + id, url).code, 4);  // no target given
+  // delete: a running job is refused, a finished one deleted, then unknown.
+  EXPECT_EQ(run_cli("delete " + long_id, url).code, 0);  // cancelled above: finished
+  EXPECT_EQ(run_cli("get " + long_id, url).code, 4);
+  EXPECT_EQ(run_cli("delete " + long_id, url).code, 4);
 }
 
 }  // namespace

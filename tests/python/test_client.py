@@ -72,17 +72,28 @@ class ClientMethods(unittest.TestCase):
         self.assertEqual(cm.exception.status, 422)
         self.assertEqual(cm.exception.pointer, "/stop/max_samples")
 
-    def test_cancel_then_conflict(self) -> None:
+    def test_cancel_then_delete(self) -> None:
         job = self.client.submit(disk_spec(50_000_000_000, seed=9))
         out = self.client.cancel(job)
         self.assertIn(out.get("state"), ("cancelled", "running", "queued"))
         final = self.client.wait(job, timeout=60)
         self.assertEqual(final["state"], "cancelled")
-        with self.assertRaises(Conflict) as cm:
-            self.client.cancel(job)
-        self.assertEqual(cm.exception.status, 409)
-        self.assertTrue(cm.exception.title)
-        self.assertIsNone(cm.exception.pointer)
+        # Finished: DELETE now deletes it (204), then it is gone (404).
+        self.assertIsNone(self.client.delete(job))
+        with self.assertRaises(NotFound) as cm:
+            self.client.status(job)
+        self.assertEqual(cm.exception.status, 404)
+        with self.assertRaises(NotFound):
+            self.client.delete(job)
+
+    def test_list_follows_pages(self) -> None:
+        jobs = [self.client.submit(disk_spec(1000, seed=40 + i)) for i in range(5)]
+        for j in jobs:
+            self.client.wait(j, timeout=60)
+        listed = [j["id"] for j in self.client.list(page_size=2)]
+        self.assertEqual([j for j in listed if j in jobs], jobs)
+        self.assertEqual(len(listed), len(set(listed)))
+        self.assertEqual(listed, [j["id"] for j in self.client.list()])
 
     def test_extend(self) -> None:
         job = self.client.submit(disk_spec(100_000, seed=4))

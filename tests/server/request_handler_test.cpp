@@ -178,17 +178,21 @@ TEST(RequestHandler, FullQueueIs503WithRetryAfter) {
   EXPECT_TRUE(h.wait_state(a, "cancelled", 10));
 }
 
-TEST(RequestHandler, CancelAndExtendConflictsAre409) {
+TEST(RequestHandler, CancelAndExtendConflictsAre409AndFinishedJobsAreDeleted) {
   Harness h;
   const std::string done = h.submit(fake_spec(5000));
   ASSERT_TRUE(h.wait_state(done, "succeeded"));
-  expect_problem(h.call("DELETE", "/v1/jobs/" + done), 409);
   expect_problem(h.call("POST", "/v1/jobs/" + done + "/extend", "{\"max_samples\": 5000}"), 409);  // already met
+  // A finished job is deleted (issue 13; it was 409), then it is gone.
+  EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + done).status, 204);
+  expect_problem(h.call("GET", "/v1/jobs/" + done), 404);
+  expect_problem(h.call("POST", "/v1/jobs/" + done + "/extend", "{\"max_samples\": 9000}"), 404);
   const std::string running = h.submit(fake_spec(kForever, 50));
   expect_problem(h.call("POST", "/v1/jobs/" + running + "/extend", "{\"max_samples\": 10}"), 409);
   EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + running).status / 100, 2);
   ASSERT_TRUE(h.wait_state(running, "cancelled", 10));
-  expect_problem(h.call("DELETE", "/v1/jobs/" + running), 409);
+  EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + running).status, 204);
+  expect_problem(h.call("DELETE", "/v1/jobs/" + running), 404);
 }
 
 TEST(RequestHandler, ExtendBodyIsValidated) {

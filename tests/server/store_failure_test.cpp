@@ -24,6 +24,8 @@ class FailingStore final : public JobStore {
     inner_->save(j);
   }
   std::vector<StoredJob> load_all() override { return inner_->load_all(); }
+  std::optional<std::string> load_checkpoint(const std::string& id) override { return inner_->load_checkpoint(id); }
+  bool remove(const std::string& id) override { return inner_->remove(id); }
   uint64_t next_epoch() override { return inner_->next_epoch(); }
   std::atomic<bool> failing{false};
 

@@ -55,8 +55,16 @@ TEST(JobStore, SqliteRoundTripKeepsCheckpointOnStateOnlySaves) {
   EXPECT_EQ(rows[0].priority, 2);
   EXPECT_EQ(rows[0].state, "succeeded");
   EXPECT_EQ(rows[0].result, "{\"x\":1}");
-  ASSERT_TRUE(rows[0].checkpoint);
-  EXPECT_EQ(*rows[0].checkpoint, std::string("\0\1\2binary", 9));
+  // A finished job's checkpoint stays on disk until asked for (issue 13).
+  EXPECT_FALSE(rows[0].checkpoint);
+  const auto cp = store->load_checkpoint("abc");
+  ASSERT_TRUE(cp);
+  EXPECT_EQ(*cp, std::string("\0\1\2binary", 9));
+  EXPECT_FALSE(store->load_checkpoint("nope"));
+  EXPECT_TRUE(store->remove("abc"));
+  EXPECT_FALSE(store->remove("abc"));
+  EXPECT_TRUE(store->load_all().empty());
+  EXPECT_FALSE(store->load_checkpoint("abc"));
   EXPECT_DOUBLE_EQ(rows[0].created_at, 1.5);
   EXPECT_DOUBLE_EQ(rows[0].finished_at, 2.5);
 }
@@ -93,7 +101,10 @@ TEST(JobStore, MemoryStoreBehavesLikeSqlite) {
   ASSERT_EQ(rows.size(), 2u);
   EXPECT_EQ(rows[0].id, "a");
   EXPECT_EQ(rows[1].state, "failed");
-  EXPECT_EQ(rows[1].checkpoint.value_or(""), "cp");
+  EXPECT_FALSE(rows[1].checkpoint);  // finished: on request only
+  EXPECT_EQ(store->load_checkpoint("b").value_or(""), "cp");
+  EXPECT_TRUE(store->remove("b"));
+  EXPECT_EQ(store->load_all().size(), 1u);
 }
 
 // Runs a job to the end in one go and returns its bits.

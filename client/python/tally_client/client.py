@@ -88,14 +88,36 @@ class Client:
         """The status document of a job (state, estimate, prediction, timing, ...)."""
         return self._json("GET", f"/v1/jobs/{_segment(job_id)}")
 
-    def list(self, state: Optional[str] = None) -> List[JsonObject]:
-        """Job summaries in submission order, optionally only those in ``state``."""
-        query = {"state": state} if state is not None else None
-        return list(self._json("GET", "/v1/jobs", query=query)["jobs"])
+    def list(self, state: Optional[str] = None, *, page_size: Optional[int] = None) -> List[JsonObject]:
+        """Job summaries in submission order, optionally only those in ``state``.
+
+        The server answers in pages (``limit``, default 100); this follows every page's
+        ``next`` link and returns them all. ``page_size`` sets ``limit`` (1 to 1000).
+        """
+        query: Dict[str, str] = {}
+        if state is not None:
+            query["state"] = state
+        if page_size is not None:
+            query["limit"] = str(int(page_size))
+        page = self._json("GET", "/v1/jobs", query=query or None)
+        jobs = list(page["jobs"])
+        while page.get("next"):
+            # The link is server-relative and keeps the query (state, limit, cursor).
+            path, _, qs = str(page["next"]).partition("?")
+            page = self._json("GET", path, query=dict(urllib.parse.parse_qsl(qs)))
+            jobs.extend(page["jobs"])
+        return jobs
 
     def cancel(self, job_id: str) -> JsonObject:
-        """Cancels a queued or running job (raises Conflict if it has already finished)."""
+        """Cancels a queued or running job: its summary (state ``cancelled``, or still
+        ``running`` until the next chunk boundary). On a job that has already finished
+        the same request deletes it (see :meth:`delete`) and {} is returned."""
         return self._json("DELETE", f"/v1/jobs/{_segment(job_id)}")
+
+    def delete(self, job_id: str) -> None:
+        """Deletes a finished job and its stored state (then it is NotFound). A job that
+        still runs is cancelled instead: call it again once it has finished."""
+        self._request("DELETE", f"/v1/jobs/{_segment(job_id)}")
 
     def extend(self, job_id: str, *, max_samples: Optional[int] = None, abs_error: Optional[float] = None,
                rel_error: Optional[float] = None, time_budget_s: Optional[float] = None) -> JsonObject:
@@ -208,6 +230,8 @@ class Client:
 
     def _json(self, method: str, path: str, **kw: Any) -> JsonObject:
         out = self._request(method, path, **kw).json()
+        if out is None:  # 204 No Content
+            return {}
         return out if isinstance(out, dict) else {"value": out}
 
     def _events(self, job_id: str, last_event_id: Optional[int], reconnect_timeout: float,
