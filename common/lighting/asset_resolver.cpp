@@ -7,25 +7,6 @@
 
 namespace tally {
 
-bool is_sha256_hex(std::string_view hex) {
-  if (hex.size() != 64) return false;
-  for (char c : hex) {
-    if (!((c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'))) return false;
-  }
-  return true;
-}
-
-std::optional<std::string> asset_ref_hex(std::string_view ref) {
-  if (!looks_like_asset_ref(ref)) return std::nullopt;
-  const std::string_view hex = ref.substr(kAssetRefPrefix.size());
-  if (!is_sha256_hex(hex)) return std::nullopt;
-  return std::string(hex);
-}
-
-std::filesystem::path stored_asset_path(const std::filesystem::path& store, std::string_view hex) {
-  return store / std::string(hex);
-}
-
 std::filesystem::path resolve_scene_file(const std::string& name, const JobLimits& limits, const std::string& pointer) {
   if (!looks_like_asset_ref(name)) return resolve_asset(limits.asset_dir, name, pointer);
   const auto hex = asset_ref_hex(name);

@@ -19,15 +19,26 @@ namespace tally {
 
 inline constexpr std::string_view kAssetRefPrefix = "sha256:";
 
-// The 64 hex digits of a well-formed "sha256:<hex>" reference (lowercase), or nullopt.
-std::optional<std::string> asset_ref_hex(std::string_view ref);
-bool is_sha256_hex(std::string_view hex);
+inline bool is_sha256_hex(std::string_view hex) {
+  if (hex.size() != 64) return false;
+  for (char c : hex) {
+    if (!((c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'))) return false;
+  }
+  return true;
+}
 // True when `name` is meant as a store reference (starts with "sha256:"), well-formed or not.
 inline bool looks_like_asset_ref(std::string_view name) { return name.substr(0, kAssetRefPrefix.size()) == kAssetRefPrefix; }
+// The 64 hex digits of a well-formed "sha256:<hex>" reference (lowercase), or nullopt.
+inline std::optional<std::string> asset_ref_hex(std::string_view ref) {
+  if (!looks_like_asset_ref(ref) || !is_sha256_hex(ref.substr(kAssetRefPrefix.size()))) return std::nullopt;
+  return std::string(ref.substr(kAssetRefPrefix.size()));
+}
 
 // The store's layout, shared by the server's AssetStore and the cluster worker's
 // cache: one file per asset, named by its hash, directly in the store directory.
-std::filesystem::path stored_asset_path(const std::filesystem::path& store, std::string_view hex);
+inline std::filesystem::path stored_asset_path(const std::filesystem::path& store, std::string_view hex) {
+  return store / std::string(hex);
+}
 
 // The file `name` (a scene field at `pointer`) stands for. Throws SpecError(pointer):
 // a malformed reference, no store configured, an asset not stored ("asset sha256:…
