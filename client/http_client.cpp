@@ -12,6 +12,8 @@
 #include <boost/beast/ssl.hpp>
 #include <boost/asio/ssl/host_name_verification.hpp>
 
+#include <fmt/format.h>
+
 #include <chrono>
 #include <thread>
 
