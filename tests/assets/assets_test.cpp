@@ -2,6 +2,7 @@
 // scenes naming stored assets, restart, retention, quota and tenancy, and the CLI's
 // upload of what the server lacks.
 #include <arpa/inet.h>
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <netinet/in.h>
 #include <openssl/evp.h>
