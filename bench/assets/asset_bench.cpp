@@ -103,6 +103,7 @@ struct Server {
   uint16_t port = 0;
   Server(const fs::path& dir) {
     const fs::path port_file = dir / "port";
+    std::fflush(stdout);  // the child must not print this process's buffered lines again
     pid = ::fork();
     if (pid == 0) {
       const std::string data = (dir / "data").string(), pf = port_file.string(), log = (dir / "server.log").string();
