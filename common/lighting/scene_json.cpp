@@ -1,5 +1,7 @@
 #include "common/lighting/scene_json.hpp"
 
+#include "common/lighting/asset_resolver.hpp"
+
 #include <fmt/format.h>
 #include <tiny_obj_loader.h>
 
@@ -136,8 +138,8 @@ Shape parse_shape(SpecReader r, Scene& scene, const JobLimits& limits, size_t tr
     s.type = ShapeType::mesh;
     if (r.has("obj")) {
       const std::string rel = r.string("obj", 1024);
-      load_obj(s, resolve_asset(limits.asset_dir, rel, r.pointer_of("obj")), r.pointer_of("obj"),
-               limits, triangles_so_far);
+      load_obj(s, resolve_scene_file(rel, limits, r.pointer_of("obj")), r.pointer_of("obj"), limits,
+               triangles_so_far);
     } else {
       const nlohmann::json& vj = r.at("vertices");
       const nlohmann::json& ij = r.at("indices");
