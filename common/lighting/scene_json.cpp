@@ -315,8 +315,8 @@ void parse_gltf(SpecReader r, Scene& scene, const JobLimits& limits) {
   if (r.has("camera")) {
     const nlohmann::json& c = r.at("camera");
     req.camera_pointer = r.pointer_of("camera");
-    if (c.is_number_unsigned()) {
-      req.camera = static_cast<size_t>(c.get<uint64_t>());
+    if (c.is_number_integer() && c.get<int64_t>() >= 0) {
+      req.camera = static_cast<size_t>(c.get<int64_t>());
     } else if (c.is_string()) {
       req.camera = c.get<std::string>();
     } else {
