@@ -25,6 +25,9 @@ struct JobLimits {
   uint64_t max_quadrature_points = 1ULL << 26;
   size_t max_table_size = 1 << 20;  // tabulated densities, inline meshes
   std::string asset_dir;            // OBJ files for lighting scenes; empty = none allowed
+  // The content-addressed asset store ("sha256:<hex>" names in scenes, see
+  // common/lighting/asset_resolver.hpp); empty = no store, such names are refused.
+  std::string asset_store;
 
   JobCaps caps() const { return JobCaps{max_samples, max_seconds}; }
 };

@@ -518,16 +518,12 @@ class GltfLoader {
   size_t nodes_visited_ = 0;
 };
 
-bool ends_with(const std::string& s, std::string_view suffix) {
-  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
-}
-
 }  // namespace
 
 void load_gltf(Scene& scene, const GltfRequest& req, const AssetReader& read, const JobLimits& limits) {
-  const bool binary = ends_with(req.file, ".glb");
-  if (!binary && !ends_with(req.file, ".gltf")) throw SpecError(req.pointer, "must name a .gltf or .glb file");
   const std::string bytes = read(req.file, req.pointer);
+  // Binary glTF by its magic, not its name: a store reference ("sha256:...") has none.
+  const bool binary = bytes.size() >= 4 && bytes.compare(0, 4, "glTF") == 0;
   if (bytes.size() > std::numeric_limits<unsigned int>::max()) throw SpecError(req.pointer, "glTF file is too large");
 
   FsContext ctx;

@@ -1,5 +1,6 @@
 #include "common/lighting/scene_json.hpp"
 
+#include "common/lighting/asset_resolver.hpp"
 #include "common/sampling/safe_math.hpp"
 
 #include <fmt/format.h>
@@ -367,8 +368,8 @@ DeltaLight parse_delta_light(SpecReader& r, const std::string& type) {
 }  // namespace
 
 AssetReader scene_asset_reader(const JobLimits& limits) {
-  return [dir = limits.asset_dir](const std::string& relative, const std::string& pointer) {
-    return read_asset_file(resolve_asset(dir, relative, pointer), pointer);
+  return [limits](const std::string& name, const std::string& pointer) {
+    return read_scene_file(name, limits, pointer);
   };
 }
 

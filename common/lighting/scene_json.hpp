@@ -34,7 +34,8 @@ std::string read_asset_file(const std::filesystem::path& path, const std::string
                             size_t max_bytes = size_t{1} << 30);
 
 // The reader every file a scene names goes through (OBJ, .mtl, glTF and its buffers):
-// resolve_asset + read_asset_file in limits.asset_dir.
+// read_scene_file (asset_resolver.hpp: "sha256:<hex>" from the asset store, or a path
+// inside limits.asset_dir; regular files only, no escape, never blocking).
 AssetReader scene_asset_reader(const JobLimits& limits);
 
 // Moves the scene into its local frame (see scene.hpp) and returns the translation.

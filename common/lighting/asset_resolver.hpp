@@ -1,0 +1,53 @@
+#pragma once
+// The one place a scene's file names become files. A scene names a file in one of
+// two ways, wherever it names one (an OBJ mesh, a glTF, a texture, an environment map):
+//   "sha256:<64 lowercase hex>"  an asset in the content-addressed store
+//                                (JobLimits::asset_store, filled by PUT /v1/assets/...);
+//   "relative/path.obj"          a file inside JobLimits::asset_dir (--asset-dir).
+// Every loader calls resolve_scene_file (and reads through read_scene_file or
+// read_asset_file), so both kinds obey the same checks: no escape from either
+// directory, no symlink or FIFO, a size cap, and a SpecError naming the field's
+// JSON pointer (a missing stored asset is named by its hash).
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <string_view>
+
+#include "common/engine/limits.hpp"
+
+namespace tally {
+
+inline constexpr std::string_view kAssetRefPrefix = "sha256:";
+
+inline bool is_sha256_hex(std::string_view hex) {
+  if (hex.size() != 64) return false;
+  for (char c : hex) {
+    if (!((c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'))) return false;
+  }
+  return true;
+}
+// True when `name` is meant as a store reference (starts with "sha256:"), well-formed or not.
+inline bool looks_like_asset_ref(std::string_view name) { return name.substr(0, kAssetRefPrefix.size()) == kAssetRefPrefix; }
+// The 64 hex digits of a well-formed "sha256:<hex>" reference (lowercase), or nullopt.
+inline std::optional<std::string> asset_ref_hex(std::string_view ref) {
+  if (!looks_like_asset_ref(ref) || !is_sha256_hex(ref.substr(kAssetRefPrefix.size()))) return std::nullopt;
+  return std::string(ref.substr(kAssetRefPrefix.size()));
+}
+
+// The store's layout, shared by the server's AssetStore and the cluster worker's
+// cache: one file per asset, named by its hash, directly in the store directory.
+inline std::filesystem::path stored_asset_path(const std::filesystem::path& store, std::string_view hex) {
+  return store / std::string(hex);
+}
+
+// The file `name` (a scene field at `pointer`) stands for. Throws SpecError(pointer):
+// a malformed reference, no store configured, an asset not stored ("asset sha256:…
+// is not stored on this server; upload it with PUT /v1/assets/sha256:…"), or for a
+// relative path whatever resolve_asset refuses.
+std::filesystem::path resolve_scene_file(const std::string& name, const JobLimits& limits, const std::string& pointer);
+
+// resolve_scene_file + read_asset_file (regular file only, no symlink, size cap).
+std::string read_scene_file(const std::string& name, const JobLimits& limits, const std::string& pointer,
+                            size_t max_bytes = size_t{1} << 30);
+
+}  // namespace tally
