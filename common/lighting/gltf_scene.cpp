@@ -118,6 +118,7 @@ class GltfLoader {
   }
 
   void run() {
+    triangles_ = scene_.triangle_count();
     materials_.assign(model_.materials.size(), UINT32_MAX);
     if (model_.scenes.empty()) {
       // No scene: every node that is nobody's child is a root.
@@ -362,7 +363,9 @@ class GltfLoader {
       fail(ap + "/componentType", "is not allowed for this attribute");
     }
     if (a.count == 0) fail(ap + "/count", "must be at least 1");
-    if (a.count > max_count) fail(ap + "/count", fmt::format("{} exceeds the limit of {}", a.count, max_count));
+    if (a.count > max_count || a.count > (size_t{1} << 32)) {
+      fail(ap + "/count", fmt::format("{} exceeds the limit of {}", a.count, std::min(max_count, size_t{1} << 32)));
+    }
     if (a.bufferView < 0 || static_cast<size_t>(a.bufferView) >= model_.bufferViews.size()) {
       fail(ap + "/bufferView", "names no buffer view");
     }
@@ -491,7 +494,8 @@ class GltfLoader {
         for (size_t i = 0; i < nv; ++i) idx[i] = static_cast<double>(i);
       }
       if (ni % 3 != 0) fail(prim.indices >= 0 ? fmt::format("/accessors/{}/count", prim.indices) : pp, "is not a multiple of 3");
-      if (scene_.triangle_count() + ni / 3 > limit) fail(pp, fmt::format("too many triangles (limit {})", limit));
+      if (triangles_ + ni / 3 > limit) fail(pp, fmt::format("too many triangles (limit {})", limit));
+      triangles_ += ni / 3;
       s.triangles.resize(ni / 3);
       for (size_t t = 0; t < ni / 3; ++t) {
         for (size_t k = 0; k < 3; ++k) {
@@ -516,6 +520,7 @@ class GltfLoader {
   uint32_t default_material_ = UINT32_MAX;
   bool camera_found_ = false;
   size_t nodes_visited_ = 0;
+  size_t triangles_ = 0;  // in the scene so far (shapes before the glTF included)
 };
 
 }  // namespace

@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cstdlib>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -376,6 +377,39 @@ TEST(GltfHostile, AccessorsAreCheckedAgainstTheirBuffers) {
   EXPECT_NE(error_with([](json& d) { d["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = {{"index", 0}}; })
                 .find("/materials/0/pbrMetallicRoughness/baseColorTexture"),
             std::string::npos);
+}
+
+}  // namespace
+}  // namespace tally
+
+namespace tally {
+namespace {
+
+TEST(GltfExample, TheDemoSceneLoadsAndCompiles) {
+  // scripts/gltf_example.py writes the demo's glTF; examples/gltf_cornell.json renders it.
+  TempDir dir("tally_gltf_example");
+  const std::string cmd = std::string("python3 ") + TALLY_SOURCE_DIR + "/scripts/gltf_example.py " + dir.assets().string() + " > /dev/null";
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+  std::ifstream in(std::string(TALLY_SOURCE_DIR) + "/examples/gltf_cornell.json");
+  const json spec = json::parse(in);
+  const Scene s = parse(spec["scene"], dir.limits());
+  EXPECT_EQ(s.shapes.size(), 8u);  // 5 walls, the lamp, the sphere, the block
+  ASSERT_EQ(s.delta_lights.size(), 1u);
+  EXPECT_EQ(s.delta_lights[0].type, DeltaLightType::spot);
+  ASSERT_TRUE(s.camera.has_value());
+  EXPECT_EQ(s.camera->width, 128);
+  size_t emitters = 0, with_normals = 0;
+  for (const Shape& sh : s.shapes) {
+    emitters += s.materials[sh.material].emits() ? 1 : 0;
+    with_normals += sh.normals.empty() ? 0 : 1;
+  }
+  EXPECT_EQ(emitters, 1u);
+  EXPECT_EQ(with_normals, 1u);
+  // The spot is aimed at the sphere: its axis points within the inner cone of it.
+  const Vec3 to_sphere = normalize(Vec3{0.35, 0.4, 0.2} - s.delta_lights[0].position);
+  EXPECT_GT(dot(to_sphere, s.delta_lights[0].direction), s.delta_lights[0].cos_inner);
+  // The whole job compiles (Embree, lights, plan).
+  EXPECT_NE(compile_lighting_job(spec, dir.limits()), nullptr);
 }
 
 }  // namespace
