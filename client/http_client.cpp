@@ -12,6 +12,8 @@
 #include <boost/beast/ssl.hpp>
 #include <boost/asio/ssl/host_name_verification.hpp>
 
+#include <fmt/format.h>
+
 #include <chrono>
 #include <thread>
 
@@ -183,6 +185,37 @@ ClientResponse HttpClient::request(std::string_view method, std::string_view tar
   parser.body_limit(std::numeric_limits<uint64_t>::max());
   if (auto ec = c.call(timeout_s_, [&](auto& s, auto h) { http::async_read(s, buf, parser, h); })) {
     throw ConnectionError("reading the response failed: " + ec.message());
+  }
+  ClientResponse r;
+  r.status = static_cast<int>(parser.get().result_int());
+  fill_headers(parser.get().base(), r.headers);
+  r.body = std::move(parser.get().body());
+  return r;
+}
+
+ClientResponse HttpClient::send_file(std::string_view method, std::string_view target, const std::string& path,
+                                     const HeaderList& headers) {
+  Connection c(url_, security_, timeout_s_);
+  http::request<http::file_body> req(http::string_to_verb(method), url_.base_path + std::string(target), 11);
+  beast::error_code ec;
+  req.body().open(path.c_str(), beast::file_mode::scan, ec);
+  if (ec) throw std::runtime_error(fmt::format("cannot open {}: {}", path, ec.message()));
+  req.set(http::field::host, host_header());
+  req.set(http::field::user_agent, "tally-cli");
+  req.set(http::field::content_type, "application/octet-stream");
+  if (!security_.token.empty()) req.set(http::field::authorization, "Bearer " + security_.token);
+  for (const auto& [k, v] : headers) req.set(k, v);
+  req.keep_alive(false);
+  req.prepare_payload();
+  const double write_timeout = timeout_s_ + static_cast<double>(req.body().size()) / 2e6;
+  if (auto wec = c.call(write_timeout, [&](auto& s, auto h) { http::async_write(s, req, h); })) {
+    throw ConnectionError("sending the file failed: " + wec.message());
+  }
+  beast::flat_buffer buf;
+  http::response_parser<http::string_body> parser;
+  parser.body_limit(std::numeric_limits<uint64_t>::max());
+  if (auto rec = c.call(timeout_s_, [&](auto& s, auto h) { http::async_read(s, buf, parser, h); })) {
+    throw ConnectionError("reading the response failed: " + rec.message());
   }
   ClientResponse r;
   r.status = static_cast<int>(parser.get().result_int());

@@ -54,6 +54,10 @@ class HttpClient {
 
   ClientResponse request(std::string_view method, std::string_view target, std::string_view body = {},
                          const HeaderList& headers = {});
+  // Sends a file as the body (read as it is sent, never whole in memory), e.g. PUT
+  // /v1/assets/...; the write may take timeout_s + size / (2 MB/s).
+  ClientResponse send_file(std::string_view method, std::string_view target, const std::string& path,
+                           const HeaderList& headers = {});
   // GET a streaming body: `on_data` gets each piece as it arrives and returns false
   // to stop early. `idle_timeout_s` bounds the wait for each piece. The returned
   // response has the status and headers (and the body only for non-2xx answers).

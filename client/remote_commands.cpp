@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <sstream>
@@ -11,6 +12,7 @@
 
 #include "client/exit_codes.hpp"
 #include "client/api_request.hpp"
+#include "client/asset_upload.hpp"
 #include "client/http_client.hpp"
 #include "client/progress_display.hpp"
 #include "client/sse_parser.hpp"
@@ -184,11 +186,27 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
     cmd->add_option("spec", *file, "job spec file")->required();
     cmd->add_flag("--watch,-w", *watch, "follow the job until it ends");
     cmd->add_option("--priority", *priority, "CPU share priority, -5..5")->check(CLI::Range(-5, 5));
+    auto no_upload = std::make_shared<bool>(false);
+    cmd->add_flag("--no-upload", *no_upload,
+                  "send the spec as it is (by default the local files a scene names are uploaded to the server's "
+                  "asset store, only those it lacks, and named by their sha256)");
     add_server_option(cmd, *opt);
     cmd->callback([=, &exit_code] {
       run_guarded(exit_code, [&] {
         HttpClient c = make_client(*opt);
-        const std::string body = read_spec(*file);
+        std::string body = read_spec(*file);
+        if (!*no_upload) {
+          json spec = json::parse(body, nullptr, false);
+          if (!spec.is_discarded()) {
+            const std::filesystem::path base =
+                *file == "-" ? std::filesystem::current_path() : std::filesystem::path(*file).parent_path();
+            const AssetUploadReport up = upload_scene_assets(c, spec, base.empty() ? "." : base);
+            if (up.uploaded + up.present > 0) {
+              fmt::print(stderr, "tally: assets: {} uploaded, {} already on the server\n", up.uploaded, up.present);
+              body = spec.dump();
+            }
+          }
+        }
         const ClientResponse r = c.request("POST", fmt::format("/v1/jobs?priority={}", *priority), body,
                                            {{"Content-Type", "application/json"}});
         if (r.status != 202) fail_response(r);

@@ -11,6 +11,8 @@
 #include <vector>
 
 #include "common/jobs/job_factory.hpp"
+#include "server/assets/asset_retention.hpp"
+#include "server/assets/asset_store.hpp"
 #include "server/auth/access_control.hpp"
 #include "server/auth/auth_file.hpp"
 #include "server/auth/token.hpp"
@@ -46,6 +48,14 @@ int main(int argc, char** argv) {
   app.add_option("--workers", workers, "worker threads (default: usable CPUs, honouring a cgroup CPU quota)");
   app.add_option("--data-dir", data_dir, "directory of the job database")->capture_default_str();
   app.add_option("--asset-dir", mc.limits.asset_dir, "directory scenes may load OBJ files from");
+  uint64_t max_asset_bytes = uint64_t{1} << 30;
+  double asset_retention_days = 30;
+  app.add_option("--max-asset-bytes", max_asset_bytes, "largest asset PUT /v1/assets/... accepts, in bytes")
+      ->capture_default_str();
+  app.add_option("--asset-retention-days", asset_retention_days,
+                 "stored assets no job names are removed once their last upload is this old (checked at start and "
+                 "hourly; negative: never)")
+      ->capture_default_str();
   app.add_option("--port-file", port_file, "write the bound port to this file once ready (jobs recovered)");
   app.add_option("--io-threads", http.io_threads, "threads serving connections")->capture_default_str();
   app.add_option("--max-body", http.max_body_bytes, "request body limit in bytes")->capture_default_str();
@@ -221,6 +231,7 @@ int main(int argc, char** argv) {
     rc.lease = std::chrono::milliseconds(static_cast<long long>(lease_s * 1000.0));
     rc.max_failures = max_deliveries;
     rc.asset_dir = mc.limits.asset_dir;
+    rc.asset_store = (std::filesystem::path(data_dir) / "assets" / "sha256").string();
     mc.make_executor = [rc, &cluster_executor](ExecutorCallbacks cb) {
       auto ex = std::make_unique<cluster::RedisExecutor>(rc, std::move(cb));
       cluster_executor = ex.get();
@@ -230,6 +241,9 @@ int main(int argc, char** argv) {
 
   try {
     auto store = open_sqlite_store(data_dir);
+    AssetStore assets(std::filesystem::path(data_dir) / "assets", max_asset_bytes);
+    mc.limits.asset_store = assets.blob_dir().string();
+    hc.assets = &assets;
     Metrics metrics;
     JobManager manager(mc, *store, [](const nlohmann::json& spec, const JobLimits& limits) {
       return compile_job(spec, limits);
@@ -259,6 +273,7 @@ int main(int argc, char** argv) {
     const uint16_t port = server.start();
     manager.recover();
     handler.set_ready(true);
+    AssetRetention retention(assets, manager, asset_retention_days);
     if (!port_file.empty()) {  // written once ready
       const std::string tmp = port_file + ".tmp";
       std::ofstream(tmp) << port << "\n";
@@ -275,6 +290,7 @@ int main(int argc, char** argv) {
     log::info("signal {}: checkpointing jobs and shutting down", sig);
     server.stop_accepting();
     handler.set_ready(false);
+    retention.stop();
     manager.shutdown();  // checkpoints unfinished jobs, ends every event stream
     server.stop(2.0);
     return 0;

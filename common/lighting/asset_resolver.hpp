@@ -34,6 +34,11 @@ inline std::optional<std::string> asset_ref_hex(std::string_view ref) {
   return std::string(ref.substr(kAssetRefPrefix.size()));
 }
 
+// The scene fields whose string value names a file (a path or a "sha256:" reference).
+// Loaders of new file kinds add their field here: the CLI uploads what these name and
+// cluster mode ships it to workers.
+inline bool is_scene_file_field(std::string_view key) { return key == "obj" || key == "map"; }
+
 // The store's layout, shared by the server's AssetStore and the cluster worker's
 // cache: one file per asset, named by its hash, directly in the store directory.
 inline std::filesystem::path stored_asset_path(const std::filesystem::path& store, std::string_view hex) {

@@ -65,6 +65,7 @@ Submitter RequestHandler::submitter(const HttpRequest& req) const {
 HttpResponse RequestHandler::post_job(const HttpRequest& req, const PathParams&) {
   const int priority = parse_priority(req);
   const json spec = parse_json_body(req);
+  check_assets(req, spec);
   auto job = manager_.submit(spec, priority, submitter(req));
   const JobSnapshot s = manager_.snapshot(*job);
   HttpResponse r = json_response(202, {{"id", s.id},
@@ -126,6 +127,7 @@ HttpResponse RequestHandler::extend_job(const HttpRequest& req, const PathParams
 
 HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathParams&) {
   const json spec = parse_json_body(req);
+  check_assets(req, spec);
   const JobLimits limits = *submitter(req).limits;
   std::unique_ptr<JobDefinition> def = manager_.compiler()(spec, limits);
   json out = {{"valid", true},

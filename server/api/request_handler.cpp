@@ -82,6 +82,10 @@ void RequestHandler::add_routes() {
   router_.add("POST", "/v1/session", bind(&RequestHandler::login));
   router_.add("GET", "/v1/session", bind(&RequestHandler::whoami));
   router_.add("DELETE", "/v1/session", bind(&RequestHandler::logout));
+  // Uploads stream (open_body_stream); this route serves a body already read whole
+  // (respond_to_bytes, tests). The hashing and fsync may take long: off the I/O threads.
+  router_.add("PUT", "/v1/assets/{name}", bind(&RequestHandler::put_asset), true);
+  router_.add("HEAD", "/v1/assets/{name}", bind(&RequestHandler::head_asset));
 }
 
 bool RequestHandler::may_block(const HttpRequest& request) const {
@@ -90,6 +94,12 @@ bool RequestHandler::may_block(const HttpRequest& request) const {
 }
 
 HttpResponse RequestHandler::handle(HttpRequest request) {
+  HttpResponse res = guarded(request, [&request](const RouteMatch& m) { return m.route->handler(request, m.params); });
+  if (request.method == "HEAD") res.body.clear();  // a HEAD answer has no body, whatever went wrong
+  return res;
+}
+
+HttpResponse RequestHandler::guarded(HttpRequest& request, const std::function<HttpResponse(const RouteMatch&)>& run) {
   const auto t0 = std::chrono::steady_clock::now();
   const RouteMatch m = router_.match(request.method, request.path());
   HttpResponse res;
@@ -115,7 +125,7 @@ HttpResponse RequestHandler::handle(HttpRequest request) {
       e.headers.emplace_back("Retry-After", "1");
       throw e;
     }
-    res = m.route->handler(request, m.params);
+    res = run(m);
   } catch (const HttpError& e) {
     res = problem_response(e.status(), e.detail(), e.pointer());
     for (const auto& [k, v] : e.headers) res.set_header(k, v);
@@ -138,6 +148,7 @@ HttpResponse RequestHandler::handle(HttpRequest request) {
   } catch (const std::exception& e) {
     res = problem_response(500, fmt::format("internal error: {}", e.what()));
   }
+  if (res.status == 0) return res;  // a streamed body continues (open_body_stream): observed when it ends
   if (res.header("X-Content-Type-Options").empty()) res.set_header("X-Content-Type-Options", "nosniff");
   const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   metrics_.observe(m.route ? m.route->pattern : std::string("unmatched"), request.method, res.status, dt);

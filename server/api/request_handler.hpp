@@ -21,6 +21,8 @@
 
 namespace tally {
 
+class AssetStore;
+
 struct ImageEncoders {
   std::function<std::string(const ImageSnapshot&, const nlohmann::json& metadata)> exr;
   std::function<std::string(const ImageSnapshot&)> png;
@@ -35,6 +37,8 @@ struct HandlerConfig {
   // Cluster mode: GET /v1/workers body and extra /metrics lines (server/cluster/cluster_http.hpp).
   std::function<nlohmann::json()> workers;
   std::function<std::string()> extra_metrics;
+  // The content-addressed asset store (PUT/HEAD /v1/assets/...); null: those routes answer 404.
+  AssetStore* assets = nullptr;
 };
 
 // GET /v1/jobs/{id} bodies, kept until the job changes (its version) and, for a
@@ -58,6 +62,12 @@ class RequestHandler {
   RequestHandler(JobManager& manager, Metrics& metrics, HandlerConfig config);
 
   HttpResponse handle(HttpRequest request);
+  // Streamed bodies (asset uploads): true when the session should not read this
+  // request's body into a string but call open_body_stream once its header is read.
+  bool streams_body(const HttpRequest& head) const;
+  // Authorizes the request and opens its body's sink (server/api/asset_routes.cpp),
+  // or answers at once. Cheap: may run on an I/O thread.
+  BodyStream open_body_stream(HttpRequest head);
   // True for requests that may take long (compile, pilot, image encode): the
   // session runs them off the I/O threads.
   bool may_block(const HttpRequest& request) const;
@@ -67,6 +77,12 @@ class RequestHandler {
  private:
   void add_routes();
   nlohmann::json parse_json_body(const HttpRequest& request) const;
+  // Routing, the authorize step and the one mapping of failures to problem responses;
+  // `run` is called with the matched route once the caller is authorized.
+  HttpResponse guarded(HttpRequest& request, const std::function<HttpResponse(const RouteMatch&)>& run);
+  // 422 naming the first "sha256:" reference of `spec` the caller cannot use (not
+  // stored, or stored only by another tenant: indistinguishable).
+  void check_assets(const HttpRequest& request, const nlohmann::json& spec) const;
   // The one lookup of every job route: the job if the caller may see it, else 404
   // (another tenant's job is indistinguishable from a missing one).
   std::shared_ptr<Job> visible_job(const HttpRequest& request, const std::string& id) const;
@@ -86,6 +102,9 @@ class RequestHandler {
   HttpResponse login(const HttpRequest&, const PathParams&);
   HttpResponse whoami(const HttpRequest&, const PathParams&);
   HttpResponse logout(const HttpRequest&, const PathParams&);
+  HttpResponse put_asset(const HttpRequest&, const PathParams&);
+  HttpResponse head_asset(const HttpRequest&, const PathParams&);
+  std::unique_ptr<BodySink> asset_sink(const HttpRequest&, const PathParams&);
 
   JobManager& manager_;
   Metrics& metrics_;

@@ -56,6 +56,7 @@ Quotas parse_quotas(SpecReader rd) {
   q.max_samples = rd.integer_or("max_samples", kMax, 1, kMax);
   q.max_seconds = rd.number_or("max_seconds", q.max_seconds, 1e-3, 1e12);
   q.max_pixels = rd.integer_or("max_pixels", kMax, 1, kMax);
+  q.max_asset_bytes = rd.integer_or("max_asset_bytes", kMax, 0, kMax);
   q.requests_per_second = rd.number_or("requests_per_second", 0.0, 1e-3, 1e9);
   q.burst = rd.number_or("burst", 0.0, 1.0, 1e9);
   rd.finish();
@@ -123,6 +124,7 @@ json principal_entry_json(const PrincipalEntry& e) {
   const Quotas d;
   if (e.quotas.max_running_jobs != d.max_running_jobs) q["max_running_jobs"] = e.quotas.max_running_jobs;
   if (e.quotas.max_queued_jobs != d.max_queued_jobs) q["max_queued_jobs"] = e.quotas.max_queued_jobs;
+  if (e.quotas.max_asset_bytes != d.max_asset_bytes) q["max_asset_bytes"] = e.quotas.max_asset_bytes;
   if (e.quotas.requests_per_second > 0) {
     q["requests_per_second"] = e.quotas.requests_per_second;
     q["burst"] = e.quotas.burst;

@@ -25,6 +25,8 @@ struct Quotas {
   uint64_t max_samples = kUnlimited;
   double max_seconds = std::numeric_limits<double>::infinity();
   uint64_t max_pixels = kUnlimited;
+  // Bytes of assets (PUT /v1/assets/...) this principal may have stored at once.
+  uint64_t max_asset_bytes = kUnlimited;
   // Token bucket: sustained requests per second and burst size (0 = no limit).
   double requests_per_second = 0;
   double burst = 0;

@@ -7,6 +7,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "common/lighting/asset_resolver.hpp"
 #include "common/lighting/scene_json.hpp"
 #include "server/cluster/protocol.hpp"
 #include "server/cluster/redis_conn.hpp"
@@ -36,24 +37,30 @@ std::string read_file(const fs::path& p) {
   return ss.str();
 }
 
-void walk(const json& j, const std::string& pointer, const std::string& asset_dir, std::map<std::string, JobAsset>& out) {
-  if (j.is_object()) {
+void walk(const json& j, const std::string& pointer, const JobLimits& limits, std::map<std::string, JobAsset>& out) {
+  if (j.is_string()) {
+    const std::string& name = j.get_ref<const std::string&>();
+    if (!looks_like_asset_ref(name) || out.count(name)) return;
+    JobAsset a;
+    a.bytes = read_scene_file(name, limits, pointer);  // same rule as the compiler
+    a.sha256 = sha256_hex(a.bytes);
+    out.emplace(name, std::move(a));
+  } else if (j.is_object()) {
     for (const auto& [k, v] : j.items()) {
       const std::string p = pointer + "/" + k;
-      if (k == "obj" && v.is_string()) {
+      if (is_scene_file_field(k) && v.is_string() && !looks_like_asset_ref(v.get<std::string>())) {
         const std::string rel = v.get<std::string>();
         if (out.count(rel)) continue;
-        const fs::path path = resolve_asset(asset_dir, rel, p);  // same rule as the compiler
         JobAsset a;
-        a.bytes = read_file(path);
+        a.bytes = read_file(resolve_scene_file(rel, limits, p));
         a.sha256 = sha256_hex(a.bytes);
         out.emplace(rel, std::move(a));
       } else {
-        walk(v, p, asset_dir, out);
+        walk(v, p, limits, out);
       }
     }
   } else if (j.is_array()) {
-    for (size_t i = 0; i < j.size(); ++i) walk(j[i], pointer + "/" + std::to_string(i), asset_dir, out);
+    for (size_t i = 0; i < j.size(); ++i) walk(j[i], pointer + "/" + std::to_string(i), limits, out);
   }
 }
 
@@ -79,9 +86,13 @@ bool safe_relative(const std::string& rel) {
 
 }  // namespace
 
-std::map<std::string, JobAsset> collect_assets(const json& spec, const std::string& asset_dir) {
+std::map<std::string, JobAsset> collect_assets(const json& spec, const std::string& asset_dir,
+                                               const std::string& asset_store) {
   std::map<std::string, JobAsset> out;
-  walk(spec, "", asset_dir, out);
+  JobLimits limits;
+  limits.asset_dir = asset_dir;
+  limits.asset_store = asset_store;
+  walk(spec, "", limits, out);
   return out;
 }
 
@@ -116,6 +127,7 @@ fs::path materialize_assets(RedisConn& conn, const json& manifest, const fs::pat
       }
       fs::rename(tmp, blob);
     }
+    if (looks_like_asset_ref(rel)) continue;  // found by hash in cache_dir/blobs (JobLimits::asset_store)
     const fs::path target = dir / rel;
     fs::create_directories(target.parent_path());
     std::error_code ec;

@@ -22,15 +22,20 @@ struct JobAsset {
 
 std::string sha256_hex(std::string_view bytes);
 
-// relative path -> asset, for every "obj" string in the spec. Throws (SpecError or
-// std::runtime_error) when a file cannot be read.
-std::map<std::string, JobAsset> collect_assets(const nlohmann::json& spec, const std::string& asset_dir);
-// {"path": "sha256", ...}
+// name -> asset, for every file the spec names: a relative path in a file field ("obj",
+// "map") read from asset_dir, or a "sha256:<hex>" string anywhere, read from the asset
+// store (both through resolve_scene_file, the compiler's own rule). Throws (SpecError
+// or std::runtime_error) when a file cannot be read.
+std::map<std::string, JobAsset> collect_assets(const nlohmann::json& spec, const std::string& asset_dir,
+                                               const std::string& asset_store = {});
+// {"name": "sha256", ...}
 nlohmann::json asset_manifest(const std::map<std::string, JobAsset>& assets);
 
-// Worker side: materializes the manifest under cache_dir/jobs/<tag>/ (hard links to
-// cache_dir/blobs/<sha>), fetching and verifying missing blobs. Returns the directory
-// to use as JobLimits::asset_dir. Throws std::runtime_error naming the bad entry.
+// Worker side: fetches and verifies the blobs the manifest names that
+// cache_dir/blobs/<sha> lacks (cache_dir/blobs has the asset store's layout: it is the
+// worker's JobLimits::asset_store, for "sha256:" names), and links relative paths
+// under cache_dir/jobs/<tag>/. Returns the directory to use as JobLimits::asset_dir.
+// Throws std::runtime_error naming the bad entry.
 std::filesystem::path materialize_assets(RedisConn& conn, const nlohmann::json& manifest,
                                          const std::filesystem::path& cache_dir, const std::string& tag);
 

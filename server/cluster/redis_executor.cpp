@@ -53,7 +53,7 @@ void RedisExecutor::add(ExecutorJob ej, PassWork first_pass) {
   // starts jobs from its own paths); a job whose files vanished fails at once.
   std::string asset_error;
   try {
-    job->assets = collect_assets(nlohmann::json::parse(ej.spec_json), cfg_.asset_dir);
+    job->assets = collect_assets(nlohmann::json::parse(ej.spec_json), cfg_.asset_dir, cfg_.asset_store);
     job->manifest = asset_manifest(job->assets).dump();
   } catch (const std::exception& e) {
     asset_error = fmt::format("cannot publish the job's assets: {}", e.what());

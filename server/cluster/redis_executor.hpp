@@ -31,6 +31,7 @@ struct RedisExecutorConfig {
   std::chrono::milliseconds lease{30000};  // a block's lease before workers reclaim it
   unsigned max_failures = 3;               // failed deliveries of one block that fail its job
   std::string asset_dir;                   // where the specs' OBJ files are read from
+  std::string asset_store;                 // the server's asset store ("sha256:" names), JobLimits::asset_store
   size_t digest_passes = 16;               // passes whose result digests stay for late duplicates
   size_t max_entry_blocks = 4096;          // cap on blocks per stream entry (benchmarks set 1)
 };

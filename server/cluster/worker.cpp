@@ -253,6 +253,7 @@ class Worker {
       const nlohmann::json spec = nlohmann::json::parse(h.elems[0].str);
       JobLimits limits = cfg_.limits;
       limits.asset_dir.clear();  // only the job's own assets, never a local directory
+      limits.asset_store = (cfg_.cache_dir / "blobs").string();  // "sha256:" names: verified blobs only
       if (!h.elems[1].is_nil() && !h.elems[1].str.empty()) {
         const nlohmann::json manifest = nlohmann::json::parse(h.elems[1].str);
         if (!manifest.empty()) limits.asset_dir = materialize_assets(conn, manifest, cfg_.cache_dir, tag).string();

@@ -17,6 +17,7 @@
 #include <fmt/format.h>
 
 #include <atomic>
+#include <limits>
 #include <chrono>
 #include <optional>
 #include <sstream>
@@ -44,7 +45,9 @@ std::chrono::steady_clock::duration secs(double s) {
 
 using BeastRequest = http::request<http::string_body>;
 
-HttpRequest to_http_request(BeastRequest& req) {
+// Method, target and headers (names in lower case), without the body.
+template <class Fields>
+HttpRequest to_http_head(const http::request_header<Fields>& req) {
   HttpRequest r;
   r.method = std::string(req.method_string());
   r.target = std::string(req.target());
@@ -53,9 +56,17 @@ HttpRequest to_http_request(BeastRequest& req) {
     for (char& c : name) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
     r.headers.emplace_back(std::move(name), std::string(f.value()));
   }
+  return r;
+}
+
+HttpRequest to_http_request(BeastRequest& req) {
+  HttpRequest r = to_http_head(req.base());
   r.body = std::move(req.body());
   return r;
 }
+
+// A streamed body (BodySink) is read in parts of this size.
+constexpr size_t kBodyPartBytes = 256 << 10;
 
 // The problem response for a request the parser rejected, or nullopt when the
 // error means the peer went away (no answer possible).
@@ -170,20 +181,120 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
 
   // Read phase: the whole request within the read timeout. The timeout is our own
   // timer (not the stream's, which would close the socket) so the client gets a 408.
+  // The header comes first: a route that streams its body (BodySink: uploads) then
+  // reads it in parts, every other route as one string within --max-body.
   void read_request() {
-    parser_.emplace();
-    configure_parser(*parser_, shared_.config);
+    header_parser_.emplace();
+    header_parser_->header_limit(static_cast<uint32_t>(shared_.config.max_header_bytes));
+    header_parser_->body_limit(std::numeric_limits<uint64_t>::max());  // decided once the route is known
     lowest().expires_never();
     read_timed_out_ = false;
+    arm_read_timer();
+    http::async_read_header(stream_, buffer_, *header_parser_,
+                            [self = shared_from_this()](beast::error_code ec, size_t) { self->on_header(ec); });
+  }
+
+  void arm_read_timer() {
     read_timer_.expires_after(secs(shared_.config.read_timeout_s));
     read_timer_.async_wait([self = shared_from_this()](beast::error_code ec) {
-      if (ec) return;  // cancelled: the request arrived in time
+      if (ec) return;  // cancelled or re-armed: the request (or its next part) arrived in time
       self->read_timed_out_ = true;
       beast::error_code ignored;
       self->lowest().socket().cancel(ignored);
     });
+  }
+
+  // A read that failed or timed out: the response (408, 413, 400 ...) or a close.
+  void on_read_failure(beast::error_code ec) {
+    read_timer_.cancel();
+    sink_.reset();  // an unfinished streamed body is undone
+    if (read_timed_out_) {
+      shared_.metrics.timeouts++;
+      return send(problem_response(408, fmt::format("the request was not received within {} s",
+                                                    shared_.config.read_timeout_s)),
+                  false);
+    }
+    if (auto res = parse_error_response(ec, shared_.config)) return send(std::move(*res), false);
+    return on_error(ec);
+  }
+
+  void on_header(beast::error_code ec) {
+    if (ec || read_timed_out_) return on_read_failure(ec);
+    HttpRequest head = to_http_head(header_parser_->get().base());
+    if (auto res = framing_response(head)) {
+      read_timer_.cancel();
+      return send(std::move(*res), false);
+    }
+    keep_alive_ = header_parser_->get().keep_alive();
+    version_ = header_parser_->get().version();
+    if (shared_.handler.streams_body(head)) return start_body_stream(std::move(head));
+    const auto length = header_parser_->content_length();
+    if (length && *length > shared_.config.max_body_bytes) return on_read_failure(http::error::body_limit);
+    parser_.emplace(std::move(*header_parser_));
+    header_parser_.reset();
+    parser_->body_limit(shared_.config.max_body_bytes);
     http::async_read(stream_, buffer_, *parser_,
-                     [self = shared_from_this()](beast::error_code ec, size_t) { self->on_read(ec); });
+                     [self = shared_from_this()](beast::error_code ec2, size_t) { self->on_read(ec2); });
+  }
+
+  // ---- streamed bodies: each part is handed to the sink on the blocking pool (hashing
+  // and disk writes stay off the I/O threads); the next part is read once it is taken.
+  // The read timeout applies to each part (progress), not to the whole body.
+  void start_body_stream(HttpRequest head) {
+    const bool expect_continue = iequals(head.header("expect"), "100-continue");
+    BodyStream bs = shared_.handler.open_body_stream(std::move(head));
+    if (!bs.sink) {
+      read_timer_.cancel();
+      return send(std::move(bs.response), false);  // the body is not read: the connection ends
+    }
+    sink_ = std::move(bs.sink);
+    body_parser_.emplace(std::move(*header_parser_));
+    header_parser_.reset();
+    body_parser_->body_limit(std::numeric_limits<uint64_t>::max());  // the sink enforces its own limit
+    part_.resize(kBodyPartBytes);
+    if (!expect_continue) return read_body_part();
+    continue_ = "HTTP/1.1 100 Continue\r\n\r\n";
+    lowest().expires_after(secs(shared_.config.write_timeout_s));
+    net::async_write(stream_, net::buffer(continue_), [self = shared_from_this()](beast::error_code ec, size_t) {
+      self->lowest().expires_never();
+      if (ec) return self->on_read_failure(ec);
+      self->read_body_part();
+    });
+  }
+
+  void read_body_part() {
+    if (body_parser_->is_done()) return finish_body_stream();
+    arm_read_timer();
+    body_parser_->get().body().data = part_.data();
+    body_parser_->get().body().size = part_.size();
+    http::async_read(stream_, buffer_, *body_parser_, [self = shared_from_this()](beast::error_code ec, size_t) {
+      if (ec == http::error::need_buffer) ec = {};
+      if (ec || self->read_timed_out_) return self->on_read_failure(ec);
+      self->read_timer_.cancel();
+      const size_t n = self->part_.size() - self->body_parser_->get().body().size;
+      net::post(self->shared_.blocking, [self, n] {
+        std::optional<HttpResponse> early = self->sink_->write(std::string_view(self->part_.data(), n));
+        net::post(self->stream_.get_executor(), [self, early = std::move(early)]() mutable {
+          if (early) {
+            self->sink_.reset();
+            return self->send(std::move(*early), false);
+          }
+          self->read_body_part();
+        });
+      });
+    });
+  }
+
+  void finish_body_stream() {
+    read_timer_.cancel();
+    net::post(shared_.blocking, [self = shared_from_this()] {
+      HttpResponse res = self->sink_->finish();
+      net::post(self->stream_.get_executor(), [self, res = std::move(res)]() mutable {
+        self->sink_.reset();
+        self->body_parser_.reset();
+        self->send(std::move(res), self->keep_alive_);
+      });
+    });
   }
 
   void on_error(beast::error_code ec) {
@@ -212,23 +323,11 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   }
 
   void on_read(beast::error_code ec) {
+    if (ec || read_timed_out_) return on_read_failure(ec);
     read_timer_.cancel();
-    if (read_timed_out_) {
-      shared_.metrics.timeouts++;
-      return send(problem_response(408, fmt::format("the request was not received within {} s",
-                                                    shared_.config.read_timeout_s)),
-                  false);
-    }
-    if (ec) {
-      if (auto res = parse_error_response(ec, shared_.config)) return send(std::move(*res), false);
-      return on_error(ec);
-    }
     BeastRequest req = parser_->release();
     parser_.reset();
-    keep_alive_ = req.keep_alive();
-    version_ = req.version();
     HttpRequest r = to_http_request(req);
-    if (auto res = framing_response(r)) return send(std::move(*res), false);
     if (shared_.handler.may_block(r)) {
       net::post(shared_.blocking, [self = shared_from_this(), r = std::move(r)]() mutable {
         HttpResponse res = self->shared_.handler.handle(std::move(r));
@@ -346,7 +445,12 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   Shared& shared_;
   bool reject_;
   beast::flat_buffer buffer_;
+  std::optional<http::request_parser<http::empty_body>> header_parser_;
   std::optional<http::request_parser<http::string_body>> parser_;
+  std::optional<http::request_parser<http::buffer_body>> body_parser_;
+  std::unique_ptr<BodySink> sink_;
+  std::vector<char> part_;
+  std::string continue_;
   bool keep_alive_ = false;
   unsigned version_ = 11;
   // streaming

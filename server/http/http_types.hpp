@@ -3,6 +3,7 @@
 // other, so every route is unit-testable without a network. Only the listener and
 // session (http_server.cpp) know about Beast.
 #include <memory>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -39,6 +40,27 @@ struct HttpResponse {
 
   void set_header(std::string name, std::string value);
   std::string_view header(std::string_view name) const;  // case-insensitive
+};
+
+// A request body a route takes as a stream instead of a string (uploads: PUT
+// /v1/assets/...). Once the header is read, the session asks the request handler
+// for a sink (RequestHandler::open_body_stream) and feeds it the body part by part,
+// off the I/O threads, then calls finish(). A sink destroyed without finish() (the
+// client went away, a timeout) must undo whatever it wrote.
+class BodySink {
+ public:
+  virtual ~BodySink() = default;
+  // The next part of the body; a response ends the request early (e.g. 413).
+  virtual std::optional<HttpResponse> write(std::string_view part) = 0;
+  // The whole body arrived: the response.
+  virtual HttpResponse finish() = 0;
+};
+
+// What the handler answers once a streamed request's header is read: a sink for
+// the body, or (authorization failed, bad name, too large) the response at once.
+struct BodyStream {
+  std::unique_ptr<BodySink> sink;
+  HttpResponse response;  // used when sink is null
 };
 
 std::string url_decode(std::string_view s);

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import hashlib
 import http.client
 import json
+import os
 import socket
 import ssl
 import time
@@ -164,6 +166,71 @@ class Client:
             raise ValueError(f"fmt must be 'exr' or 'png', got {fmt!r}")
         return self._request("GET", f"/v1/jobs/{_segment(job_id)}/image.{fmt}").body
 
+    # --- assets --------------------------------------------------------------------
+
+    def has_asset(self, ref: str) -> bool:
+        """Whether the server stores the asset ``"sha256:<hex>"`` for this caller (HEAD)."""
+        conn = self._connection(self.timeout)
+        try:
+            try:
+                conn.request("HEAD", self._target(f"/v1/assets/{ref}", None), headers=self._headers())
+                resp = conn.getresponse()
+                resp.read()
+            except _NETWORK_ERRORS as e:
+                raise TallyConnectionError(f"HEAD {self.url}/v1/assets/{ref}: {e}") from e
+        finally:
+            conn.close()
+        if resp.status == 404:
+            return False
+        if resp.status >= 400:
+            raise problem_from_response(resp.status, b"", {k.lower(): v for k, v in resp.getheaders()})
+        return True
+
+    def upload_asset(self, path: str, *, skip_if_present: bool = True) -> str:
+        """Uploads a file to the server's asset store and returns its name, ``"sha256:<hex>"``
+        (what a scene uses wherever it names a file). The file is streamed, never read whole
+        into memory; with ``skip_if_present`` a HEAD first avoids sending what the server has."""
+        ref = "sha256:" + _sha256_file(path)
+        if skip_if_present and self.has_asset(ref):
+            return ref
+        size = os.path.getsize(path)
+        conn = self._connection(self.timeout + size / 2e6)
+        try:
+            try:
+                with open(path, "rb") as f:
+                    conn.request("PUT", self._target(f"/v1/assets/{ref}", None), body=f,
+                                 headers=self._headers({"Content-Type": "application/octet-stream",
+                                                        "Content-Length": str(size)}))
+                resp = conn.getresponse()
+                payload = resp.read()
+            except _NETWORK_ERRORS as e:
+                raise TallyConnectionError(f"PUT {self.url}/v1/assets/{ref}: {e}") from e
+            hdrs = {k.lower(): v for k, v in resp.getheaders()}
+        finally:
+            conn.close()
+        if resp.status >= 400:
+            raise problem_from_response(resp.status, payload, hdrs)
+        return ref
+
+    def upload_scene_assets(self, spec: Mapping[str, Any], base_dir: str = ".") -> JsonObject:
+        """A copy of ``spec`` whose local files (the scene fields ``obj`` and ``map``, relative
+        to ``base_dir``) are uploaded (only those the server lacks) and named by their hash,
+        as ``tally submit`` does. Names that are not local files are left alone."""
+        def walk(v: Any) -> Any:
+            if isinstance(v, dict):
+                out = {}
+                for k, x in v.items():
+                    if k in _FILE_FIELDS and isinstance(x, str) and not x.startswith("sha256:"):
+                        local = x if os.path.isabs(x) else os.path.join(base_dir, x)
+                        out[k] = self.upload_asset(local) if os.path.isfile(local) else x
+                    else:
+                        out[k] = walk(x)
+                return out
+            if isinstance(v, list):
+                return [walk(x) for x in v]
+            return v
+        return walk(spec)
+
     # --- HTTP ----------------------------------------------------------------------
 
     def _connection(self, timeout: float) -> http.client.HTTPConnection:
@@ -279,6 +346,18 @@ class Client:
                     f"event stream of job {job_id} lost for {reconnect_timeout} s (last event id {last}): {err}") from err
             time.sleep(delay)
             delay = min(delay * 2, 1.0)
+
+
+# Scene fields that name a file (common/lighting/asset_resolver.hpp: is_scene_file_field).
+_FILE_FIELDS = frozenset({"obj", "map"})
+
+
+def _sha256_file(path: str) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def _segment(job_id: str) -> str:

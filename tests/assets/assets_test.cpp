@@ -1,0 +1,369 @@
+// Assets over HTTP against the real tally-server: PUT/HEAD /v1/assets/sha256:<hex>,
+// scenes naming stored assets, restart, retention, quota and tenancy, and the CLI's
+// upload of what the server lacks.
+#include <arpa/inet.h>
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <openssl/evp.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include "server/auth/token.hpp"
+#include "server_process.hpp"
+
+namespace tally::e2e {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+std::string sha256_hex(std::string_view bytes) {
+  unsigned char md[EVP_MAX_MD_SIZE];
+  unsigned int len = 0;
+  EVP_Digest(bytes.data(), bytes.size(), md, &len, EVP_sha256(), nullptr);
+  std::string out;
+  for (unsigned i = 0; i < len; ++i) out += fmt::format("{:02x}", md[i]);
+  return out;
+}
+
+std::string asset_url(const std::string& hex) { return "/v1/assets/sha256:" + hex; }
+
+size_t files_in(const fs::path& dir) {
+  std::error_code ec;
+  size_t n = 0;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) ++n;
+  return n;
+}
+
+std::string problem_of(const ClientResponse& r) {
+  const json p = json::parse(r.body, nullptr, false);
+  return p.is_object() && p.contains("detail") ? p["detail"].get<std::string>() : r.body;
+}
+
+// A small OBJ: a 1x1 emitting square at z = 1.5 facing down, in `rows` strips.
+std::string lamp_obj(int rows = 1) {
+  std::ostringstream o;
+  for (int i = 0; i <= rows; ++i) {
+    const double y = -0.5 + static_cast<double>(i) / rows;
+    o << "v -0.5 " << y << " 1.5\nv 0.5 " << y << " 1.5\n";
+  }
+  for (int i = 0; i < rows; ++i) {
+    const int a = 2 * i + 1;
+    o << "f " << a << " " << a + 2 << " " << a + 3 << "\nf " << a << " " << a + 3 << " " << a + 1 << "\n";
+  }
+  return o.str();
+}
+
+// A small lighting image job whose lamp is the mesh `obj` names.
+json obj_image_spec(const std::string& obj) {
+  return json{
+      {"kind", "lighting"},
+      {"seed", 7},
+      {"scene",
+       {{"camera",
+         {{"position", {0, -3, 0.75}},
+          {"look_at", {0, 0, 0.75}},
+          {"up", {0, 0, 1}},
+          {"fov_deg", 60},
+          {"resolution", {16, 12}}}},
+        {"materials",
+         {{"floor", {{"type", "diffuse"}, {"albedo", {0.8, 0.8, 0.8}}}},
+          {"lamp", {{"type", "emissive"}, {"radiance", {4, 4, 4}}}}}},
+        {"shapes",
+         json::array({{{"type", "quad"}, {"corner", {-2, -2, 0}}, {"edge_u", {4, 0, 0}}, {"edge_v", {0, 4, 0}},
+                       {"material", "floor"}},
+                      {{"type", "mesh"}, {"obj", obj}, {"material", "lamp"}}})}}},
+      {"query", {{"type", "image"}, {"max_depth", 2}}},
+      {"estimators", {"mis"}},
+      {"stop", {{"max_samples", 16 * 12 * 4}}},
+  };
+}
+
+ClientResponse put(HttpClient& c, const std::string& hex, const std::string& body) {
+  return c.request("PUT", asset_url(hex), body, {{"Content-Type", "application/octet-stream"}});
+}
+
+TEST(Assets, UploadHeadAndTheSameAssetTwiceIsStoredOnce) {
+  TempDir tmp;
+  ServerProcess server(tmp.path / "data");
+  HttpClient c = server.client();
+  const std::string body = lamp_obj(3);
+  const std::string hex = sha256_hex(body);
+  EXPECT_EQ(c.request("HEAD", asset_url(hex)).status, 404);
+  const ClientResponse first = put(c, hex, body);
+  ASSERT_EQ(first.status, 201) << first.body;
+  EXPECT_EQ(json::parse(first.body).at("bytes"), body.size());
+  EXPECT_EQ(first.header("Location"), asset_url(hex));
+  const fs::path blob = tmp.path / "data" / "assets" / "sha256" / hex;
+  std::ifstream in(blob, std::ios::binary);
+  EXPECT_EQ(std::string(std::istreambuf_iterator<char>(in), {}), body);
+  struct stat st1 {};
+  ASSERT_EQ(::stat(blob.c_str(), &st1), 0);
+  const ClientResponse second = put(c, hex, body);
+  EXPECT_EQ(second.status, 200) << second.body;
+  struct stat st2 {};
+  ASSERT_EQ(::stat(blob.c_str(), &st2), 0);
+  EXPECT_EQ(st1.st_ino, st2.st_ino);  // not rewritten (a new file would be renamed over it)
+  EXPECT_EQ(files_in(blob.parent_path()), 1u);
+  EXPECT_EQ(files_in(tmp.path / "data" / "assets" / "tmp"), 0u);
+  const ClientResponse head = c.request("HEAD", asset_url(hex));
+  EXPECT_EQ(head.status, 200);
+  EXPECT_EQ(head.header("X-Asset-Bytes"), std::to_string(body.size()));
+  EXPECT_TRUE(head.body.empty());
+  // Malformed names: 400.
+  EXPECT_EQ(put(c, "abc", body).status, 400);
+  EXPECT_EQ(c.request("PUT", "/v1/assets/md5:" + hex, body).status, 400);
+  EXPECT_EQ(put(c, std::string(64, 'G'), body).status, 400);
+  EXPECT_EQ(c.request("HEAD", "/v1/assets/" + hex).status, 400);
+}
+
+TEST(Assets, HashMismatchIs422AndNothingIsKept) {
+  TempDir tmp;
+  ServerProcess server(tmp.path / "data");
+  HttpClient c = server.client();
+  const std::string body = lamp_obj(2);
+  const std::string wrong = sha256_hex(body + " ");
+  const ClientResponse r = put(c, wrong, body);
+  EXPECT_EQ(r.status, 422) << r.body;
+  EXPECT_NE(problem_of(r).find(sha256_hex(body)), std::string::npos) << r.body;  // names the body's real hash
+  EXPECT_EQ(files_in(tmp.path / "data" / "assets" / "sha256"), 0u);
+  EXPECT_EQ(files_in(tmp.path / "data" / "assets" / "tmp"), 0u);
+  EXPECT_EQ(c.request("HEAD", asset_url(wrong)).status, 404);
+}
+
+TEST(Assets, OverSizeIs413AndNothingIsKeptDeclaredOrChunked) {
+  TempDir tmp;
+  ServerProcess server(tmp.path / "data", {"--max-asset-bytes", "1000"});
+  HttpClient c = server.client();
+  const std::string big(2000, 'x');
+  const std::string hex = sha256_hex(big);
+  const ClientResponse declared = put(c, hex, big);  // Content-Length over the limit: refused before the body
+  EXPECT_EQ(declared.status, 413) << declared.body;
+  EXPECT_NE(problem_of(declared).find("1000"), std::string::npos);
+  // Chunked (no Content-Length): refused when the streamed bytes pass the limit.
+  std::string raw = "PUT " + asset_url(hex) + " HTTP/1.1\r\nHost: 127.0.0.1\r\nTransfer-Encoding: chunked\r\n\r\n";
+  for (int i = 0; i < 4; ++i) raw += "1f4\r\n" + std::string(500, 'x') + "\r\n";
+  raw += "0\r\n\r\n";
+  const std::string answer = c.raw_exchange(raw);
+  EXPECT_EQ(answer.substr(0, 12), "HTTP/1.1 413") << answer;
+  EXPECT_EQ(files_in(tmp.path / "data" / "assets" / "sha256"), 0u);
+  EXPECT_EQ(files_in(tmp.path / "data" / "assets" / "tmp"), 0u);
+  // Exactly at the limit is fine.
+  const std::string ok(1000, 'y');
+  EXPECT_EQ(put(c, sha256_hex(ok), ok).status, 201);
+}
+
+TEST(Assets, InterruptedUploadKeepsNothing) {
+  TempDir tmp;
+  ServerProcess server(tmp.path / "data");
+  const std::string body(4 << 20, 'z');
+  const std::string hex = sha256_hex(body);
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  ASSERT_GE(fd, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_port = htons(server.port());
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ASSERT_EQ(::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr), 0);
+  const std::string head = "PUT " + asset_url(hex) + " HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: " +
+                           std::to_string(body.size()) + "\r\n\r\n";
+  const std::string sent = head + body.substr(0, body.size() / 2);  // half the body
+  size_t off = 0;
+  while (off < sent.size()) {
+    const ssize_t n = ::send(fd, sent.data() + off, sent.size() - off, MSG_NOSIGNAL);
+    ASSERT_GT(n, 0);
+    off += static_cast<size_t>(n);
+  }
+  // The body streams to a temp file (not into memory): it appears while the upload is open.
+  const fs::path tmpdir = tmp.path / "data" / "assets" / "tmp";
+  const auto t0 = std::chrono::steady_clock::now();
+  while (files_in(tmpdir) == 0 && std::chrono::steady_clock::now() - t0 < std::chrono::seconds(10)) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(files_in(tmpdir), 1u);
+  ::close(fd);  // the client goes away mid-body
+  const auto t1 = std::chrono::steady_clock::now();
+  while (files_in(tmpdir) > 0 && std::chrono::steady_clock::now() - t1 < std::chrono::seconds(10)) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(files_in(tmpdir), 0u);
+  EXPECT_EQ(files_in(tmp.path / "data" / "assets" / "sha256"), 0u);
+  HttpClient c = server.client();
+  EXPECT_EQ(c.request("HEAD", asset_url(hex)).status, 404);
+  // The same asset sent whole afterwards is stored.
+  EXPECT_EQ(c.send_file("PUT", asset_url(hex), [&] {
+    const fs::path f = tmp.path / "big.bin";
+    std::ofstream(f, std::ios::binary) << body;
+    return f.string();
+  }()).status, 201);
+  EXPECT_EQ(c.request("HEAD", asset_url(hex)).status, 200);
+}
+
+TEST(Assets, SceneNamingAMissingAssetIs422NamingIt) {
+  TempDir tmp;
+  ServerProcess server(tmp.path / "data");
+  HttpClient c = server.client();
+  const std::string hex = sha256_hex("not uploaded");
+  for (const char* route : {"/v1/jobs", "/v1/jobs/validate"}) {
+    const ClientResponse r =
+        c.request("POST", route, obj_image_spec("sha256:" + hex).dump(), {{"Content-Type", "application/json"}});
+    EXPECT_EQ(r.status, 422) << route << r.body;
+    const json p = json::parse(r.body);
+    EXPECT_EQ(p.at("pointer"), "/scene/shapes/1/obj");
+    EXPECT_NE(p.at("detail").get<std::string>().find("sha256:" + hex), std::string::npos) << r.body;
+  }
+  // A malformed reference is named too.
+  const ClientResponse bad =
+      c.request("POST", "/v1/jobs", obj_image_spec("sha256:1234").dump(), {{"Content-Type", "application/json"}});
+  EXPECT_EQ(bad.status, 422);
+  EXPECT_EQ(json::parse(bad.body).at("pointer"), "/scene/shapes/1/obj");
+}
+
+TEST(Assets, UploadedObjRendersBitIdenticalToTheSameFileFromAssetDir) {
+  TempDir tmp;
+  const std::string obj = lamp_obj(4);
+  fs::create_directories(tmp.path / "dir");
+  std::ofstream(tmp.path / "dir" / "lamp.obj") << obj;
+  ServerProcess server(tmp.path / "data", {"--asset-dir", (tmp.path / "dir").string()});
+  HttpClient c = server.client();
+  const std::string hex = sha256_hex(obj);
+  ASSERT_EQ(put(c, hex, obj).status, 201);
+  const std::string by_path = submit(c, obj_image_spec("lamp.obj"));
+  const std::string by_hash = submit(c, obj_image_spec("sha256:" + hex));
+  const json a = wait_state(c, by_path, "succeeded");
+  const json b = wait_state(c, by_hash, "succeeded");
+  EXPECT_EQ(a.at("bits"), b.at("bits"));
+  const ClientResponse ta = c.request("GET", "/v1/jobs/" + by_path + "/tiles/0");
+  const ClientResponse tb = c.request("GET", "/v1/jobs/" + by_hash + "/tiles/0");
+  ASSERT_EQ(ta.status, 200);
+  EXPECT_EQ(ta.body, tb.body);
+  EXPECT_FALSE(ta.body.empty());
+}
+
+TEST(Assets, RestartKeepsAssetsAndRetentionRemovesOnlyUnreferenced) {
+  TempDir tmp;
+  const std::string used = lamp_obj(1), unused = lamp_obj(2);
+  const std::string hu = sha256_hex(used), hn = sha256_hex(unused);
+  {
+    ServerProcess server(tmp.path / "data");
+    HttpClient c = server.client();
+    ASSERT_EQ(put(c, hu, used).status, 201);
+    ASSERT_EQ(put(c, hn, unused).status, 201);
+    wait_state(c, submit(c, obj_image_spec("sha256:" + hu)), "succeeded");
+    EXPECT_EQ(server.terminate(), 0);
+  }
+  {
+    ServerProcess server(tmp.path / "data");  // default retention: 30 days
+    HttpClient c = server.client();
+    EXPECT_EQ(c.request("HEAD", asset_url(hu)).status, 200);
+    EXPECT_EQ(c.request("HEAD", asset_url(hn)).status, 200);
+    EXPECT_EQ(server.terminate(), 0);
+  }
+  {
+    ServerProcess server(tmp.path / "data", {"--asset-retention-days", "0"});
+    HttpClient c = server.client();
+    const auto t0 = std::chrono::steady_clock::now();
+    while (server.log().find("asset retention: 1 removed") == std::string::npos &&
+           std::chrono::steady_clock::now() - t0 < std::chrono::seconds(20)) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    EXPECT_NE(server.log().find("removed sha256:" + hn), std::string::npos) << server.log();
+    EXPECT_EQ(c.request("HEAD", asset_url(hu)).status, 200);  // a job names it
+    EXPECT_EQ(c.request("HEAD", asset_url(hn)).status, 404);
+    EXPECT_FALSE(fs::exists(tmp.path / "data" / "assets" / "sha256" / hn));
+    EXPECT_EQ(server.terminate(), 0);
+  }
+}
+
+struct Who {
+  std::string name, role, token;
+  uint64_t max_asset_bytes = 0;
+};
+
+TEST(Assets, SubmitRoleQuotaAndTenancy) {
+  TempDir tmp;
+  std::vector<Who> who = {{"ann", "user", generate_token(), 1500},
+                          {"bob", "user", generate_token(), 0},
+                          {"rex", "reader", generate_token(), 0},
+                          {"adm", "admin", generate_token(), 0}};
+  json list = json::array();
+  for (const Who& w : who) {
+    json e = {{"name", w.name}, {"role", w.role}, {"token_sha256", token_sha256_hex(w.token)}};
+    if (w.max_asset_bytes) e["quotas"] = {{"max_asset_bytes", w.max_asset_bytes}};
+    list.push_back(e);
+  }
+  const fs::path auth = tmp.path / "auth.json";
+  std::ofstream(auth) << json{{"principals", list}}.dump();
+  ServerProcess server(tmp.path / "data", {"--auth-file", auth.string()});
+  HttpClient ann = server.client(ClientSecurity{who[0].token, ""});
+  HttpClient bob = server.client(ClientSecurity{who[1].token, ""});
+  HttpClient rex = server.client(ClientSecurity{who[2].token, ""});
+  HttpClient adm = server.client(ClientSecurity{who[3].token, ""});
+  HttpClient anon = server.client();
+  const std::string a1(1000, 'a'), a2(1000, 'b');
+  EXPECT_EQ(put(anon, sha256_hex(a1), a1).status, 401);
+  EXPECT_EQ(put(rex, sha256_hex(a1), a1).status, 403);  // readers may not upload
+  EXPECT_EQ(put(ann, sha256_hex(a1), a1).status, 201);
+  const ClientResponse over = put(ann, sha256_hex(a2), a2);  // 1000 + 1000 > 1500
+  EXPECT_EQ(over.status, 403) << over.body;
+  EXPECT_NE(problem_of(over).find("quota"), std::string::npos) << over.body;
+  EXPECT_EQ(files_in(tmp.path / "data" / "assets" / "sha256"), 1u);
+  EXPECT_EQ(files_in(tmp.path / "data" / "assets" / "tmp"), 0u);
+  EXPECT_EQ(put(ann, sha256_hex(a1), a1).status, 200);  // already hers: no charge
+  // Tenancy: bob cannot learn that ann's asset exists, nor use it in a scene ...
+  EXPECT_EQ(bob.request("HEAD", asset_url(sha256_hex(a1))).status, 404);
+  EXPECT_EQ(adm.request("HEAD", asset_url(sha256_hex(a1))).status, 200);  // admins see every asset
+  const ClientResponse use = bob.request("POST", "/v1/jobs", obj_image_spec("sha256:" + sha256_hex(a1)).dump(),
+                                         {{"Content-Type", "application/json"}});
+  EXPECT_EQ(use.status, 422) << use.body;
+  EXPECT_NE(problem_of(use).find("not stored"), std::string::npos);
+  // ... until he uploads the bytes himself: 201 for him (as if new), stored once.
+  EXPECT_EQ(put(bob, sha256_hex(a1), a1).status, 201);
+  EXPECT_EQ(bob.request("HEAD", asset_url(sha256_hex(a1))).status, 200);
+  EXPECT_EQ(files_in(tmp.path / "data" / "assets" / "sha256"), 1u);
+}
+
+TEST(Assets, CliUploadsOnlyWhatTheServerLacks) {
+  if (std::string(TALLY_CLI_BIN).empty()) GTEST_SKIP() << "tally CLI not built";
+  TempDir tmp;
+  ServerProcess server(tmp.path / "data");
+  HttpClient c = server.client();
+  const std::string have = lamp_obj(1), lack = lamp_obj(3);
+  ASSERT_EQ(put(c, sha256_hex(have), have).status, 201);
+  fs::create_directories(tmp.path / "scene" / "meshes");
+  std::ofstream(tmp.path / "scene" / "meshes" / "have.obj") << have;
+  std::ofstream(tmp.path / "scene" / "meshes" / "lack.obj") << lack;
+  json spec = obj_image_spec("meshes/have.obj");
+  spec["scene"]["shapes"].push_back({{"type", "mesh"}, {"obj", "meshes/lack.obj"}, {"material", "floor"}});
+  std::ofstream(tmp.path / "scene" / "job.json") << spec.dump(2);
+  const std::string cmd = fmt::format("{} submit --server http://127.0.0.1:{} {} 2>{} >{}", TALLY_CLI_BIN,
+                                      server.port(), (tmp.path / "scene" / "job.json").string(),
+                                      (tmp.path / "err.txt").string(), (tmp.path / "out.txt").string());
+  ASSERT_EQ(std::system(cmd.c_str()), 0);
+  std::ifstream err(tmp.path / "err.txt");
+  const std::string err_text(std::istreambuf_iterator<char>(err), {});
+  EXPECT_NE(err_text.find("1 uploaded, 1 already on the server"), std::string::npos) << err_text;
+  std::ifstream out(tmp.path / "out.txt");
+  std::string id;
+  out >> id;
+  const json s = wait_state(c, id, "succeeded");
+  const json submitted = get_json(c, "/v1/jobs/" + id).at("spec");
+  EXPECT_EQ(submitted["scene"]["shapes"][1]["obj"], "sha256:" + sha256_hex(have));
+  EXPECT_EQ(submitted["scene"]["shapes"][2]["obj"], "sha256:" + sha256_hex(lack));
+  EXPECT_EQ(c.request("HEAD", asset_url(sha256_hex(lack))).status, 200);
+  // The server's log shows one PUT that stored bytes: the asset it lacked.
+  EXPECT_NE(server.log().find("asset sha256:" + sha256_hex(lack) + " stored"), std::string::npos);
+  EXPECT_EQ(server.log().find("asset sha256:" + sha256_hex(have) + " already stored"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace tally::e2e
