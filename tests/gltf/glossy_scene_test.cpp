@@ -62,6 +62,21 @@ TEST(GlossyScene, PointLightOnGgxIsTheClosedForm) {
     EXPECT_NEAR(r.channel(0).mean, expect, 1e-12 * expect) << c.base << " " << c.metallic << " " << c.roughness;
     EXPECT_EQ(r.channel(0).m2, 0.0);  // deterministic
   }
+  // The plan: glossy is not delta (specular off, and says why); shadows and light
+  // samples stay what a diffuse receiver needs.
+  {
+    const json mat = {{"type", "ggx"}, {"reflectance", {0.9, 0.9, 0.9}}, {"roughness", 0.3}};
+    const test::JobRun r = test::run_spec(point_query(scene, mat, wo, {"mis"}, 4));
+    bool seen = false;
+    const json plan = r.job->plan();
+    for (const json& e : plan["plan"]["effects"]) {
+      if (e["effect"] != "specular") continue;
+      seen = true;
+      EXPECT_FALSE(e["on"].get<bool>());
+      EXPECT_NE(e["why"].get<std::string>().find("glossy surfaces are sampled"), std::string::npos) << e.dump();
+    }
+    EXPECT_TRUE(seen);
+  }
   // "ggx" is the metal: F0 = reflectance.
   const json ggx = {{"type", "ggx"}, {"reflectance", {0.9, 0.9, 0.9}}, {"roughness", 0.3}};
   const json mr = {{"type", "metallic_roughness"}, {"base_color", {0.9, 0.9, 0.9}}, {"metallic", 1.0}, {"roughness", 0.3}};
