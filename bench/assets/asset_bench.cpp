@@ -103,6 +103,7 @@ struct Server {
   uint16_t port = 0;
   Server(const fs::path& dir) {
     const fs::path port_file = dir / "port";
+    std::fflush(stdout);  // the child must not print this process's buffered lines again
     pid = ::fork();
     if (pid == 0) {
       const std::string data = (dir / "data").string(), pf = port_file.string(), log = (dir / "server.log").string();
@@ -176,7 +177,7 @@ int main(int argc, char** argv) {
                          {"material", "lamp"}}})}}},
         {"query", {{"type", "image"}, {"max_depth", 2}}},
         {"estimators", {"mis"}},
-        {"stop", {{"max_samples", 64 * 48 * 4}}}};
+        {"stop", {{"max_samples", 4}}}};  // per pixel
     t0 = clk::now();
     const tally::ClientResponse sub = c.request("POST", "/v1/jobs", spec.dump(), {{"Content-Type", "application/json"}});
     if (sub.status != 202) throw std::runtime_error("submit failed: " + sub.body);

@@ -84,7 +84,7 @@ json obj_image_spec(const std::string& obj) {
                       {{"type", "mesh"}, {"obj", obj}, {"material", "lamp"}}})}}},
       {"query", {{"type", "image"}, {"max_depth", 2}}},
       {"estimators", {"mis"}},
-      {"stop", {{"max_samples", 16 * 12 * 4}}},
+      {"stop", {{"max_samples", 16}}},  // per pixel
   };
 }
 
