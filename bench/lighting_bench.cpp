@@ -10,7 +10,8 @@
 
 #include "common/engine/local_executor.hpp"
 #include "common/lighting/accel.hpp"
-#include "common/lighting/lighting_job.hpp"
+#include "common/lighting/lighting_spec.hpp"
+#include "common/protocol/lighting_json.hpp"
 #include "common/lighting/scene_json.hpp"
 #include "common/rng/counter_rng.hpp"
 #include "common/sampling/sphere.hpp"
@@ -54,7 +55,7 @@ Timed run_direct(unsigned threads, uint64_t spp) {
   const auto t0 = std::chrono::steady_clock::now();
   run_local(runner, o);
   const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  return {s, runner.state().counters[Counter::camera_rays], runner.state().counters[Counter::shadow_rays]};
+  return {s, runner.state().counters[LightingCounter::camera_rays], runner.state().counters[LightingCounter::shadow_rays]};
 }
 
 double bare_rays(uint64_t n) {
@@ -109,7 +110,7 @@ int main() {
   auto job = compile_lighting_job(spec, JobLimits{});
   JobRunner runner(job->kernel(), job->stop_rule(), JobCaps{});
   run_local(runner, LocalRunOptions{});
-  const json res = job->result(runner);
+  const json res = lighting_result_json(job->result(runner));
   std::printf("  %-20s %-12s %-12s %-12s %-14s %s\n", "estimator", "mean(R)", "std_err", "variance", "s/sample", "efficiency 1/(var t)");
   for (auto it = res["points"][0]["estimators"].begin(); it != res["points"][0]["estimators"].end(); ++it) {
     const json& e = it.value();

@@ -28,7 +28,7 @@
 
 #include "common/engine/local_executor.hpp"
 #include "common/lighting/image_kernel.hpp"
-#include "common/lighting/lighting_job.hpp"
+#include "common/lighting/lighting_spec.hpp"
 
 using namespace tally;
 using json = nlohmann::json;

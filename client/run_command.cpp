@@ -14,6 +14,7 @@
 #include "common/engine/local_executor.hpp"
 #include "common/jobs/job_factory.hpp"
 #include "common/protocol/spec_reader.hpp"
+#include "common/protocol/kind_json.hpp"
 #include "common/protocol/status_json.hpp"
 
 namespace tally {
@@ -79,7 +80,7 @@ int run(const RunOptions& o) {
 
   if (o.json) {
     nlohmann::json out = result_json(runner, *job);
-    out["plan"] = job->plan();
+    out["plan"] = plan_json(*job);
     std::cout << out.dump(2) << "\n";
   } else {
     const JobState& s = runner.state();

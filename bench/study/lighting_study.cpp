@@ -9,6 +9,7 @@
 
 #include "bench/study/study_support.hpp"
 #include "common/image/image_io.hpp"
+#include "common/protocol/kind_json.hpp"
 
 namespace tally::study {
 
@@ -79,7 +80,7 @@ void run_lighting_study(const Options& o) {
           {"estimator", "samples", "sigma2", "seconds_per_sample", "efficiency", "job_efficiency", "mean", "std_error"});
   const uint64_t n_eff = o.quick ? (1u << 16) : (1u << 20);
   const JobRun all = run_spec(point_spec(kEstimators, {{"max_samples", n_eff}}, 5), o.threads);
-  const json all_result = all.job->result(*all.runner);
+  const json all_result = kind_result_json(*all.job, *all.runner);
   for (size_t i = 0; i < kEstimators.size(); ++i) {
     const std::string& e = kEstimators[i];
     const JobRun r = run_spec(point_spec({e}, {{"max_samples", n_eff}}, 7), o.threads);

@@ -32,7 +32,14 @@ struct JobRun {
   std::unique_ptr<JobRunner> runner;
   double seconds = 0.0;
   double compute_seconds() const { return runner->state().compute_seconds; }
-  uint64_t evaluations() const { return runner->state().counters[Counter::evaluations]; }
+  // The kernel's "evaluations" counter (every kernel the study runs declares one).
+  uint64_t evaluations() const {
+    const JobState& s = runner->state();
+    for (size_t i = 0; i < s.counter_names.size(); ++i) {
+      if (s.counter_names[i] == "evaluations") return s.counters[i];
+    }
+    return 0;
+  }
 };
 
 JobRun run_spec(const json& spec, unsigned threads = 1);

@@ -3,6 +3,10 @@
 #include <bit>
 #include <cstring>
 #include <fmt/format.h>
+#include <iterator>
+
+#include "common/engine/byte_codec.hpp"
+#include "common/engine/check.hpp"
 
 namespace tally {
 
@@ -10,7 +14,15 @@ namespace {
 
 constexpr char kMagic[8] = {'T', 'A', 'L', 'L', 'Y', 'C', 'K', '1'};
 // Version 2 adds JobState::kernel_state; version 1 checkpoints still read (empty).
-constexpr uint32_t kVersion = 2;
+// Version 3 stores the counters with their names (kernels declare their own); versions
+// 1 and 2 stored a fixed list of counters, named below.
+constexpr uint32_t kVersion = 3;
+
+// The counters of versions 1 and 2, in their order (the engine's enum of that time).
+constexpr std::string_view kLegacyCounterNames[] = {
+    "evaluations",   "nonfinite",        "rejection_attempts", "rejection_accepts", "rejection_failures",
+    "camera_rays",   "shadow_rays",      "bounce_rays",        "sky_lookups",       "emission_lookups",
+    "light_samples", "bsdf_samples",     "specular_events",    "roulette_terminations"};
 
 uint64_t fnv1a(std::string_view s) {
   uint64_t h = 0xcbf29ce484222325ULL;
@@ -21,91 +33,30 @@ uint64_t fnv1a(std::string_view s) {
   return h;
 }
 
-class Writer {
- public:
-  void u64(uint64_t v) {
-    for (int i = 0; i < 8; ++i) out_.push_back(static_cast<char>((v >> (8 * i)) & 0xff));
-  }
-  void f64(double v) { u64(std::bit_cast<uint64_t>(v)); }
-  void bytes(std::string_view s) {
-    u64(s.size());
-    out_.append(s);
-  }
-  std::string& str() { return out_; }
-
- private:
-  std::string out_;
-};
-
-class Reader {
- public:
-  explicit Reader(std::string_view in) : in_(in) {}
-  uint64_t u64() {
-    need(8);
-    uint64_t v = 0;
-    for (int i = 0; i < 8; ++i) v |= static_cast<uint64_t>(static_cast<unsigned char>(in_[pos_ + static_cast<size_t>(i)])) << (8 * i);
-    pos_ += 8;
-    return v;
-  }
-  double f64() { return std::bit_cast<double>(u64()); }
-  // A count of items of `item_size` bytes each, checked against what is left.
-  uint64_t count(size_t item_size) {
-    const uint64_t n = u64();
-    if (item_size > 0 && n > (in_.size() - pos_) / item_size) {
-      throw CheckpointError(fmt::format("checkpoint is truncated or corrupt (count {} at byte {})", n, pos_));
-    }
-    return n;
-  }
-  std::string bytes() {
-    const uint64_t n = count(1);
-    std::string s(in_.substr(pos_, n));
-    pos_ += n;
-    return s;
-  }
-  size_t pos() const { return pos_; }
-
- private:
-  void need(size_t n) const {
-    if (in_.size() - pos_ < n) {
-      throw CheckpointError(fmt::format("checkpoint is truncated at byte {}", pos_));
-    }
-  }
-  std::string_view in_;
-  size_t pos_ = 0;
-};
+using Reader = ByteReader<CheckpointError>;
 
 }  // namespace
 
 std::string encode_checkpoint(const JobState& s) {
-  Writer w;
-  w.str().append(kMagic, sizeof kMagic);
+  ByteWriter w;
+  w.raw(std::string_view(kMagic, sizeof kMagic));
   w.u64(kVersion);
   w.u64(s.passes);
   w.u64(s.samples);
   w.u64(s.partition_samples.size());
   for (uint64_t v : s.partition_samples) w.u64(v);
   w.u64(s.channels.size());
-  for (const Tally& t : s.channels) {
-    w.u64(t.n);
-    w.f64(t.mean);
-    w.f64(t.m2);
+  for (const Tally& t : s.channels) w.tally(t);
+  TALLY_CHECK_LE(s.counters.values.size(), s.counter_names.size());  // every counter has a name
+  w.u64(s.counter_names.size());
+  for (size_t i = 0; i < s.counter_names.size(); ++i) {
+    w.bytes(s.counter_names[i]);
+    w.u64(s.counters[i]);
   }
-  w.u64(s.counters.values.size());
-  for (uint64_t v : s.counters.values) w.u64(v);
-  w.u64(s.tail.capacity());
-  w.u64(s.tail.heap().size());
-  for (double v : s.tail.heap()) w.f64(v);
-  w.f64(s.weights.sum_w);
-  w.f64(s.weights.sum_w2);
+  w.tail(s.tail);
+  w.weights(s.weights);
   w.u64(s.fault ? 1 : 0);
-  if (s.fault) {
-    w.u64(s.fault->sample_index);
-    w.u64(s.fault->channel);
-    w.f64(s.fault->value);
-    w.u64(s.fault->point.size());
-    for (double v : s.fault->point) w.f64(v);
-    w.bytes(s.fault->message);
-  }
+  if (s.fault) w.fault(*s.fault);
   w.f64(s.compute_seconds);
   w.u64(s.trace.size());
   for (const TracePoint& p : s.trace) {
@@ -117,7 +68,7 @@ std::string encode_checkpoint(const JobState& s) {
   w.bytes(s.kernel_state);
   const uint64_t h = fnv1a(w.str());
   w.u64(h);
-  return std::move(w.str());
+  return w.take();
 }
 
 JobState decode_checkpoint(std::string_view bytes) {
@@ -125,13 +76,13 @@ JobState decode_checkpoint(std::string_view bytes) {
     throw CheckpointError("not a tally checkpoint (bad magic or too short)");
   }
   const std::string_view body = bytes.substr(0, bytes.size() - 8);
-  Reader tail_reader(bytes.substr(bytes.size() - 8));
+  Reader tail_reader(bytes.substr(bytes.size() - 8), "checkpoint");
   if (tail_reader.u64() != fnv1a(body)) {
     throw CheckpointError("checkpoint checksum mismatch (truncated or corrupt)");
   }
-  Reader r(body.substr(sizeof kMagic));
+  Reader r(body.substr(sizeof kMagic), "checkpoint");
   const uint64_t version = r.u64();
-  if (version != 1 && version != kVersion) {
+  if (version < 1 || version > kVersion) {
     throw CheckpointError(fmt::format("unsupported checkpoint version {}", version));
   }
   JobState s;
@@ -140,32 +91,25 @@ JobState decode_checkpoint(std::string_view bytes) {
   s.partition_samples.resize(r.count(8));
   for (auto& v : s.partition_samples) v = r.u64();
   s.channels.resize(r.count(24));
-  for (Tally& t : s.channels) {
-    t.n = r.u64();
-    t.mean = r.f64();
-    t.m2 = r.f64();
+  for (Tally& t : s.channels) t = r.tally();
+  if (version >= 3) {
+    const uint64_t nc = r.count(16);  // a name's length and a value
+    if (nc > Counters::kMaxCounters) throw CheckpointError(fmt::format("checkpoint has {} counters", nc));
+    for (uint64_t i = 0; i < nc; ++i) {
+      s.counter_names.push_back(r.bytes());
+      s.counters.values.push_back(r.u64());
+    }
+  } else {
+    const uint64_t nc = r.count(8);
+    if (nc != std::size(kLegacyCounterNames)) throw CheckpointError("checkpoint counter layout differs");
+    for (std::string_view name : kLegacyCounterNames) {
+      s.counter_names.emplace_back(name);
+      s.counters.values.push_back(r.u64());
+    }
   }
-  const uint64_t nc = r.count(8);
-  if (nc != s.counters.values.size()) throw CheckpointError("checkpoint counter layout differs");
-  for (auto& v : s.counters.values) v = r.u64();
-  const uint64_t cap = r.u64();
-  if (cap == 0 || cap > (1u << 20)) throw CheckpointError("checkpoint tail capacity is corrupt");
-  std::vector<double> tail(r.count(8));
-  for (double& v : tail) v = r.f64();
-  s.tail = TailTracker(cap);
-  s.tail.assign(std::move(tail));
-  s.weights.sum_w = r.f64();
-  s.weights.sum_w2 = r.f64();
-  if (r.u64() != 0) {
-    SampleFault f;
-    f.sample_index = r.u64();
-    f.channel = static_cast<uint32_t>(r.u64());
-    f.value = r.f64();
-    f.point.resize(r.count(8));
-    for (double& v : f.point) v = r.f64();
-    f.message = r.bytes();
-    s.fault = std::move(f);
-  }
+  s.tail = r.tail();
+  s.weights = r.weights();
+  if (r.u64() != 0) s.fault = r.fault();
   s.compute_seconds = r.f64();
   s.trace.resize(r.count(32));
   for (TracePoint& p : s.trace) {

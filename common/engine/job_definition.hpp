@@ -1,10 +1,10 @@
 #pragma once
 // What a validated job spec compiles to. The server, the CLI and the study only talk
 // to jobs through this interface and JobRunner; each job kind (integrate, lighting)
-// implements it in its own area.
+// implements it in its own area, with its plan and result as typed structs of its own
+// (IntegrationJob::plan(), LightingJob::result() ...) that common/protocol turns into JSON.
 #include <cstdint>
 #include <memory>
-#include <nlohmann/json.hpp>
 #include <string>
 #include <string_view>
 
@@ -23,10 +23,6 @@ class JobDefinition {
   virtual std::shared_ptr<const Kernel> kernel() const = 0;
   virtual StopRule stop_rule() const = 0;
   virtual uint64_t seed() const = 0;
-  // What will run and why (estimator, domain, effects on/off), for status and validate.
-  virtual nlohmann::json plan() const = 0;
-  // Kind-specific result fields (per-point estimates, reference values, image info).
-  virtual nlohmann::json result(const JobRunner& runner) const = 0;
   // `mean ± stderr (95% CI [lo, hi])` and what it is of, for the CLI.
   virtual std::string summary_line(const JobRunner& runner) const;
   // Non-null when the job produces an image (tiles, EXR/PNG); lives as long as the job.

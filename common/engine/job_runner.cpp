@@ -15,12 +15,45 @@ namespace tally {
 
 namespace {
 constexpr double kInf = std::numeric_limits<double>::infinity();
+
+std::vector<std::string> names_of(const Kernel& k) {
+  const auto names = k.counter_names();
+  TALLY_CHECK_LE(names.size(), Counters::kMaxCounters);
+  return {names.begin(), names.end()};
 }
+
+// A restored state's counters in the kernel's layout, matched by name (a checkpoint of
+// an older layout, e.g. version 2's fixed list, still resumes). A non-zero counter the
+// kernel does not declare means the checkpoint belongs to another job.
+void adopt_counter_layout(JobState& s, const std::vector<std::string>& names) {
+  if (s.counter_names == names) {
+    s.counters.values.resize(names.size());
+    return;
+  }
+  Counters mapped;
+  mapped.values.assign(names.size(), 0);
+  for (size_t i = 0; i < s.counters.values.size(); ++i) {
+    const uint64_t v = s.counters.values[i];
+    const std::string name = i < s.counter_names.size() ? s.counter_names[i] : fmt::format("#{}", i);
+    const auto it = std::find(names.begin(), names.end(), name);
+    if (it != names.end()) {
+      mapped.values[static_cast<size_t>(it - names.begin())] += v;
+    } else if (v != 0) {
+      throw std::invalid_argument(
+          fmt::format("checkpoint does not match the job: it counts {} ({}), which this job does not", name, v));
+    }
+  }
+  s.counters = std::move(mapped);
+  s.counter_names = names;
+}
+}  // namespace
 
 JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCaps caps)
     : kernel_(std::move(kernel)), rule_(rule), caps_(caps) {
   state_.channels.assign(kernel_->channel_count(), Tally{});
   state_.partition_samples.assign(kernel_->partition_count(), 0);
+  state_.counter_names = names_of(*kernel_);
+  state_.counters.values.assign(state_.counter_names.size(), 0);
 }
 
 JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCaps caps,
@@ -33,6 +66,7 @@ JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCap
         state_.channels.size(), state_.partition_samples.size(), kernel_->channel_count(),
         kernel_->partition_count()));
   }
+  adopt_counter_layout(state_, names_of(*kernel_));
   if (state_.fault) {
     reason_ = StopReason::failed;
     error_ = state_.fault->message;
@@ -96,6 +130,9 @@ std::vector<Block> JobRunner::plan_pass() {
 
 void JobRunner::commit_pass(std::vector<BlockResult>&& results, double wall_seconds) {
   TALLY_CHECK_EQ(results.size(), pending_.size());  // one result per planned block
+  for (const BlockResult& r : results) {
+    TALLY_CHECK_LE(r.counters.values.size(), state_.counter_names.size());  // only ids the kernel declared
+  }
   kernel_->fold_pass(pass_input_, results, state_);
   for (size_t i = 0; i < results.size(); ++i) {
     BlockResult& r = results[i];
@@ -277,22 +314,6 @@ std::vector<std::string> JobRunner::warnings() const {
         "standard error and interval cannot be trusted. Use importance sampling that cancels the "
         "singularity.",
         *a, TailTracker::kWarnBelow));
-  }
-  const uint64_t att = state_.counters[Counter::rejection_attempts];
-  if (att > 0) {
-    const double rate =
-        static_cast<double>(state_.counters[Counter::rejection_accepts]) / static_cast<double>(att);
-    if (rate < 0.01) {
-      w.push_back(fmt::format("rejection sampling accepts only {:.3g} of proposals", rate));
-    }
-  }
-  if (state_.counters[Counter::rejection_failures] > 0) {
-    w.push_back(fmt::format("{} samples hit the rejection attempt cap and were dropped",
-                            state_.counters[Counter::rejection_failures]));
-  }
-  if (state_.counters[Counter::nonfinite] > 0) {
-    w.push_back(fmt::format("{} non-finite sample values were excluded",
-                            state_.counters[Counter::nonfinite]));
   }
   if (!state_.weights.empty()) {
     const double ess = state_.weights.ess();

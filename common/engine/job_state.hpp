@@ -26,7 +26,10 @@ struct JobState {
   uint64_t samples = 0;  // samples per channel the schedule has completed
   std::vector<uint64_t> partition_samples;
   std::vector<Tally> channels;
-  Counters counters;
+  Counters counters;  // indexed like counter_names
+  // The kernel's counter names (Kernel::counter_names), kept with the values so that a
+  // checkpoint says what it counted: a resumed job maps them by name.
+  std::vector<std::string> counter_names;
   TailTracker tail{512};
   WeightStats weights;
   std::optional<SampleFault> fault;

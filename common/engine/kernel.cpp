@@ -1,6 +1,7 @@
 #include "common/engine/kernel.hpp"
 
 #include <cmath>
+#include <fmt/format.h>
 #include <numeric>
 
 #include "common/engine/job_state.hpp"
@@ -40,6 +41,11 @@ ErrorSummary Kernel::error_summary(const JobState& state, double confidence) con
             std::numeric_limits<double>::quiet_NaN(), 0.0};
   }
   return worst;
+}
+
+std::optional<std::string> nonfinite_warning(uint64_t count) {
+  if (count == 0) return std::nullopt;
+  return fmt::format("{} non-finite sample values were excluded", count);
 }
 
 }  // namespace tally

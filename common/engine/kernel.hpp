@@ -4,6 +4,7 @@
 // streaming, checkpoints and images do not care which kind runs.
 #include <cstdint>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -90,12 +91,20 @@ class Kernel {
   // Must be deterministic in (pass_input, results, state). Default: nothing.
   virtual void fold_pass(std::string_view /*pass_input*/, const std::vector<BlockResult>& /*results*/,
                          JobState& /*state*/) const {}
-  // Kernel-specific warnings (e.g. VEGAS iterations that disagree). Default: none.
+  // The kernel's event counters, by id: BlockResult::counters and JobState::counters
+  // are indexed by position in this list (the names appear in status documents and
+  // checkpoints). Must not change over the kernel's life. Default: none.
+  virtual std::span<const std::string_view> counter_names() const { return {}; }
+  // Kernel-specific warnings (e.g. VEGAS iterations that disagree, rejection sampling
+  // that rarely accepts: what the kernel's own counters mean). Default: none.
   virtual std::vector<std::string> warnings(const JobState&) const { return {}; }
   // The error the stopping rule looks at. Default: the worst channel.
   virtual ErrorSummary error_summary(const JobState& state, double confidence) const;
   // Default: none, and progress shows channel 0.
   virtual std::optional<Headline> headline(const JobState&) const { return std::nullopt; }
 };
+
+// "N non-finite sample values were excluded", for kernels that count them; nullopt for 0.
+std::optional<std::string> nonfinite_warning(uint64_t count);
 
 }  // namespace tally

@@ -13,7 +13,7 @@ class UnitDiskIndicator final : public Integrand {
   // Branch-free over non-aliasing rows so the loop vectorizes (a branch per point
   // mispredicts on ~21% of uniform points and made this slower than the expression).
   void evaluate_batch(const double* const* xs, size_t n, double* out) const override { disk(xs[0], xs[1], n, out); }
-  nlohmann::json describe() const override { return {{"builtin", "unit_disk"}}; }
+  IntegrandInfo describe() const override { return {.builtin = "unit_disk"}; }
 
  private:
   // Fixed-width inner lanes (as the expression interpreter does) vectorize at -O2 too.
@@ -35,7 +35,7 @@ class InvSqrt final : public Integrand {
     const double* x = xs[0];
     for (size_t i = 0; i < n; ++i) out[i] = 1.0 / std::sqrt(x[i]);
   }
-  nlohmann::json describe() const override { return {{"builtin", "inv_sqrt"}}; }
+  IntegrandInfo describe() const override { return {.builtin = "inv_sqrt"}; }
 };
 
 class ExpressionIntegrand final : public Integrand {
@@ -45,7 +45,7 @@ class ExpressionIntegrand final : public Integrand {
   void evaluate_batch(const double* const* xs, size_t n, double* out) const override {
     expr_.evaluate_batch(xs, n, out);
   }
-  nlohmann::json describe() const override { return {{"expression", expr_.text()}}; }
+  IntegrandInfo describe() const override { return {.expression = expr_.text()}; }
 
  private:
   CompiledExpression expr_;

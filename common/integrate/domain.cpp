@@ -37,8 +37,12 @@ class BoxDomain final : public Domain {
       if (p[k] < lower_[k] || p[k] > upper_[k]) return false;
     return true;
   }
-  nlohmann::json describe() const override {
-    return {{"type", std::string(type())}, {"lower", lower_}, {"upper", upper_}};
+  DomainInfo describe() const override {
+    DomainInfo d;
+    d.type = type();
+    d.lower = lower_;
+    d.upper = upper_;
+    return d;
   }
 
  private:
@@ -66,8 +70,12 @@ class DiskDomain final : public Domain {
     const double dx = p[0] - cx_, dy = p[1] - cy_;
     return dx * dx + dy * dy <= r_ * r_;
   }
-  nlohmann::json describe() const override {
-    return {{"type", "disk"}, {"center", {cx_, cy_}}, {"radius", r_}};
+  DomainInfo describe() const override {
+    DomainInfo d;
+    d.type = "disk";
+    d.center = {cx_, cy_};
+    d.radius = r_;
+    return d;
   }
 
  private:
@@ -102,8 +110,12 @@ class BallDomain final : public Domain {
     for (size_t k = 0; k < c_.size(); ++k) s += (p[k] - c_[k]) * (p[k] - c_[k]);
     return s <= r_ * r_;
   }
-  nlohmann::json describe() const override {
-    return {{"type", "ball"}, {"center", c_}, {"radius", r_}};
+  DomainInfo describe() const override {
+    DomainInfo d;
+    d.type = "ball";
+    d.center = c_;
+    d.radius = r_;
+    return d;
   }
 
  private:
@@ -141,8 +153,12 @@ class SphereSurfaceDomain final : public Domain {
     for (size_t k = 0; k < 3; ++k) s += (p[k] - c_[k]) * (p[k] - c_[k]);
     return std::fabs(std::sqrt(s) - r_) <= 1e-9 * r_ && (!half_ || p[2] >= c_[2]);
   }
-  nlohmann::json describe() const override {
-    return {{"type", std::string(type())}, {"center", c_}, {"radius", r_}};
+  DomainInfo describe() const override {
+    DomainInfo d;
+    d.type = type();
+    d.center = c_;
+    d.radius = r_;
+    return d;
   }
 
  private:
@@ -177,7 +193,12 @@ class SimplexDomain final : public Domain {
     }
     return s <= 1.0;
   }
-  nlohmann::json describe() const override { return {{"type", "simplex"}, {"dimensions", d_}}; }
+  DomainInfo describe() const override {
+    DomainInfo d;
+    d.type = "simplex";
+    d.dimensions = d_;
+    return d;
+  }
 
  private:
   size_t d_;

@@ -4,11 +4,21 @@
 // point lies inside.
 #include <cstdint>
 #include <memory>
-#include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
 namespace tally {
+
+// What a domain is, for plans and results (common/protocol writes it as JSON). Fields
+// not set are absent.
+struct DomainInfo {
+  std::string type;
+  std::vector<double> lower, upper;  // interval, box
+  std::vector<double> center;        // disk, ball, sphere, hemisphere
+  std::optional<double> radius;
+  std::optional<size_t> dimensions;  // simplex
+};
 
 class Domain {
  public:
@@ -25,7 +35,7 @@ class Domain {
   virtual bool is_solid() const { return true; }
   const std::vector<double>& lower() const { return lower_; }
   const std::vector<double>& upper() const { return upper_; }
-  virtual nlohmann::json describe() const = 0;
+  virtual DomainInfo describe() const = 0;
 
  protected:
   std::vector<double> lower_, upper_;  // bounding box

@@ -8,6 +8,7 @@
 #include <span>
 
 #include "common/engine/job_state.hpp"
+#include "common/integrate/integration_counters.hpp"
 #include "common/rng/counter_rng.hpp"
 #include "common/sampling/piecewise_constant.hpp"
 #include "common/sampling/qmc.hpp"
@@ -81,6 +82,8 @@ class IntegrationKernelBase : public Kernel {
   explicit IntegrationKernelBase(IntegrationProblem p)
       : p_(std::move(p)), key_(stream_key(p_.seed, 0)) {}
   size_t channel_count() const override { return 1; }
+  std::span<const std::string_view> counter_names() const override { return integration_counter_names(); }
+  std::vector<std::string> warnings(const JobState& st) const override { return integration_counter_warnings(st); }
   PassSchedule schedule() const override {
     const uint64_t per = std::max<uint64_t>(1, evaluations_per_sample());
     PassSchedule s;
@@ -143,7 +146,7 @@ class IntegrationKernelBase : public Kernel {
     if (all_finite(v, n)) return n;
     for (size_t i = 0; i < n; ++i) {
       if (!std::isfinite(v[i])) {
-        out.counters.add(Counter::nonfinite);
+        out.counters.add(IntegrationCounter::nonfinite);
         record_fault(out, first + i, v[i], s, i, p_.domain->dimensions());
         return i;
       }
@@ -176,7 +179,7 @@ class PointwiseKernelBase : public IntegrationKernelBase {
       double* v = values + off;
       p_.integrand->evaluate_batch(s.x_cptr.data(), n, v);
       weigh(s, v, n, out);
-      out.counters.add(Counter::evaluations, n);
+      out.counters.add(IntegrationCounter::evaluations, n);
       const size_t ok = check(v, n, first + off, s, out);
       if (ok < n) return static_cast<size_t>(off) + ok;
     }
@@ -350,7 +353,7 @@ class SweepKernelBase : public IntegrationKernelBase {
         if (!all_finite(s.f.data(), n)) {
           for (size_t i = 0; i < n; ++i) {
             if (!std::isfinite(s.f[i])) {
-              out.counters.add(Counter::nonfinite);
+              out.counters.add(IntegrationCounter::nonfinite);
               record_fault(out, sample, s.f[i], s, i, D.dimensions());
               return static_cast<size_t>(k);
             }
@@ -360,7 +363,7 @@ class SweepKernelBase : public IntegrationKernelBase {
         for (size_t i = 0; i < n; ++i) batch += s.f[i];
         total += batch;
       }
-      out.counters.add(Counter::evaluations, points_);
+      out.counters.add(IntegrationCounter::evaluations, points_);
       values[k] = measure * total / static_cast<double>(points_);
     }
     return static_cast<size_t>(count);
@@ -464,7 +467,7 @@ class RejectionKernel final : public IntegrationKernelBase {
         ++next;
         bool accepted = false;
         for (uint32_t a = 0; a < max_attempts_; ++a) {
-          out.counters.add(Counter::rejection_attempts);
+          out.counters.add(IntegrationCounter::rejection_attempts);
           for (size_t k = 0; k < d; ++k) {
             const double u = rng.open_uniform(a * static_cast<uint32_t>(d) + static_cast<uint32_t>(k));
             pt[k] = D.lower()[k] + u * (D.upper()[k] - D.lower()[k]);
@@ -475,17 +478,17 @@ class RejectionKernel final : public IntegrationKernelBase {
           }
         }
         if (!accepted) {
-          out.counters.add(Counter::rejection_failures);
+          out.counters.add(IntegrationCounter::rejection_failures);
           continue;
         }
-        out.counters.add(Counter::rejection_accepts);
+        out.counters.add(IntegrationCounter::rejection_accepts);
         for (size_t k = 0; k < d; ++k) s.x_ptr[k][n] = pt[k];
         ++n;
       }
       double* v = values + written;
       p_.integrand->evaluate_batch(s.x_cptr.data(), n, v);
       for (size_t i = 0; i < n; ++i) v[i] *= measure;
-      out.counters.add(Counter::evaluations, n);
+      out.counters.add(IntegrationCounter::evaluations, n);
       const size_t ok = check(v, n, first_in_batch, s, out);
       written += ok;
       if (ok < n) return written;
@@ -514,6 +517,8 @@ class TrapezoidKernel final : public Kernel {
   size_t channel_count() const override { return fine_chunks_ + coarse_chunks_; }
   uint32_t partition_count() const override { return static_cast<uint32_t>(fine_chunks_ + coarse_chunks_); }
   PassSchedule schedule() const override { return {1, 1, 1}; }
+  std::span<const std::string_view> counter_names() const override { return integration_counter_names(); }
+  std::vector<std::string> warnings(const JobState& st) const override { return integration_counter_warnings(st); }
 
   void run_block(const Block& b, BlockResult& out) const override {
     out.first_channel = b.partition;
@@ -599,10 +604,10 @@ class TrapezoidKernel final : public Kernel {
         w[i] = weight;
       }
       p_.integrand->evaluate_batch(s.x_cptr.data(), cnt, s.f.data());
-      out.counters.add(Counter::evaluations, cnt);
+      out.counters.add(IntegrationCounter::evaluations, cnt);
       for (size_t i = 0; i < cnt; ++i) {
         if (!std::isfinite(s.f[i])) {
-          out.counters.add(Counter::nonfinite);
+          out.counters.add(IntegrationCounter::nonfinite);
           record_fault(out, j0 + i, s.f[i], s, i, d);
           return false;
         }

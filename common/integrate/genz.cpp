@@ -80,9 +80,8 @@ class Genz final : public Integrand {
     }
   }
 
-  nlohmann::json describe() const override {
-    return {{"builtin", "genz"}, {"family", std::string(genz_family_name(p_.family))},
-            {"a", p_.a}, {"u", p_.u}};
+  IntegrandInfo describe() const override {
+    return {.builtin = "genz", .family = std::string(genz_family_name(p_.family)), .a = p_.a, .u = p_.u};
   }
 
  private:

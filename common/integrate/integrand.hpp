@@ -4,7 +4,6 @@
 // user expressions run as tight, vectorizable loops.
 #include <cstddef>
 #include <memory>
-#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <vector>
@@ -12,6 +11,17 @@
 namespace tally {
 
 inline constexpr size_t kIntegrandBatch = 256;
+
+// What an integrand is, for plans and results (common/protocol writes it as JSON).
+// Fields not set are absent.
+struct IntegrandInfo {
+  std::string builtin;                    // "unit_disk" | "inv_sqrt" | "genz"; empty for expressions
+  std::optional<std::string> expression;  // a scalar user expression
+  std::vector<std::string> expressions;   // a vector of user expressions
+  std::string family;                     // genz: one family ...
+  std::vector<std::string> families;      // ... or several (a vector integrand)
+  std::vector<double> a, u;               // genz parameters
+};
 
 class Integrand {
  public:
@@ -25,7 +35,7 @@ class Integrand {
   virtual void evaluate_components(const double* const* xs, size_t n, double* const* out) const {
     evaluate_batch(xs, n, out[0]);
   }
-  virtual nlohmann::json describe() const = 0;
+  virtual IntegrandInfo describe() const = 0;
 };
 
 // The lecture's first example: 1 inside the unit disk, 0 outside (2-D).

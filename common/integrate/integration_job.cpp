@@ -2,536 +2,81 @@
 
 #include <cmath>
 #include <fmt/format.h>
-#include <numbers>
 
-#include "common/expr/compiled_expression.hpp"
-#include "common/integrate/domain.hpp"
-#include "common/integrate/estimators.hpp"
-#include "common/integrate/genz.hpp"
-#include "common/integrate/integrand.hpp"
+#include "common/integrate/integration_counters.hpp"
 #include "common/integrate/vector_integrand.hpp"
 #include "common/integrate/vegas.hpp"
-#include "common/protocol/spec_reader.hpp"
-#include "common/protocol/stop_rule_json.hpp"
-#include "common/sampling/ball_simplex.hpp"
 
 namespace tally {
 
-using nlohmann::json;
-
-namespace {
-
-constexpr uint64_t kMaxSweepCoordinates = uint64_t{1} << 24;
-
-
-struct ParsedIntegrand {
-  std::shared_ptr<const Integrand> f;
-  std::optional<GenzParams> genz;
-  std::string builtin;  // empty for expressions
-  std::string expression;
-  std::vector<std::string> expressions;  // a vector integrand
-  size_t dims = 0;  // 0: take the domain's
-};
-
-constexpr size_t kMaxComponents = 64;
-
-ParsedIntegrand parse_integrand(SpecReader r, const JobLimits& limits) {
-  ParsedIntegrand out;
-  const bool has_expr = r.has("expression");
-  const bool has_exprs = r.has("expressions");
-  const bool has_builtin = r.has("builtin");
-  if (int{has_expr} + int{has_exprs} + int{has_builtin} != 1) {
-    throw SpecError(r.pointer(), "needs exactly one of \"expression\", \"expressions\" or \"builtin\"");
-  }
-  if (has_exprs) {
-    const json& a = r.at("expressions");
-    const std::string ptr = r.pointer_of("expressions");
-    if (!a.is_array() || a.empty() || a.size() > kMaxComponents) {
-      throw SpecError(ptr, fmt::format("must be an array of 1 to {} expression strings", kMaxComponents));
-    }
-    for (size_t i = 0; i < a.size(); ++i) {
-      if (!a[i].is_string()) throw SpecError(json_pointer_append(ptr, i), "must be a string");
-      std::string t = a[i].get<std::string>();
-      if (t.size() > limits.max_expression_length) {
-        throw SpecError(json_pointer_append(ptr, i),
-                        fmt::format("is longer than {} characters", limits.max_expression_length));
-      }
-      out.expressions.push_back(std::move(t));
-    }
-    r.finish();
-    return out;  // compiled once the domain fixes the dimension
-  }
-  if (has_expr) {
-    out.expression = r.string("expression", limits.max_expression_length);
-    r.finish();
-    return out;  // compiled once the domain fixes the dimension
-  }
-  out.builtin = r.enumeration("builtin", {"unit_disk", "inv_sqrt", "genz"});
-  if (out.builtin == "unit_disk") {
-    out.f = make_unit_disk_indicator();
-    out.dims = 2;
-  } else if (out.builtin == "inv_sqrt") {
-    out.f = make_inv_sqrt();
-    out.dims = 1;
-  } else if (r.has("families")) {
-    // A built-in vector integrand: several Genz families sharing a and u.
-    const json& fams = r.at("families");
-    const std::string ptr = r.pointer_of("families");
-    if (!fams.is_array() || fams.empty() || fams.size() > kMaxComponents) {
-      throw SpecError(ptr, fmt::format("must be an array of 1 to {} Genz family names", kMaxComponents));
-    }
-    GenzParams p;
-    p.a = r.numbers("a", 1, limits.max_dimensions, 1e-9, 1e6);
-    p.u = r.has("u") ? r.numbers("u", 1, limits.max_dimensions, 0.0, 1.0) : std::vector<double>(p.a.size(), 0.5);
-    if (p.u.size() != p.a.size()) {
-      throw SpecError(r.pointer_of("u"), fmt::format("must have as many entries as a ({}), got {}",
-                                                     p.a.size(), p.u.size()));
-    }
-    std::vector<GenzParams> members;
-    for (size_t i = 0; i < fams.size(); ++i) {
-      const auto f = fams[i].is_string() ? parse_genz_family(fams[i].get<std::string>()) : std::nullopt;
-      if (!f) {
-        throw SpecError(json_pointer_append(ptr, i),
-                        fmt::format("must be one of {}", fmt::join(genz_family_names(), ", ")));
-      }
-      if (*f == GenzFamily::corner_peak && p.a.size() > 20) {
-        throw SpecError(r.pointer_of("a"), "corner_peak supports at most 20 dimensions");
-      }
-      p.family = *f;
-      members.push_back(p);
-    }
-    out.dims = p.a.size();
-    out.f = make_genz_set(members);
-  } else {
-    GenzParams p;
-    p.family = *parse_genz_family(r.enumeration("family", genz_family_names()));
-    p.a = r.numbers("a", 1, limits.max_dimensions, 1e-9, 1e6);
-    if (r.has("u")) {
-      p.u = r.numbers("u", 1, limits.max_dimensions, 0.0, 1.0);
-    } else {
-      p.u.assign(p.a.size(), 0.5);
-    }
-    if (p.u.size() != p.a.size()) {
-      throw SpecError(r.pointer_of("u"), fmt::format("must have as many entries as a ({}), got {}",
-                                                     p.a.size(), p.u.size()));
-    }
-    if (p.family == GenzFamily::corner_peak && p.a.size() > 20) {
-      throw SpecError(r.pointer_of("a"), "corner_peak supports at most 20 dimensions");
-    }
-    out.dims = p.a.size();
-    out.f = make_genz(p);
-    out.genz = p;
-  }
-  r.finish();
-  return out;
+IntegrationJob::IntegrationJob(Setup s) : s_(std::move(s)) {
+  plan_.integrand = s_.integrand->describe();
+  plan_.domain = s_.domain->describe();
+  plan_.estimator = s_.estimator;
+  plan_.dimensions = s_.domain->dimensions();
+  plan_.measure = s_.domain->measure();
+  plan_.stop = s_.stop;
+  plan_.seed = s_.seed;
 }
 
-std::shared_ptr<const Domain> parse_domain(const json* node, const std::string& pointer,
-                                           const ParsedIntegrand& in, const JobLimits& limits) {
-  if (node == nullptr) {
-    // Defaults that make the built-ins mean what their names say.
-    if (in.builtin == "unit_disk") return make_box({-1.0, -1.0}, {1.0, 1.0});
-    if (in.builtin == "inv_sqrt") return make_box({0.0}, {1.0});
-    if (in.builtin == "genz") return make_box(std::vector<double>(in.dims, 0.0), std::vector<double>(in.dims, 1.0));
-    throw SpecError(pointer, "is required for an expression integrand");
-  }
-  SpecReader r(*node, pointer);
-  const std::string type =
-      r.enumeration("type", {"interval", "box", "disk", "ball", "sphere", "hemisphere", "simplex"});
-  constexpr double kBig = 1e150;
-  std::shared_ptr<const Domain> d;
-  if (type == "interval") {
-    const double lo = r.number("lower", -kBig, kBig);
-    const double hi = r.number("upper", -kBig, kBig);
-    if (!(hi > lo)) throw SpecError(r.pointer_of("upper"), "must be greater than lower");
-    d = make_box({lo}, {hi});
-  } else if (type == "box") {
-    auto lo = r.numbers("lower", 1, limits.max_dimensions, -kBig, kBig);
-    auto hi = r.numbers("upper", 1, limits.max_dimensions, -kBig, kBig);
-    if (lo.size() != hi.size()) {
-      throw SpecError(r.pointer_of("upper"), fmt::format("must have as many entries as lower ({})", lo.size()));
-    }
-    for (size_t k = 0; k < lo.size(); ++k) {
-      if (!(hi[k] > lo[k])) {
-        throw SpecError(json_pointer_append(r.pointer_of("upper"), k), "must be greater than lower");
+IntegrationResult IntegrationJob::result(const JobRunner& runner) const {
+  IntegrationResult r;
+  r.integrand = plan_.integrand;
+  r.domain = plan_.domain;
+  r.estimator = plan_.estimator;
+  r.evaluations = runner.state().counters[IntegrationCounter::evaluations];
+  r.sample_unit = s_.sweep ? "point set" : (s_.deterministic ? "rule" : "point");
+  if (s_.deterministic) r.error_estimate = runner.error().abs_error;
+  const auto rep = vegas_report(runner.state());
+  if (const size_t m = s_.integrand->components(); m > 1) {
+    const bool combined = rep && s_.estimator.combine == "weighted";
+    for (size_t c = 0; c < m; ++c) {
+      Estimate e = runner.estimate(c);  // the pooled samples of component c
+      if (combined) {  // VEGAS's weighted passes, as the stop rule sees them
+        const double z = (e.ci_hi - e.ci_lo) / (2.0 * e.std_error);
+        e.mean = rep->combined_mean[c];
+        e.std_error = rep->combined_std_error[c] * rep->error_scale;
+        e.ci_lo = e.mean - z * e.std_error;
+        e.ci_hi = e.mean + z * e.std_error;
       }
+      r.components.push_back({e.mean, e.std_error, e.ci_lo, e.ci_hi});
     }
-    d = make_box(std::move(lo), std::move(hi));
-  } else if (type == "disk") {
-    auto c = r.has("center") ? r.numbers("center", 2, 2, -kBig, kBig) : std::vector<double>{0.0, 0.0};
-    const double radius = r.number_or("radius", 1.0, 1e-300, kBig);
-    d = make_disk(c[0], c[1], radius);
-  } else if (type == "ball") {
-    const size_t dims = r.integer_or("dimensions", 3, 1, std::min<size_t>(limits.max_dimensions, kMaxBallSimplexDim));
-    auto c = r.has("center") ? r.numbers("center", dims, dims, -kBig, kBig) : std::vector<double>(dims, 0.0);
-    d = make_ball(std::move(c), r.number_or("radius", 1.0, 1e-300, kBig));
-  } else if (type == "sphere" || type == "hemisphere") {
-    auto c = r.has("center") ? r.numbers("center", 3, 3, -kBig, kBig) : std::vector<double>(3, 0.0);
-    d = make_sphere_surface(std::move(c), r.number_or("radius", 1.0, 1e-300, kBig), type == "hemisphere");
-  } else {
-    const size_t dims = r.integer("dimensions", 1, std::min<size_t>(limits.max_dimensions, kMaxBallSimplexDim));
-    d = make_simplex(dims);
-  }
-  r.finish();
-  if (in.dims != 0 && in.dims != d->dimensions()) {
-    throw SpecError(pointer, fmt::format("has {} dimensions but the built-in integrand {} takes {}",
-                                         d->dimensions(), in.builtin, in.dims));
-  }
-  return d;
-}
-
-struct EstimatorChoice {
-  std::shared_ptr<const Kernel> kernel;
-  json plan;
-  bool sweep = false;   // one sample = one point set
-  bool deterministic = false;
-};
-
-EstimatorChoice parse_estimator(const json* node, const std::string& pointer, IntegrationProblem prob,
-                                const JobLimits& limits) {
-  const Domain& D = *prob.domain;
-  EstimatorChoice c;
-  const bool vector = prob.integrand->components() > 1;
-  // Vector integrands run on the VEGAS kernel (all components at the same points);
-  // "uniform" is that kernel with its grid frozen uniform.
-  auto frozen_uniform = [&](const std::string& where) {
-    if (!D.is_box()) {
-      throw SpecError(where, fmt::format("vector integrands need an interval or box domain, not {}", D.type()));
-    }
-    VegasOptions vo;
-    vo.bins = 2;
-    vo.alpha = 0.0;
-    vo.warmup_passes = 0;
-    vo.weighted = false;  // one fixed grid: every sample has the same distribution
-    c.kernel = make_vegas_kernel(prob, vo);
-    c.plan = {{"type", "uniform"}, {"components", prob.integrand->components()}};
-  };
-  if (node == nullptr) {
-    if (vector) {
-      frozen_uniform("/domain");
-      return c;
-    }
-    c.kernel = make_uniform_kernel(prob);
-    c.plan = {{"type", "uniform"}};
-    return c;
-  }
-  SpecReader r(*node, pointer);
-  const std::string type =
-      r.enumeration("type", {"uniform", "importance", "stratified", "qmc", "rejection", "quadrature", "vegas"});
-  c.plan = {{"type", type}};
-  auto need_box = [&](const char* what) {
-    if (!D.is_box()) {
-      throw SpecError(r.pointer_of("type"),
-                      fmt::format("{} needs an interval or box domain, not {}", what, D.type()));
-    }
-  };
-  if (vector && type != "uniform" && type != "vegas") {
-    throw SpecError(r.pointer_of("type"), fmt::format("vector integrands support the uniform and vegas "
-                                                      "estimators, not {}", type));
-  }
-  if (type == "uniform" && vector) {
-    frozen_uniform(r.pointer_of("type"));
-  } else if (type == "uniform") {
-    c.kernel = make_uniform_kernel(prob);
-  } else if (type == "importance") {
-    SpecReader dr = r.object("density");
-    const std::string dt = dr.enumeration("type", {"power", "tabulated", "cosine"});
-    if (dt == "power") {
-      need_box("importance sampling with a power density");
-      PowerDensity pd;
-      const json& e = dr.at("exponent");
-      if (e.is_array()) {
-        pd.exponents = dr.numbers("exponent", D.dimensions(), D.dimensions(), -0.999, 1e3);
-      } else {
-        pd.exponents.assign(D.dimensions(), dr.number("exponent", -0.999, 1e3));
-      }
-      c.plan["density"] = {{"type", "power"}, {"exponent", pd.exponents}};
-      c.kernel = make_power_importance_kernel(prob, std::move(pd));
-    } else if (dt == "tabulated") {
-      need_box("importance sampling with a tabulated density");
-      if (D.dimensions() > 2) {
-        throw SpecError(dr.pointer_of("type"), "tabulated densities are 1-D or 2-D");
-      }
-      TabulatedDensity td;
-      td.values = dr.numbers("values", 1, limits.max_table_size, 0.0, 1e300);
-      if (D.dimensions() == 2) {
-        td.nu = dr.integer("nu", 1, limits.max_table_size);
-        td.nv = td.values.size() / td.nu;
-        if (td.nu * td.nv != td.values.size()) {
-          throw SpecError(dr.pointer_of("values"),
-                          fmt::format("must have nu * nv entries; {} is not a multiple of nu = {}",
-                                      td.values.size(), td.nu));
-        }
-      } else {
-        td.nu = td.values.size();
-      }
-      double sum = 0.0;
-      for (double v : td.values) sum += v;
-      if (!(sum > 0.0)) throw SpecError(dr.pointer_of("values"), "must be positive somewhere");
-      c.plan["density"] = {{"type", "tabulated"}, {"cells", td.values.size()}};
-      c.kernel = make_tabulated_importance_kernel(prob, std::move(td));
-    } else {
-      if (D.type() != "hemisphere") {
-        throw SpecError(dr.pointer_of("type"), "the cosine density needs a hemisphere domain");
-      }
-      c.plan["density"] = {{"type", "cosine"}};
-      c.kernel = make_cosine_importance_kernel(prob);
-    }
-    dr.finish();
-  } else if (type == "stratified") {
-    need_box("stratified sampling");
-    const uint32_t k = static_cast<uint32_t>(r.integer_or("strata_per_dim", 4, 2, 1024));
-    // Stratify as many leading dimensions as keep a sweep at most 2^16 points.
-    uint32_t s_max = 0;
-    uint64_t pts = 1;
-    while (s_max < D.dimensions() && pts * k <= (uint64_t{1} << 16)) {
-      pts *= k;
-      ++s_max;
-    }
-    const uint32_t s = static_cast<uint32_t>(r.integer_or("stratified_dims", s_max, 1, s_max));
-    uint64_t points = 1;
-    for (uint32_t i = 0; i < s; ++i) points *= k;
-    c.plan["strata_per_dim"] = k;
-    c.plan["stratified_dims"] = s;
-    c.plan["points_per_sample"] = points;
-    c.kernel = make_stratified_kernel(prob, k, s);
-    c.sweep = true;
-  } else if (type == "qmc") {
-    const uint32_t points = static_cast<uint32_t>(r.integer_or("points", 1024, 1, 1u << 20));
-    if (D.uniforms() > 1024) throw SpecError(pointer, "qmc supports at most 1024 dimensions");
-    // One sample is one whole point set, computed by one block: bound its work so
-    // cancel and shutdown (which act between blocks) stay prompt.
-    if (static_cast<uint64_t>(points) * D.uniforms() > kMaxSweepCoordinates) {
-      throw SpecError(r.pointer_of("points"),
-                      fmt::format("points x dimensions = {} x {} exceeds {} coordinates per point set", points,
-                                  D.uniforms(), kMaxSweepCoordinates));
-    }
-    const std::string scramble = r.enumeration_or("scramble", "affine", {"affine", "owen"});
-    c.plan["sequence"] = scramble == "owen"
-                             ? "sobol (nested uniform Owen scramble, Joe-Kuo directions)"
-                             : "sobol (random linear scramble + digital shift, Joe-Kuo directions)";
-    c.plan["scramble"] = scramble;
-    c.plan["points_per_sample"] = points;
-    c.kernel = make_qmc_kernel(prob, points, scramble == "owen");
-    c.sweep = true;
-  } else if (type == "vegas") {
-    need_box("vegas");
-    VegasOptions vo;
-    vo.bins = static_cast<uint32_t>(r.integer_or("bins", vo.bins, 2, 4096));
-    vo.alpha = r.number_or("alpha", vo.alpha, 0.0, 10.0);
-    vo.warmup_passes = static_cast<uint32_t>(r.integer_or("warmup_passes", vo.warmup_passes, 0, 64));
-    vo.max_pass_samples = r.integer_or("max_pass_samples", vo.max_pass_samples, 4096, uint64_t{1} << 26);
-    vo.weighted = r.enumeration_or("combine", "weighted", {"weighted", "pooled"}) == "weighted";
-    c.plan["bins"] = vo.bins;
-    c.plan["alpha"] = vo.alpha;
-    c.plan["warmup_passes"] = vo.warmup_passes;
-    c.plan["max_pass_samples"] = vo.max_pass_samples;
-    c.plan["combine"] = vo.weighted ? "weighted" : "pooled";
-    c.plan["combination"] = vo.weighted ? "inverse-variance weighted mean of the passes after the warm-up; "
-                                          "chi^2/dof across them checked"
-                                        : "samples of the passes after the warm-up pooled with equal weight; "
-                                          "chi^2/dof across passes checked";
-    if (vector) {
-      c.plan["components"] = prob.integrand->components();
-      c.plan["steering"] = "sum over components of each one's per-bin (f/p)^2, normalized to 1 per component";
-    }
-    c.kernel = make_vegas_kernel(prob, vo);
-  } else if (type == "rejection") {
-    if (D.is_box() || !D.is_solid()) {
-      throw SpecError(r.pointer_of("type"),
-                      fmt::format("rejection sampling needs a disk, ball or simplex domain, not {}", D.type()));
-    }
-    const uint32_t cap = static_cast<uint32_t>(r.integer_or("max_attempts", 1000, 1, 1000000));
-    c.plan["max_attempts"] = cap;
-    c.kernel = make_rejection_kernel(prob, cap);
-  } else {
-    need_box("quadrature");
-    r.enumeration_or("rule", "trapezoid", {"trapezoid"});
-    const uint64_t n = r.integer_or("points_per_dim", 65, 3, 1u << 24);
-    double total = 1.0;
-    for (size_t k = 0; k < D.dimensions(); ++k) total *= static_cast<double>(n);
-    if (total > static_cast<double>(limits.max_quadrature_points)) {
-      throw SpecError(r.pointer_of("points_per_dim"),
-                      fmt::format("{}^{} = {:.3g} points exceeds the limit of {}", n, D.dimensions(),
-                                  total, limits.max_quadrature_points));
-    }
-    c.plan["rule"] = "trapezoid";
-    c.plan["points_per_dim"] = n;
-    c.plan["points"] = total;
-    c.kernel = make_trapezoid_kernel(prob, static_cast<uint32_t>(n));
-    c.deterministic = true;
-  }
-  r.finish();
-  return c;
-}
-
-// Closed forms for the built-ins on their natural domains (tests, study, result).
-std::optional<double> reference_value(const ParsedIntegrand& in, const Domain& D) {
-  if (in.builtin == "genz" && in.genz && D.is_box()) {
-    for (size_t k = 0; k < D.dimensions(); ++k) {
-      if (D.lower()[k] != 0.0 || D.upper()[k] != 1.0) return std::nullopt;
-    }
-    return genz_exact(*in.genz);
-  }
-  if (in.builtin == "unit_disk" && D.is_box()) {
-    if (D.lower()[0] <= -1 && D.lower()[1] <= -1 && D.upper()[0] >= 1 && D.upper()[1] >= 1) {
-      return std::numbers::pi;
+    const std::vector<double> cov = component_mean_covariance(runner.state(), m);
+    for (size_t a = 0; a < m; ++a) {
+      r.covariance_of_means.emplace_back(cov.begin() + static_cast<std::ptrdiff_t>(a * m),
+                                         cov.begin() + static_cast<std::ptrdiff_t>((a + 1) * m));
     }
   }
-  if (in.builtin == "inv_sqrt" && D.is_box() && D.lower()[0] >= 0.0) {
-    return 2.0 * (std::sqrt(D.upper()[0]) - std::sqrt(D.lower()[0]));
+  if (rep) {
+    VegasSummary v;
+    for (const VegasIteration& it : rep->iterations) {
+      v.iterations.push_back({it.tally.n, it.tally.mean,
+                              it.tally.n > 1 ? std::optional<double>(it.tally.std_error()) : std::nullopt, it.warmup});
+    }
+    v.used_iterations = rep->used;
+    v.chi2_per_dof = rep->chi2_per_dof;
+    v.p_value = rep->p_value;
+    v.consistent = !rep->inconsistent;
+    v.error_scale = rep->error_scale;
+    r.vegas = std::move(v);
   }
-  return std::nullopt;
-}
-
-class IntegrationJob final : public JobDefinition {
- public:
-  std::string_view kind() const override { return "integrate"; }
-  std::shared_ptr<const Kernel> kernel() const override { return kernel_; }
-  StopRule stop_rule() const override { return stop_; }
-  uint64_t seed() const override { return seed_; }
-  json plan() const override { return plan_; }
-
-  json result(const JobRunner& runner) const override {
-    json j;
-    j["integrand"] = integrand_->describe();
-    j["domain"] = domain_->describe();
-    j["estimator"] = plan_["estimator"];
-    j["evaluations"] = runner.state().counters[Counter::evaluations];
-    j["sample_unit"] = sweep_ ? "point set" : (deterministic_ ? "rule" : "point");
-    if (deterministic_) {
-      const ErrorSummary e = runner.error();
-      j["error_estimate"] = std::isfinite(e.abs_error) ? json(e.abs_error) : json(nullptr);
-    }
-    if (const size_t m = integrand_->components(); m > 1) {
-      json comps = json::array();
-      const auto rep = vegas_report(runner.state());
-      const bool combined = rep && plan_["estimator"].value("combine", "") == "weighted";
-      for (size_t c = 0; c < m; ++c) {
-        Estimate e = runner.estimate(c);  // the pooled samples of component c
-        if (combined) {  // VEGAS's weighted passes, as the stop rule sees them
-          const double z = (e.ci_hi - e.ci_lo) / (2.0 * e.std_error);
-          e.mean = rep->combined_mean[c];
-          e.std_error = rep->combined_std_error[c] * rep->error_scale;
-          e.ci_lo = e.mean - z * e.std_error;
-          e.ci_hi = e.mean + z * e.std_error;
-        }
-        comps.push_back({{"mean", e.mean},
-                         {"std_error", std::isfinite(e.std_error) ? json(e.std_error) : json(nullptr)},
-                         {"ci", {e.ci_lo, e.ci_hi}}});
-      }
-      j["components"] = comps;
-      const std::vector<double> cov = component_mean_covariance(runner.state(), m);
-      json rows = json::array();
-      for (size_t a = 0; a < m; ++a) rows.push_back(std::vector<double>(cov.begin() + static_cast<std::ptrdiff_t>(a * m), cov.begin() + static_cast<std::ptrdiff_t>((a + 1) * m)));
-      j["covariance_of_means"] = rows;
-    }
-    if (const auto v = vegas_report(runner.state())) {
-      json its = json::array();
-      for (const VegasIteration& it : v->iterations) {
-        its.push_back({{"n", it.tally.n}, {"mean", it.tally.mean},
-                       {"std_error", it.tally.n > 1 ? json(it.tally.std_error()) : json(nullptr)},
-                       {"warmup", it.warmup}});
-      }
-      j["vegas"] = {{"iterations", its},
-                    {"used_iterations", v->used},
-                    {"chi2_per_dof", std::isfinite(v->chi2_per_dof) ? json(v->chi2_per_dof) : json(nullptr)},
-                    {"p_value", v->p_value},
-                    {"consistent", !v->inconsistent},
-                    {"error_scale", v->error_scale}};
-    }
-    if (reference_) {
-      j["reference"] = *reference_;
-      const Estimate e = runner.headline();  // channel 0, or VEGAS's combined passes
-      j["error_vs_reference"] = e.mean - *reference_;
-      if (e.std_error > 0 && std::isfinite(e.std_error)) {
-        j["z_score"] = (e.mean - *reference_) / e.std_error;
-      }
-    }
-    return j;
-  }
-
-  std::string summary_line(const JobRunner& runner) const override {
-    if (deterministic_) {
-      const Estimate e = runner.headline();
-      return fmt::format("{:.12g} (trapezoid, error estimate {:.3g})", e.mean, runner.error().abs_error);
-    }
+  if (s_.reference) {
+    r.reference = *s_.reference;
     const Estimate e = runner.headline();  // channel 0, or VEGAS's combined passes
-    return fmt::format("{:.10g} ± {:.3g} ({:g}% CI [{:.10g}, {:.10g}])", e.mean, e.std_error, 100.0 * e.confidence,
-                       e.ci_lo, e.ci_hi);
+    r.error_vs_reference = e.mean - *s_.reference;
+    if (e.std_error > 0 && std::isfinite(e.std_error)) r.z_score = (e.mean - *s_.reference) / e.std_error;
   }
+  return r;
+}
 
-  std::shared_ptr<const Kernel> kernel_;
-  std::shared_ptr<const Integrand> integrand_;
-  std::shared_ptr<const Domain> domain_;
-  StopRule stop_;
-  uint64_t seed_ = 1;
-  json plan_;
-  bool sweep_ = false;
-  bool deterministic_ = false;
-  std::optional<double> reference_;
-};
-
-}  // namespace
-
-std::unique_ptr<JobDefinition> compile_integration_job(const json& spec, const JobLimits& limits) {
-  SpecReader top(spec, "");
-  top.string("kind");
-  top.string_or("name", "", 200);
-  auto job = std::make_unique<IntegrationJob>();
-  job->seed_ = top.integer_or("seed", 1, 0, std::numeric_limits<uint64_t>::max());
-
-  ParsedIntegrand in = parse_integrand(top.object("integrand"), limits);
-  const json* dom = top.find("domain");
-  std::shared_ptr<const Domain> domain = parse_domain(dom, "/domain", in, limits);
-  if (domain->dimensions() > limits.max_dimensions) {
-    throw SpecError("/domain", fmt::format("has {} dimensions; the limit is {}", domain->dimensions(),
-                                           limits.max_dimensions));
+std::string IntegrationJob::summary_line(const JobRunner& runner) const {
+  if (s_.deterministic) {
+    const Estimate e = runner.headline();
+    return fmt::format("{:.12g} (trapezoid, error estimate {:.3g})", e.mean, runner.error().abs_error);
   }
-  if (!in.f && !in.expressions.empty()) {
-    for (size_t i = 0; i < in.expressions.size(); ++i) {
-      try {
-        make_expression_integrand(in.expressions[i], domain->dimensions(), limits.max_expression_length);
-      } catch (const ExprError& e) {
-        throw SpecError(json_pointer_append("/integrand/expressions", i), e.what());
-      }
-    }
-    in.f = make_vector_expression_integrand(in.expressions, domain->dimensions(), limits.max_expression_length);
-  }
-  if (!in.f) {
-    try {
-      in.f = make_expression_integrand(in.expression, domain->dimensions(), limits.max_expression_length);
-    } catch (const ExprError& e) {
-      throw SpecError("/integrand/expression", e.what());
-    }
-  }
-  IntegrationProblem prob{in.f, domain, job->seed_};
-  EstimatorChoice est = parse_estimator(top.find("estimator"), "/estimator", prob, limits);
-
-  SpecReader stop = top.object("stop");
-  job->stop_ = parse_stop_rule(stop, limits);
-  if (est.deterministic) {
-    job->stop_.max_samples = 1;
-  } else if (est.sweep && !stop.has("min_samples")) {
-    job->stop_.min_samples = 16;  // point sets, not points: 16 randomizations suffice for a t interval
-  }
-  top.finish();
-
-  job->kernel_ = est.kernel;
-  job->integrand_ = in.f;
-  job->domain_ = domain;
-  job->sweep_ = est.sweep;
-  job->deterministic_ = est.deterministic;
-  job->reference_ = reference_value(in, *domain);
-  job->plan_ = {{"kind", "integrate"},
-                {"integrand", in.f->describe()},
-                {"domain", domain->describe()},
-                {"estimator", est.plan},
-                {"dimensions", domain->dimensions()},
-                {"measure", domain->measure()},
-                {"stop", stop_rule_to_json(job->stop_)},
-                {"seed", job->seed_}};
-  return job;
+  const Estimate e = runner.headline();  // channel 0, or VEGAS's combined passes
+  return fmt::format("{:.10g} ± {:.3g} ({:g}% CI [{:.10g}, {:.10g}])", e.mean, e.std_error, 100.0 * e.confidence,
+                     e.ci_lo, e.ci_hi);
 }
 
 }  // namespace tally

@@ -17,10 +17,10 @@ class VectorExpressionIntegrand final : public Integrand {
   void evaluate_components(const double* const* xs, size_t n, double* const* out) const override {
     for (size_t c = 0; c < exprs_.size(); ++c) exprs_[c].evaluate_batch(xs, n, out[c]);
   }
-  nlohmann::json describe() const override {
-    nlohmann::json a = nlohmann::json::array();
-    for (const auto& e : exprs_) a.push_back(e.text());
-    return {{"expressions", a}};
+  IntegrandInfo describe() const override {
+    IntegrandInfo info;
+    for (const auto& e : exprs_) info.expressions.push_back(e.text());
+    return info;
   }
 
  private:
@@ -45,8 +45,8 @@ class GenzSet final : public Integrand {
   void evaluate_components(const double* const* xs, size_t n, double* const* out) const override {
     for (size_t c = 0; c < fs_.size(); ++c) fs_[c]->evaluate_batch(xs, n, out[c]);
   }
-  nlohmann::json describe() const override {
-    return {{"builtin", "genz"}, {"families", names_}, {"a", a_}, {"u", u_}};
+  IntegrandInfo describe() const override {
+    return {.builtin = "genz", .families = names_, .a = a_, .u = u_};
   }
 
  private:

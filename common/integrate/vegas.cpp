@@ -8,6 +8,7 @@
 #include <limits>
 #include <stdexcept>
 
+#include "common/integrate/integration_counters.hpp"
 #include "common/rng/counter_rng.hpp"
 #include "common/stats/confidence.hpp"
 
@@ -285,7 +286,7 @@ class VegasKernel final : public Kernel {
       }
       for (size_t c = 0; c < m_; ++c) vptr[c] = vals.data() + c * count + off;
       p_.integrand->evaluate_components(xptr.data(), n, vptr.data());
-      out.counters.add(Counter::evaluations, n);
+      out.counters.add(IntegrationCounter::evaluations, n);
       size_t ok = n;
       for (size_t c = 0; c < m_; ++c) {
         double* v = vptr[c];
@@ -439,6 +440,8 @@ class VegasKernel final : public Kernel {
     return Headline{st.channels[0].mean, st.channels[0].std_error() * rep->error_scale};
   }
 
+  std::span<const std::string_view> counter_names() const override { return integration_counter_names(); }
+
   std::vector<std::string> warnings(const JobState& st) const override {
     std::vector<std::string> w;
     const auto r = vegas_report(st);
@@ -449,6 +452,7 @@ class VegasKernel final : public Kernel {
           "samples per pass or more warm-up passes.",
           r->chi2_per_dof, r->used, r->p_value, r->error_scale));
     }
+    for (std::string& c : integration_counter_warnings(st)) w.push_back(std::move(c));
     return w;
   }
 
@@ -456,7 +460,7 @@ class VegasKernel final : public Kernel {
   // The batch rows (xs[k * kB + i]) still hold the point.
   void record_fault(BlockResult& out, uint64_t sample, double value, uint32_t channel, const double* xs,
                     size_t i) const {
-    out.counters.add(Counter::nonfinite);
+    out.counters.add(IntegrationCounter::nonfinite);
     if (out.fault) return;
     SampleFault f;
     f.sample_index = sample;

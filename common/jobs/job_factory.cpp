@@ -2,9 +2,9 @@
 
 #include <fmt/format.h>
 
-#include "common/integrate/integration_job.hpp"
+#include "common/integrate/integration_spec.hpp"
 #include "common/protocol/spec_reader.hpp"
-#include "common/lighting/lighting_job.hpp"
+#include "common/lighting/lighting_spec.hpp"
 
 namespace tally {
 

@@ -133,9 +133,9 @@ void ImageKernel::run_pixels(const Block& block, BlockResult& out) const {
         const double sy = (1.0 - 2.0 * (y + rng.uniform(1)) * inv_h) * tan_half_;
         const Vec3 d = normalize(cam_fwd_ + cam_right_ * sx + cam_up_ * sy);
         const Rgb L = tracer.camera(cam_pos_, d, settings_, rng, 2, out.counters);
-        out.counters.add(Counter::evaluations);
+        out.counters.add(LightingCounter::evaluations);
         if (!std::isfinite(L.x) || !std::isfinite(L.y) || !std::isfinite(L.z)) {
-          out.counters.add(Counter::nonfinite);
+          out.counters.add(LightingCounter::nonfinite);
           continue;
         }
         v[3 * rep].push_back(L.x);

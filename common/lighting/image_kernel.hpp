@@ -23,6 +23,7 @@
 #include <optional>
 #include <vector>
 
+#include "common/lighting/lighting_counters.hpp"
 #include "common/engine/image_source.hpp"
 #include "common/engine/job_state.hpp"
 #include "common/engine/kernel.hpp"
@@ -51,6 +52,8 @@ class ImageKernel final : public Kernel, public ImageSource {
   PassSchedule schedule() const override;
   std::vector<uint32_t> active_partitions(const JobState& state) const override;
   void run_block(const Block& block, BlockResult& out) const override;
+  std::span<const std::string_view> counter_names() const override { return lighting_counter_names(); }
+  std::vector<std::string> warnings(const JobState& state) const override { return lighting_counter_warnings(state); }
   ErrorSummary error_summary(const JobState& state, double confidence) const override;
   // The image's mean radiance over all pixels and channels, with its standard error.
   std::optional<Headline> headline(const JobState& state) const override;

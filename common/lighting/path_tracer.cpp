@@ -74,7 +74,7 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
         const Rgb f = bsdf_eval(m, ns, v.wo, wi);
         if (is_black(f)) continue;
         if (plan_.shadows) {
-          c.add(Counter::shadow_rays);
+          c.add(LightingCounter::shadow_rays);
           const Vec3 to = dist < kInf ? dl.position - origin : wi;
           const double len = dist < kInf ? length(to) : 1.0;
           if (accel_.occluded(origin, to / len, dist < kInf ? len * kShadowShorten : kInf)) continue;
@@ -82,7 +82,7 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
         L += beta * f * e * cos_i;
       }
       if (nee && !lights_.empty()) {
-        c.add(Counter::light_samples);
+        c.add(LightingCounter::light_samples);
         const LightSample ls = lights_.sample(v.p, ns, rng.uniform(d0 + kDimLightChoice), rng.uniform(d0 + kDimLightPoint),
                                                 rng.uniform(d0 + kDimLightPoint + 1));
         const double cos_i = dot(ns, ls.wi);
@@ -91,7 +91,7 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
           if (!is_black(f)) {
             bool visible = true;
             if (plan_.shadows) {
-              c.add(Counter::shadow_rays);
+              c.add(LightingCounter::shadow_rays);
               if (ls.sky) {
                 visible = !accel_.occluded(origin, ls.wi, kInf);
               } else {
@@ -120,7 +120,7 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
     const bool gathers = s.strategy != Strategy::light_area || m.is_delta();
     if (!gathers && !more_vertices) break;
     const DirectionSample ds = sample_direction(s.strategy, m, ns, v.wo, {rng.uniform(d0 + kDimDirection), rng.uniform(d0 + kDimDirection + 1)});
-    c.add(ds.delta ? Counter::specular_events : Counter::bsdf_samples);
+    c.add(ds.delta ? LightingCounter::specular_events : LightingCounter::bsdf_samples);
     if (!(ds.pdf > 0) || (is_black(ds.weight) && !plan_.full) || below_geometric(ds.wi)) break;
     const Rgb beta_next = beta * ds.weight;
     // Weight of emission found by this ray (MIS needs the light pdf of its direction).
@@ -135,12 +135,12 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
       return 1.0;
     };
     const bool counts_emission = gathers;
-    c.add(Counter::bounce_rays);
+    c.add(LightingCounter::bounce_rays);
     const Vec3 o = dot(ds.wi, v.n) >= 0 ? origin : offset_ray_origin(v.p, -v.n);
     const std::optional<Hit> hit = accel_.intersect(o, ds.wi, kInf);
     if (!hit) {
       if (plan_.sky && (counts_emission || plan_.full)) {
-        c.add(Counter::sky_lookups);
+        c.add(LightingCounter::sky_lookups);
         if (scene_.sky && counts_emission) {
           const double w = emission_weight(s.strategy == Strategy::mis ? lights_.pdf_sky(ns, ds.wi) : 0.0);
           L += beta_next * *scene_.sky * w;
@@ -149,7 +149,7 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
       break;
     }
     if (plan_.emission && (counts_emission || plan_.full)) {
-      c.add(Counter::emission_lookups);
+      c.add(LightingCounter::emission_lookups);
       const Rgb le = emitted(scene_, hit->shape, hit->n, -ds.wi);
       if (!is_black(le) && counts_emission) {
         // The light pdf of the direction ds.wi at v.p, where light samples are drawn from,
@@ -166,7 +166,7 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
     if (s.russian_roulette && bounce + 1 >= 2) {
       const double q = std::clamp(max_component(beta), 0.05, 1.0);
       if (rng.uniform(d0 + kDimRoulette) >= q) {
-        c.add(Counter::roulette_terminations);
+        c.add(LightingCounter::roulette_terminations);
         break;
       }
       beta = beta / q;
@@ -179,18 +179,18 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
 template <class Rng>
 Rgb PathTracer::camera(const Vec3& o, const Vec3& d, const PathSettings& s, const Rng& rng, uint32_t dim0,
                        Counters& c) const {
-  c.add(Counter::camera_rays);
+  c.add(LightingCounter::camera_rays);
   const std::optional<Hit> hit = accel_.intersect(o, d, kInf);
   if (!hit) {
     if (plan_.sky) {
-      c.add(Counter::sky_lookups);
+      c.add(LightingCounter::sky_lookups);
       if (scene_.sky) return *scene_.sky;
     }
     return {};
   }
   Rgb L{};
   if (plan_.emission) {
-    c.add(Counter::emission_lookups);
+    c.add(LightingCounter::emission_lookups);
     L += emitted(scene_, hit->shape, hit->n, -d);
   }
   L += reflected(vertex_at(*hit, d), s, rng, dim0, c);

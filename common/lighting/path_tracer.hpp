@@ -16,6 +16,7 @@
 #include <cstdint>
 
 #include "common/engine/counters.hpp"
+#include "common/lighting/lighting_counters.hpp"
 #include "common/lighting/accel.hpp"
 #include "common/lighting/bsdf.hpp"
 #include "common/lighting/light_set.hpp"

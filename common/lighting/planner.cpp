@@ -6,12 +6,6 @@
 
 namespace tally {
 
-nlohmann::json Plan::to_json() const {
-  nlohmann::json effects_json = nlohmann::json::array();
-  for (const PlanEffect& e : effects) effects_json.push_back({{"effect", e.name}, {"on", e.on}, {"why", e.why}});
-  return {{"mode", full ? "full" : "auto"}, {"effects", effects_json}};
-}
-
 Plan make_plan(const Scene& scene, const PlanQuery& q, bool full) {
   Plan p;
   p.full = full;

@@ -17,7 +17,6 @@
 //   sky       off without a sky (misses return 0 without a lookup).
 //   emission  off when no shape emits (hits are not looked up for emitted radiance).
 // "plan": "full" forces every effect on: the tests compare both.
-#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -40,7 +39,6 @@ struct Plan {
   bool sky = true;
   bool emission = true;
   std::vector<PlanEffect> effects;
-  nlohmann::json to_json() const;
 };
 
 struct PlanQuery {

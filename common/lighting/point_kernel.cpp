@@ -117,9 +117,9 @@ void PointKernel::run_samples(const Block& block, BlockResult& out) const {
           }
         }();
         const Rgb L = q.emission + tracer.reflected(q.vertex, settings, rng, 0, out.counters);
-        out.counters.add(Counter::evaluations);
+        out.counters.add(LightingCounter::evaluations);
         if (!std::isfinite(L.x) || !std::isfinite(L.y) || !std::isfinite(L.z)) {
-          out.counters.add(Counter::nonfinite);  // excluded, never merged
+          out.counters.add(LightingCounter::nonfinite);  // excluded, never merged
           continue;
         }
         v[3 * rep].push_back(L.x);

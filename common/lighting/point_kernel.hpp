@@ -11,6 +11,7 @@
 #include <memory>
 #include <vector>
 
+#include "common/lighting/lighting_counters.hpp"
 #include "common/engine/job_state.hpp"
 #include "common/engine/kernel.hpp"
 #include "common/lighting/compiled_scene.hpp"
@@ -34,6 +35,8 @@ class PointKernel final : public Kernel {
   size_t channel_count() const override { return strategies_.size() * points_.size() * 3 * k_; }
   PassSchedule schedule() const override;
   void run_block(const Block& block, BlockResult& out) const override;
+  std::span<const std::string_view> counter_names() const override { return lighting_counter_names(); }
+  std::vector<std::string> warnings(const JobState& state) const override { return lighting_counter_warnings(state); }
   // The worst (estimator, point, rgb) estimate, its error from the replicates.
   ErrorSummary error_summary(const JobState& state, double confidence) const override;
   // Progress shows estimator 0 at point 0 (red), replicates combined.

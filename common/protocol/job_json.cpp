@@ -8,6 +8,7 @@
 #include <ctime>
 #include <limits>
 
+#include "common/protocol/kind_json.hpp"
 #include "common/protocol/status_json.hpp"
 #include "common/protocol/stop_rule_json.hpp"
 
@@ -97,7 +98,7 @@ json status_json(const JobSnapshot& job, double now, json links) {
   j["priority"] = job.priority;
   if (!job.owner.empty()) j["owner"] = job.owner;
   j["spec"] = job.spec ? *job.spec : json(nullptr);
-  j["plan"] = job.def ? job.def->plan() : json(nullptr);
+  j["plan"] = job.def ? plan_json(*job.def) : json(nullptr);
   if (job.runner) j["stop_rule"] = stop_rule_to_json(job.runner->rule());
   if (!job.error.empty()) j["error_message"] = job.error;
   if (job.status == JobStatus::running) {

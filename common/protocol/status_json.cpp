@@ -2,7 +2,9 @@
 
 #include <cmath>
 
-#include "common/engine/counters.hpp"
+#include <algorithm>
+
+#include "common/protocol/kind_json.hpp"
 #include "common/stats/tail_index.hpp"
 
 namespace tally {
@@ -11,7 +13,21 @@ using nlohmann::json;
 
 namespace {
 json finite_or_null(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+
+// A counter by the name its kernel gave it; 0 when the kernel does not count it.
+uint64_t counter(const JobState& s, std::string_view name) {
+  const auto it = std::find(s.counter_names.begin(), s.counter_names.end(), name);
+  return it == s.counter_names.end() ? 0 : s.counters[static_cast<size_t>(it - s.counter_names.begin())];
+}
 }  // namespace
+
+json counters_json(const JobState& s) {
+  json j = json::object();
+  for (size_t i = 0; i < s.counter_names.size(); ++i) {
+    if (s.counters[i] != 0) j[s.counter_names[i]] = s.counters[i];
+  }
+  return j;
+}
 
 json progress_json(const JobRunner& runner) {
   const JobState& s = runner.state();
@@ -55,25 +71,24 @@ json result_json(const JobRunner& runner, const JobDefinition& job) {
   }
   j["cost_curve"] = curve;
   json d;
-  d["nonfinite"] = s.counters[Counter::nonfinite];
+  d["nonfinite"] = counter(s, "nonfinite");
   const auto alpha = runner.tail_alpha();
   d["tail_index"] = alpha ? finite_or_null(*alpha) : json(nullptr);
   d["heavy_tail"] = runner.heavy_tail();
-  const uint64_t att = s.counters[Counter::rejection_attempts];
+  const uint64_t att = counter(s, "rejection_attempts");
   d["acceptance_rate"] =
-      att > 0 ? json(static_cast<double>(s.counters[Counter::rejection_accepts]) / static_cast<double>(att))
-              : json(nullptr);
+      att > 0 ? json(static_cast<double>(counter(s, "rejection_accepts")) / static_cast<double>(att)) : json(nullptr);
   d["effective_sample_size"] = s.weights.empty() ? json(nullptr) : json(s.weights.ess());
   d["warnings"] = runner.warnings();
   j["diagnostics"] = d;
-  j["counters"] = s.counters.to_json();
+  j["counters"] = counters_json(s);
   json trace = json::array();
   for (const TracePoint& p : s.trace) {
     trace.push_back({p.time_s, p.samples, finite_or_null(p.mean), finite_or_null(p.std_error)});
   }
   j["trace"] = trace;
   if (runner.error_message()) j["error_message"] = *runner.error_message();
-  j["result"] = job.result(runner);
+  j["result"] = kind_result_json(job, runner);
   return j;
 }
 

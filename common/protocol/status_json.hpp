@@ -8,6 +8,8 @@
 
 namespace tally {
 
+// The non-zero counters by the names the job's kernel declared.
+nlohmann::json counters_json(const JobState& state);
 // Compact: what a progress event carries.
 nlohmann::json progress_json(const JobRunner& runner);
 // Everything: progress + diagnostics + counters + trace + cost curve + kind result.

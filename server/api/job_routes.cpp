@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 
 #include "common/protocol/job_json.hpp"
+#include "common/protocol/kind_json.hpp"
 #include "common/protocol/spec_reader.hpp"
 #include "common/protocol/stop_rule_json.hpp"
 #include "server/api/job_event_stream.hpp"
@@ -132,7 +133,7 @@ HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathPara
   std::unique_ptr<JobDefinition> def = manager_.compiler()(spec, limits);
   json out = {{"valid", true},
               {"kind", std::string(def->kind())},
-              {"plan", def->plan()},
+              {"plan", plan_json(*def)},
               {"stop_rule", stop_rule_to_json(def->stop_rule())}};
   if (pilots_.fetch_add(1) >= config_.max_concurrent_pilots) {
     pilots_.fetch_sub(1);

@@ -4,65 +4,22 @@
 
 #include <bit>
 
+#include "common/engine/byte_codec.hpp"
+
 namespace tally::cluster {
 
 namespace {
 
-constexpr unsigned char kResultVersion = 2;  // 2: BlockResult::aux (adaptive kernels)
+// 2: BlockResult::aux (adaptive kernels); 3: as many counters as the kernel declares
+// (Kernel::counter_names), no longer a fixed list.
+constexpr unsigned char kResultVersion = 3;
 
-class Writer {
+using Writer = ByteWriter;
+
+// A short input names what it is ("result is truncated at byte N").
+class Reader : public ByteReader<WireError> {
  public:
-  void u8(unsigned char v) { out_.push_back(static_cast<char>(v)); }
-  void u64(uint64_t v) {
-    for (int i = 0; i < 8; ++i) out_.push_back(static_cast<char>((v >> (8 * i)) & 0xff));
-  }
-  void f64(double v) { u64(std::bit_cast<uint64_t>(v)); }
-  void bytes(std::string_view s) {
-    u64(s.size());
-    out_.append(s);
-  }
-  std::string take() { return std::move(out_); }
-
- private:
-  std::string out_;
-};
-
-class Reader {
- public:
-  explicit Reader(std::string_view in) : in_(in) {}
-  unsigned char u8() {
-    need(1);
-    return static_cast<unsigned char>(in_[pos_++]);
-  }
-  uint64_t u64() {
-    need(8);
-    uint64_t v = 0;
-    for (int i = 0; i < 8; ++i) {
-      v |= static_cast<uint64_t>(static_cast<unsigned char>(in_[pos_ + static_cast<size_t>(i)])) << (8 * i);
-    }
-    pos_ += 8;
-    return v;
-  }
-  double f64() { return std::bit_cast<double>(u64()); }
-  uint64_t count(size_t item_size) {
-    const uint64_t n = u64();
-    if (n > (in_.size() - pos_) / item_size) throw WireError(fmt::format("count {} at byte {} exceeds the input", n, pos_));
-    return n;
-  }
-  std::string bytes() {
-    const uint64_t n = count(1);
-    std::string s(in_.substr(pos_, n));
-    pos_ += n;
-    return s;
-  }
-  bool done() const { return pos_ == in_.size(); }
-
- private:
-  void need(size_t n) const {
-    if (in_.size() - pos_ < n) throw WireError(fmt::format("truncated at byte {}", pos_));
-  }
-  std::string_view in_;
-  size_t pos_ = 0;
+  explicit Reader(std::string_view in) : ByteReader<WireError>(in, "result") {}
 };
 
 }  // namespace
@@ -102,27 +59,13 @@ std::string encode_result(const BlockResult& res) {
   w.u64(res.block_index);
   w.u64(res.first_channel);
   w.u64(res.tallies.size());
-  for (const Tally& t : res.tallies) {
-    w.u64(t.n);
-    w.f64(t.mean);
-    w.f64(t.m2);
-  }
+  for (const Tally& t : res.tallies) w.tally(t);
   w.u64(res.counters.values.size());
   for (uint64_t v : res.counters.values) w.u64(v);
-  w.u64(res.tail.capacity());
-  w.u64(res.tail.heap().size());
-  for (double v : res.tail.heap()) w.f64(v);  // heap order: assign() rebuilds the same layout
-  w.f64(res.weights.sum_w);
-  w.f64(res.weights.sum_w2);
+  w.tail(res.tail);  // heap order: assign() rebuilds the same layout
+  w.weights(res.weights);
   w.u8(res.fault ? 1 : 0);
-  if (res.fault) {
-    w.u64(res.fault->sample_index);
-    w.u64(res.fault->channel);
-    w.f64(res.fault->value);
-    w.u64(res.fault->point.size());
-    for (double v : res.fault->point) w.f64(v);
-    w.bytes(res.fault->message);
-  }
+  if (res.fault) w.fault(*res.fault);
   w.u64(res.aux.size());
   for (double v : res.aux) w.f64(v);
   return w.take();
@@ -137,34 +80,14 @@ BlockResult decode_result(std::string_view bytes) {
   if (fc > UINT32_MAX) throw WireError("first_channel out of range");
   res.first_channel = static_cast<uint32_t>(fc);
   res.tallies.resize(r.count(24));
-  for (Tally& t : res.tallies) {
-    t.n = r.u64();
-    t.mean = r.f64();
-    t.m2 = r.f64();
-  }
-  if (r.count(8) != res.counters.values.size()) throw WireError("counter layout differs (worker of another version?)");
+  for (Tally& t : res.tallies) t = r.tally();
+  const uint64_t nc = r.count(8);
+  if (nc > Counters::kMaxCounters) throw WireError(fmt::format("{} counters (at most {})", nc, Counters::kMaxCounters));
+  res.counters.values.resize(nc);
   for (auto& v : res.counters.values) v = r.u64();
-  const uint64_t cap = r.u64();
-  if (cap == 0 || cap > (1u << 20)) throw WireError("tail capacity out of range");
-  std::vector<double> tail(r.count(8));
-  if (tail.size() > cap) throw WireError("tail larger than its capacity");
-  for (double& v : tail) v = r.f64();
-  res.tail = TailTracker(cap);
-  res.tail.assign(std::move(tail));
-  res.weights.sum_w = r.f64();
-  res.weights.sum_w2 = r.f64();
-  if (r.u8() != 0) {
-    SampleFault f;
-    f.sample_index = r.u64();
-    const uint64_t ch = r.u64();
-    if (ch > UINT32_MAX) throw WireError("fault channel out of range");
-    f.channel = static_cast<uint32_t>(ch);
-    f.value = r.f64();
-    f.point.resize(r.count(8));
-    for (double& v : f.point) v = r.f64();
-    f.message = r.bytes();
-    res.fault = std::move(f);
-  }
+  res.tail = r.tail();
+  res.weights = r.weights();
+  if (r.u8() != 0) res.fault = r.fault();
   res.aux.resize(r.count(8));
   for (double& v : res.aux) v = r.f64();
   if (!r.done()) throw WireError("trailing bytes after a result");

@@ -17,8 +17,8 @@ TEST(ClusterWire, ResultRoundTripIsBitExact) {
   r.block_index = 77;
   r.first_channel = 3;
   r.tallies = {{10, 0.1 + 0.2, 1e-300}, {0, -0.0, 0.0}, {5, std::nextafter(1.0, 2.0), 3.5}};
-  r.counters.add(Counter::evaluations, 123);
-  r.counters.add(Counter::shadow_rays, 9);
+  r.counters.add(0, 123);  // the kernel's counter ids
+  r.counters.add(3, 9);
   for (double v : {3.0, 1.0, 7.0, 2.0, 9.0, 0.5}) r.tail.offer(v);
   r.weights.add(0.25);
   r.weights.add(4.0);

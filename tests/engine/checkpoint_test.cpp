@@ -4,6 +4,11 @@
 
 #include <bit>
 #include <cmath>
+#include <fstream>
+#include <iterator>
+#include <sstream>
+
+#include "common/engine/job_runner.hpp"
 
 namespace tally {
 namespace {
@@ -19,8 +24,9 @@ JobState sample_state() {
   s.channels[0].m2 = 1.0 / 3.0;
   s.channels[2].n = 1;
   s.channels[2].mean = -0.0;
-  s.counters.add(Counter::evaluations, 999);
-  s.counters.add(Counter::shadow_rays, 5);
+  s.counter_names = {"evaluations", "shadow_rays"};  // a kernel's own counters
+  s.counters.add(0, 999);
+  s.counters.add(1, 5);
   s.tail.offer(3.5);
   s.tail.offer(1e300);
   s.weights.add(0.25);
@@ -49,6 +55,7 @@ TEST(Checkpoint, RoundTripIsBitExact) {
     EXPECT_EQ(std::bit_cast<uint64_t>(r.channels[i].m2), std::bit_cast<uint64_t>(s.channels[i].m2));
   }
   EXPECT_EQ(r.counters, s.counters);
+  EXPECT_EQ(r.counter_names, s.counter_names);
   EXPECT_EQ(r.tail.sorted_values(), s.tail.sorted_values());
   EXPECT_EQ(r.weights, s.weights);
   ASSERT_TRUE(r.fault.has_value());
@@ -60,27 +67,121 @@ TEST(Checkpoint, RoundTripIsBitExact) {
   EXPECT_EQ(r.kernel_state, s.kernel_state);
 }
 
-// Version 1 (before JobState::kernel_state) still reads, with no kernel state: the
-// v1 bytes are the v2 bytes without the trailing kernel_state field.
-TEST(Checkpoint, VersionOneStillReads) {
-  JobState s = sample_state();
-  s.kernel_state.clear();
-  std::string v2 = encode_checkpoint(s);
-  std::string body = v2.substr(0, v2.size() - 16);  // drop the empty bytes field (its length) and the checksum
-  ASSERT_EQ(body[8], 2);
-  body[8] = 1;
+std::string read_v2_fixture() {
+  // Written by the version-2 encoder (main at 0e6e30c, before kernels declared their
+  // own counters): passes 3, samples 12345, partitions {12345, 77}, channels as in
+  // sample_state(), counters evaluations 999, nonfinite 2, shadow_rays 5,
+  // roulette_terminations 7 in the fixed 14-slot list, no fault, the same trace and
+  // kernel_state.
+  std::ifstream in(TALLY_SOURCE_DIR "/tests/engine/data/checkpoint_v2.bin", std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+std::string with_checksum(std::string body) {
   uint64_t h = 0xcbf29ce484222325ULL;  // FNV-1a, as the format's checksum
   for (unsigned char c : body) {
     h ^= c;
     h *= 0x100000001b3ULL;
   }
   for (int i = 0; i < 8; ++i) body.push_back(static_cast<char>((h >> (8 * i)) & 0xff));
-  const JobState r = decode_checkpoint(body);
-  EXPECT_EQ(r.samples, s.samples);
+  return body;
+}
+
+uint64_t named(const JobState& s, const std::string& name) {
+  for (size_t i = 0; i < s.counter_names.size(); ++i) {
+    if (s.counter_names[i] == name) return s.counters[i];
+  }
+  return UINT64_MAX;
+}
+
+// Version 2 (a fixed list of 14 counters) still reads: every counter under the name
+// it had in that list.
+TEST(Checkpoint, VersionTwoStillReads) {
+  const std::string v2 = read_v2_fixture();
+  ASSERT_EQ(v2.size(), 424u);
+  ASSERT_EQ(v2[8], 2);
+  const JobState r = decode_checkpoint(v2);
+  const JobState s = sample_state();
+  EXPECT_EQ(r.passes, 3u);
+  EXPECT_EQ(r.samples, 12345u);
+  EXPECT_EQ(r.partition_samples, (std::vector<uint64_t>{12345, 77}));
+  ASSERT_EQ(r.channels.size(), 3u);
+  EXPECT_EQ(std::bit_cast<uint64_t>(r.channels[0].mean), std::bit_cast<uint64_t>(0.1 + 0.2));
+  EXPECT_EQ(std::bit_cast<uint64_t>(r.channels[0].m2), std::bit_cast<uint64_t>(1.0 / 3.0));
+  EXPECT_TRUE(std::signbit(r.channels[2].mean));
+  ASSERT_EQ(r.counter_names.size(), 14u);
+  EXPECT_EQ(r.counter_names[0], "evaluations");
+  EXPECT_EQ(r.counter_names[13], "roulette_terminations");
+  EXPECT_EQ(named(r, "evaluations"), 999u);
+  EXPECT_EQ(named(r, "nonfinite"), 2u);
+  EXPECT_EQ(named(r, "shadow_rays"), 5u);
+  EXPECT_EQ(named(r, "roulette_terminations"), 7u);
+  EXPECT_EQ(named(r, "rejection_attempts"), 0u);
+  EXPECT_EQ(r.tail.sorted_values(), s.tail.sorted_values());
+  EXPECT_EQ(r.weights, s.weights);
+  EXPECT_FALSE(r.fault.has_value());
+  EXPECT_EQ(r.compute_seconds, 1.25);
   EXPECT_EQ(r.trace, s.trace);
+  EXPECT_EQ(r.kernel_state, s.kernel_state);
+  // Re-encoded, it is a version-3 checkpoint that reads back the same.
+  const std::string v3 = encode_checkpoint(r);
+  EXPECT_EQ(v3[8], 3);
+  const JobState again = decode_checkpoint(v3);
+  EXPECT_EQ(again.counter_names, r.counter_names);
+  EXPECT_EQ(again.counters, r.counters);
+}
+
+// Version 1 (before JobState::kernel_state) still reads, with no kernel state: the
+// v1 bytes are the v2 bytes without the trailing kernel_state field.
+TEST(Checkpoint, VersionOneStillReads) {
+  const std::string v2 = read_v2_fixture();
+  std::string body = v2.substr(0, v2.size() - 8 - 8 - 16);  // drop kernel_state (length, 16 bytes) and checksum
+  ASSERT_EQ(body[8], 2);
+  body[8] = 1;
+  const JobState r = decode_checkpoint(with_checksum(body));
+  EXPECT_EQ(r.samples, 12345u);
+  EXPECT_EQ(r.trace, sample_state().trace);
+  EXPECT_EQ(named(r, "shadow_rays"), 5u);
   EXPECT_TRUE(r.kernel_state.empty());
-  body[8] = 3;
-  EXPECT_THROW(decode_checkpoint(body), CheckpointError);  // unknown version (and checksum)
+  body[8] = 4;
+  EXPECT_THROW(decode_checkpoint(with_checksum(body)), CheckpointError);  // unknown version
+}
+
+// A kernel with three channels and two partitions, like the fixture's job, counting
+// what it declares.
+class NamedCountersKernel final : public Kernel {
+ public:
+  explicit NamedCountersKernel(std::vector<std::string_view> names) : names_(std::move(names)) {}
+  size_t channel_count() const override { return 3; }
+  uint32_t partition_count() const override { return 2; }
+  std::span<const std::string_view> counter_names() const override { return names_; }
+  void run_block(const Block&, BlockResult&) const override {}
+
+ private:
+  std::vector<std::string_view> names_;
+};
+
+// A resumed job maps the checkpoint's counters onto its kernel's by name, whatever
+// their order; a non-zero counter the kernel does not declare is another job's.
+TEST(Checkpoint, ResumedCountersMapByName) {
+  const JobState v2 = decode_checkpoint(read_v2_fixture());
+  StopRule rule;
+  rule.max_samples = 1u << 20;
+  auto k = std::make_shared<NamedCountersKernel>(
+      std::vector<std::string_view>{"shadow_rays", "roulette_terminations", "nonfinite", "evaluations", "camera_rays"});
+  const JobRunner resumed(k, rule, JobCaps{}, v2);
+  const JobState& st = resumed.state();
+  EXPECT_EQ(st.counter_names,
+            (std::vector<std::string>{"shadow_rays", "roulette_terminations", "nonfinite", "evaluations", "camera_rays"}));
+  EXPECT_EQ(st.counters.values, (std::vector<uint64_t>{5, 7, 2, 999, 0}));
+  // The same kernel resuming its own (version 3) checkpoint keeps everything.
+  const JobRunner again(k, rule, JobCaps{}, decode_checkpoint(encode_checkpoint(st)));
+  EXPECT_EQ(again.state().counters.values, st.counters.values);
+
+  auto other = std::make_shared<NamedCountersKernel>(std::vector<std::string_view>{"evaluations", "nonfinite"});
+  EXPECT_THROW(JobRunner(other, rule, JobCaps{}, v2), std::invalid_argument);  // shadow_rays 5 has no home
 }
 
 TEST(Checkpoint, EveryTruncationIsReported) {

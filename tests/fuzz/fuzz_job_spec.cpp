@@ -5,6 +5,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common/jobs/job_factory.hpp"
+#include "common/protocol/kind_json.hpp"
 #include "common/protocol/spec_reader.hpp"
 #include "fuzz_support.hpp"
 
@@ -26,7 +27,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   limits.max_quadrature_points = 1 << 12;
   try {
     const auto def = tally::compile_job(spec, limits);
-    (void)def->plan().dump();
+    (void)plan_json(*def).dump();
   } catch (const tally::SpecError&) {
     return 0;
   } catch (const std::exception& e) {

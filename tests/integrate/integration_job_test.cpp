@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <fmt/format.h>
+
 #include <cmath>
 #include <numbers>
 
@@ -47,7 +49,7 @@ TEST(IntegrationJob, UnitDiskGivesPi) {
   // Var of 4 * indicator = 16 (pi/4)(1 - pi/4); check the reported variance.
   const double var = 16.0 * (std::numbers::pi / 4) * (1 - std::numbers::pi / 4);
   EXPECT_NEAR(e.variance, var, 0.01 * var);
-  const json res = r.job->result(*r.runner);
+  const json res = kind_result_json(*r.job, *r.runner);
   EXPECT_DOUBLE_EQ(res["reference"].get<double>(), std::numbers::pi);
 }
 
@@ -149,10 +151,23 @@ TEST(IntegrationJob, RejectionCapIsReported) {
                            {"domain", {{"type", "ball"}, {"dimensions", 10}}},
                            {"estimator", {{"type", "rejection"}, {"max_attempts", 2}}},
                            {"stop", {{"max_samples", 20000}}}});
-  EXPECT_GT(r->state().counters[Counter::rejection_failures], 19000u);
+  EXPECT_GT(r->state().counters[IntegrationCounter::rejection_failures], 19000u);
   bool warned = false;
   for (const auto& w : r->warnings()) warned |= w.find("attempt cap") != std::string::npos;
   EXPECT_TRUE(warned);
+  // The warnings are the rejection kernel's own (Kernel::warnings reads its counters; the
+  // engine's JobRunner::warnings only adds kind-free ones): the acceptance rate (about
+  // 0.25%, under 1%) and the dropped samples, by count.
+  const auto kw = r->kernel().warnings(r->state());
+  ASSERT_EQ(kw.size(), 2u);
+  EXPECT_EQ(kw[0].rfind("rejection sampling accepts only ", 0), 0u) << kw[0];
+  EXPECT_EQ(kw[1], fmt::format("{} samples hit the rejection attempt cap and were dropped",
+                               r->state().counters[IntegrationCounter::rejection_failures]));
+  // The status document lists the kernel's counters by its names.
+  const json counters = result_json(*r.runner, *r.job)["counters"];
+  EXPECT_EQ(counters["rejection_failures"].get<uint64_t>(), r->state().counters[IntegrationCounter::rejection_failures]);
+  EXPECT_EQ(counters["evaluations"].get<uint64_t>(), r->state().counters[IntegrationCounter::evaluations]);
+  EXPECT_FALSE(counters.contains("shadow_rays"));
 }
 
 TEST(IntegrationJob, StratifiedAndQmcBeatUniformOnSmoothIntegrands) {
@@ -163,7 +178,7 @@ TEST(IntegrationJob, StratifiedAndQmcBeatUniformOnSmoothIntegrands) {
     const Estimate e = r->estimate(0);
     EXPECT_LE(std::fabs(e.mean - exact), 4 * e.std_error) << est.dump();
     // Normalize to the same number of integrand evaluations.
-    const double evals = static_cast<double>(r->state().counters[Counter::evaluations]);
+    const double evals = static_cast<double>(r->state().counters[IntegrationCounter::evaluations]);
     return e.std_error * std::sqrt(evals);
   };
   const double mc = se_per_eval({{"type", "uniform"}}, 1 << 18);
@@ -206,7 +221,7 @@ TEST(IntegrationJob, LargeQuadratureRunsInBoundedBlocks) {
   EXPECT_EQ(one->stop_reason(), StopReason::max_samples);
   EXPECT_EQ(one->headline().mean, four->headline().mean);  // bit-identical
   EXPECT_EQ(one->error().abs_error, four->error().abs_error);
-  EXPECT_EQ(one->state().counters[Counter::evaluations], 1025u * 1025u + 513u * 513u);
+  EXPECT_EQ(one->state().counters[IntegrationCounter::evaluations], 1025u * 1025u + 513u * 513u);
   const auto small = run_spec(genz_spec(p, {{"type", "quadrature"}, {"points_per_dim", 257}}, {{"max_samples", 1}}, 1));
   const double e_small = std::fabs(small->estimate(0).mean - exact);  // one chunk: channel 0 is T(n)
   const double e_big = std::fabs(one->headline().mean - exact);
@@ -252,7 +267,7 @@ TEST(IntegrationJob, NanIsReportedWithThePoint) {
   EXPECT_TRUE(std::isnan(std::sqrt(x0 - 0.5)));
   ASSERT_TRUE(r->state().fault.has_value());
   EXPECT_EQ(r->state().fault->point, std::vector<double>{x0});
-  EXPECT_GE(r->state().counters[Counter::nonfinite], 1u);  // each block stops at its first
+  EXPECT_GE(r->state().counters[IntegrationCounter::nonfinite], 1u);  // each block stops at its first
 }
 
 TEST(IntegrationJob, SpecErrorsNameTheField) {
@@ -347,7 +362,7 @@ TEST(IntegrationJob, PowerDensityNearMinusOneStaysInsideTheInterval) {
                              {"estimator", {{"type", "importance"}, {"density", {{"type", "power"}, {"exponent", e}}}}},
                              {"stop", {{"max_samples", 200000}}}});
     EXPECT_EQ(r->stop_reason(), StopReason::max_samples) << e;
-    EXPECT_EQ(r->state().counters[Counter::nonfinite], 0u) << e;
+    EXPECT_EQ(r->state().counters[IntegrationCounter::nonfinite], 0u) << e;
     EXPECT_TRUE(std::isfinite(r->estimate(0).mean)) << e;
   }
   // Large exponents round t up to 1: x0 must stay below the upper bound too.
@@ -356,7 +371,7 @@ TEST(IntegrationJob, PowerDensityNearMinusOneStaysInsideTheInterval) {
                            {"domain", {{"type", "interval"}, {"lower", 0}, {"upper", 1}}},
                            {"estimator", {{"type", "importance"}, {"density", {{"type", "power"}, {"exponent", 1000}}}}},
                            {"stop", {{"max_samples", 100000}}}});
-  EXPECT_EQ(r->state().counters[Counter::nonfinite], 0u);
+  EXPECT_EQ(r->state().counters[IntegrationCounter::nonfinite], 0u);
 }
 
 }  // namespace

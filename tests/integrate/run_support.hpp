@@ -4,7 +4,9 @@
 #include <nlohmann/json.hpp>
 
 #include "common/engine/local_executor.hpp"
+#include "common/integrate/integration_counters.hpp"
 #include "common/jobs/job_factory.hpp"
+#include "common/protocol/kind_json.hpp"
 
 namespace tally::testing {
 

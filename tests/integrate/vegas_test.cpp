@@ -289,7 +289,7 @@ TEST(VectorIntegrand, CovarianceAndWorstComponentStopRule) {
   EXPECT_DOUBLE_EQ(e.abs_error, r->kernel().error_summary(r->state(), 0.95).abs_error);
   // The second component's half-width (twice the first's) decides.
   EXPECT_NEAR(e.abs_error, 1.959963984540054 * std::sqrt(cov[3]), 1e-3 * e.abs_error);
-  const json res = r.job->result(*r.runner);
+  const json res = kind_result_json(*r.job, *r.runner);
   ASSERT_EQ(res.at("components").size(), 2u);
   EXPECT_NEAR(res["components"][1]["mean"].get<double>(), 2.0 * res["components"][0]["mean"].get<double>() + 2.0, 1e-9);
 }

@@ -25,7 +25,7 @@ void expect_all_estimators(const JobRun& r, size_t n_estimators, double exact, c
           << " se " << se;
     }
   }
-  EXPECT_EQ(r.counter(Counter::nonfinite), 0u);
+  EXPECT_EQ(r.counter(LightingCounter::nonfinite), 0u);
 }
 
 TEST(ClosedForm, PolygonLightsLambert) {
@@ -58,7 +58,7 @@ TEST(ClosedForm, PolygonLightsLambert) {
     ASSERT_GT(exact, 1e-3);
     expect_all_estimators(r, kAll.size(), exact, fmt::format("trial {} ({})", trial, triangle ? "triangle" : "quad"));
     // Nothing can occlude a single convex light seen from a free point.
-    EXPECT_EQ(r.counter(Counter::shadow_rays), 0u);
+    EXPECT_EQ(r.counter(LightingCounter::shadow_rays), 0u);
     ++tested;
   }
   EXPECT_EQ(tested, 6);
@@ -108,7 +108,7 @@ TEST(ClosedForm, UniformSkyVarianceIsExact) {
     EXPECT_LE(r.channel(3 + c).variance(), 1e-24);
     EXPECT_LE(r.channel(6 + c).variance(), 1e-24);
   }
-  EXPECT_EQ(r.counter(Counter::shadow_rays), 0u);  // no shapes: nothing to occlude the sky
+  EXPECT_EQ(r.counter(LightingCounter::shadow_rays), 0u);  // no shapes: nothing to occlude the sky
 }
 
 json furnace_spec(const std::string& estimator, int depth, bool rr, double rho, double le) {
@@ -143,9 +143,9 @@ TEST(ClosedForm, FurnaceMultiBounce) {
         if (est == "cosine_hemisphere" && !rr) {
           EXPECT_LE(all.variance(), 1e-20);  // weight exactly rho
         }
-        EXPECT_EQ(r.counter(Counter::nonfinite), 0u);
+        EXPECT_EQ(r.counter(LightingCounter::nonfinite), 0u);
         if (rr && depth > 2) {
-          EXPECT_GT(r.counter(Counter::roulette_terminations), 0u);
+          EXPECT_GT(r.counter(LightingCounter::roulette_terminations), 0u);
         }
       }
     }

@@ -104,12 +104,12 @@ TEST(Numerics, DegenerateTrianglesAndZeroAreaLightsGiveNoNaN) {
   json spec = point_spec(scene, {"uniform_hemisphere", "cosine_hemisphere", "light_area", "mis"}, 4000);
   spec["query"]["max_depth"] = 3;
   const JobRun r = run_spec(spec);
-  EXPECT_EQ(r.counter(Counter::nonfinite), 0u);
+  EXPECT_EQ(r.counter(LightingCounter::nonfinite), 0u);
   for (const Tally& t : r.runner->state().channels) {
     EXPECT_TRUE(std::isfinite(t.mean));
     EXPECT_EQ(t.mean, 0.0);  // every light has zero area
   }
-  EXPECT_EQ(r.job->plan()["scene"]["dropped_zero_area_lights"].size(), 3u);
+  EXPECT_EQ(plan_json(*r.job)["scene"]["dropped_zero_area_lights"].size(), 3u);
 }
 
 std::string spec_error_pointer(const json& spec, const JobLimits& limits = {}) {

@@ -145,7 +145,7 @@ TEST(LightChoice, ManyLightsClosedFormAllEstimators) {
       EXPECT_LE(std::fabs(t.mean - exact), 4 * se) << kAll[est] << " channel " << c;
     }
   }
-  EXPECT_EQ(r.counter(Counter::nonfinite), 0u);
+  EXPECT_EQ(r.counter(LightingCounter::nonfinite), 0u);
 }
 
 }  // namespace

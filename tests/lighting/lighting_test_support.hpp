@@ -8,7 +8,9 @@
 #include "common/engine/job_definition.hpp"
 #include "common/engine/job_runner.hpp"
 #include "common/engine/local_executor.hpp"
-#include "common/lighting/lighting_job.hpp"
+#include "common/lighting/lighting_counters.hpp"
+#include "common/lighting/lighting_spec.hpp"
+#include "common/protocol/kind_json.hpp"
 #include "common/math/vec3.hpp"
 
 namespace tally::test {
@@ -19,7 +21,7 @@ struct JobRun {
   std::unique_ptr<JobDefinition> job;
   std::unique_ptr<JobRunner> runner;
   const Tally& channel(size_t c) const { return runner->state().channels.at(c); }
-  uint64_t counter(Counter c) const { return runner->state().counters[c]; }
+  uint64_t counter(LightingCounter c) const { return runner->state().counters[c]; }
 };
 
 // Specs without "sampler" run with independent samples here: these tests assert

@@ -54,7 +54,7 @@ TEST(MisOnEmitter, FurnaceImageDepthOneAndTwo) {
       for (size_t i = 0; i < ch.size(); i += 3) all.merge(ch[i]);
       const double exact = le * (1 - std::pow(rho, depth + 1)) / (1 - rho);
       expect_close(all, exact, fmt::format("furnace image {} depth {}", est, depth));
-      EXPECT_EQ(r.counter(Counter::nonfinite), 0u);
+      EXPECT_EQ(r.counter(LightingCounter::nonfinite), 0u);
     }
   }
 }
@@ -91,7 +91,7 @@ TEST(MisOnEmitter, ReceiversOnAndInsideAnEmissiveSphere) {
       expect_close(r.channel((e * cases.size() + k) * 3), rho * L, fmt::format("{}: {}", ests[e], cases[k].what));
     }
   }
-  EXPECT_EQ(r.counter(Counter::nonfinite), 0u);
+  EXPECT_EQ(r.counter(LightingCounter::nonfinite), 0u);
 }
 
 Scene local_scene(const json& j) {

@@ -8,7 +8,7 @@ namespace tally::test {
 namespace {
 
 json effect(const JobRun& r, const std::string& name) {
-  const json plan = r.job->plan();
+  const json plan = plan_json(*r.job);
   for (const json& e : plan["plan"]["effects"]) {
     if (e["effect"] == name) return e;
   }
@@ -36,9 +36,9 @@ TEST(Planner, SingleConvexLightNeedsNoShadowRays) {
   const JobRun full = run_spec(spec);
   EXPECT_FALSE(effect(planned, "shadow_rays")["on"].get<bool>());
   EXPECT_TRUE(effect(full, "shadow_rays")["on"].get<bool>());
-  EXPECT_EQ(planned.counter(Counter::shadow_rays), 0u);
-  EXPECT_GT(full.counter(Counter::shadow_rays), 0u);
-  EXPECT_EQ(planned.counter(Counter::sky_lookups), 0u);
+  EXPECT_EQ(planned.counter(LightingCounter::shadow_rays), 0u);
+  EXPECT_GT(full.counter(LightingCounter::shadow_rays), 0u);
+  EXPECT_EQ(planned.counter(LightingCounter::sky_lookups), 0u);
   expect_same_answer(planned, full);
 }
 
@@ -46,7 +46,7 @@ TEST(Planner, OccluderTurnsShadowRaysOn) {
   json spec = point_spec(lecture_scene(), {"light_area"}, 20000);
   const JobRun r = run_spec(spec);
   EXPECT_TRUE(effect(r, "shadow_rays")["on"].get<bool>());
-  EXPECT_GT(r.counter(Counter::shadow_rays), 0u);
+  EXPECT_GT(r.counter(LightingCounter::shadow_rays), 0u);
 }
 
 TEST(Planner, BlackSurfacesNeedNoBounces) {
@@ -62,13 +62,13 @@ TEST(Planner, BlackSurfacesNeedNoBounces) {
   spec["plan"] = "full";
   const JobRun full = run_spec(spec);
   EXPECT_FALSE(effect(planned, "indirect")["on"].get<bool>());
-  EXPECT_LT(planned.counter(Counter::bounce_rays), full.counter(Counter::bounce_rays));
+  EXPECT_LT(planned.counter(LightingCounter::bounce_rays), full.counter(LightingCounter::bounce_rays));
   expect_same_answer(planned, full);
 
   // light_area alone traces no BSDF rays at all when there is nothing to bounce off.
   json la = point_spec(scene, {"light_area"}, 5000);
   la["query"]["max_depth"] = 4;
-  EXPECT_EQ(run_spec(la).counter(Counter::bounce_rays), 0u);
+  EXPECT_EQ(run_spec(la).counter(LightingCounter::bounce_rays), 0u);
 }
 
 TEST(Planner, NoSkyNoEmittersNoSpecular) {
@@ -84,11 +84,11 @@ TEST(Planner, NoSkyNoEmittersNoSpecular) {
   EXPECT_FALSE(effect(planned, "sky")["on"].get<bool>());
   EXPECT_FALSE(effect(planned, "emission")["on"].get<bool>());
   EXPECT_FALSE(effect(planned, "specular")["on"].get<bool>());
-  EXPECT_EQ(planned.counter(Counter::sky_lookups), 0u);
-  EXPECT_EQ(planned.counter(Counter::emission_lookups), 0u);
-  EXPECT_GT(full.counter(Counter::sky_lookups), 0u);
-  EXPECT_GT(full.counter(Counter::emission_lookups), 0u);
-  EXPECT_EQ(planned.counter(Counter::specular_events), 0u);
+  EXPECT_EQ(planned.counter(LightingCounter::sky_lookups), 0u);
+  EXPECT_EQ(planned.counter(LightingCounter::emission_lookups), 0u);
+  EXPECT_GT(full.counter(LightingCounter::sky_lookups), 0u);
+  EXPECT_GT(full.counter(LightingCounter::emission_lookups), 0u);
+  EXPECT_EQ(planned.counter(LightingCounter::specular_events), 0u);
   expect_same_answer(planned, full);
   // Point light at 0.5 above the point: direct part rho/pi * I / d^2 at least.
   EXPECT_GT(planned.channel(0).mean, 0.0);
@@ -107,8 +107,8 @@ TEST(Planner, ImageOfLectureSceneMatchesFull) {
     spec["plan"] = "full";
     const JobRun full = run_spec(spec, 2);
     EXPECT_TRUE(effect(planned, "specular")["on"].get<bool>());
-    EXPECT_GT(planned.counter(Counter::specular_events), 0u);
-    EXPECT_EQ(planned.counter(Counter::sky_lookups), 0u);
+    EXPECT_GT(planned.counter(LightingCounter::specular_events), 0u);
+    EXPECT_EQ(planned.counter(LightingCounter::sky_lookups), 0u);
     // Whole-image mean (pixels are independent).
     Tally a, b;
     for (size_t i = 0; i < planned.runner->state().channels.size(); i += 3) {

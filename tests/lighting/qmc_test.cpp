@@ -114,7 +114,7 @@ void expect_image_coverage(const std::string& estimator, uint64_t spp, int seeds
   for (int s = 0; s < seeds; ++s) {
     const JobRun r = run_spec(image_spec(w, h, 1000 + static_cast<uint64_t>(s), estimator, {{"max_samples", spp}}));
     ASSERT_EQ(r.runner->state().samples, spp);
-    EXPECT_EQ(r.counter(Counter::shadow_rays), 0u);
+    EXPECT_EQ(r.counter(LightingCounter::shadow_rays), 0u);
     count_image(r, exact, w, h, cov);
   }
   std::printf("  %s %llu spp: %llu / %llu pixel-seed intervals contain the exact value (%.4f); mean |z| %.4f\n",
@@ -333,19 +333,19 @@ TEST(QmcSpec, SamplerIsCheckedAndReported) {
   EXPECT_THROW(compile_lighting_job(spec, JobLimits{}), SpecError);
   spec["replicates"] = 4;
   const auto job = compile_lighting_job(spec, JobLimits{});
-  EXPECT_EQ(job->plan()["sampler"]["type"], "sobol");
-  EXPECT_EQ(job->plan()["sampler"]["replicates"], 4);
+  EXPECT_EQ(plan_json(*job)["sampler"]["type"], "sobol");
+  EXPECT_EQ(plan_json(*job)["sampler"]["replicates"], 4);
   EXPECT_EQ(job->kernel()->channel_count(), 24u * 20u * 3u * 4u);
   // The default is sobol with kDefaultReplicates.
   spec.erase("sampler");
   spec.erase("replicates");
-  EXPECT_EQ(compile_lighting_job(spec, JobLimits{})->plan()["sampler"]["replicates"], kDefaultReplicates);
+  EXPECT_EQ(plan_json(*compile_lighting_job(spec, JobLimits{}))["sampler"]["replicates"], kDefaultReplicates);
 }
 
 TEST(QmcSpec, PointResultsReportTheVarianceOfTheEstimate) {
   // "variance" = n se^2 and the interval = mean +- t_{K-1} se, from the replicates.
   const JobRun r = run_spec(point_query_spec(4, 1024, {"light_area"}, json::object()));
-  const json res = r.job->result(*r.runner);
+  const json res = kind_result_json(*r.job, *r.runner);
   const auto& pk = dynamic_cast<const PointKernel&>(r.runner->kernel());
   const ReplicatedEstimate x = pk.estimate(r.runner->state(), 0, 0, 0);
   const json& e = res["points"][0]["estimators"]["light_area"];

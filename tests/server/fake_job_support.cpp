@@ -33,6 +33,10 @@ class FakeKernel final : public Kernel {
     s.block_samples = 1024;
     return s;
   }
+  std::span<const std::string_view> counter_names() const override {
+    static constexpr std::string_view kNames[] = {"evaluations"};
+    return kNames;
+  }
   void run_block(const Block& b, BlockResult& out) const override {
     const size_t channels = image_ ? kPixelsPerTile : 1;
     out.first_channel = image_ ? b.partition * kPixelsPerTile : 0;
@@ -44,7 +48,7 @@ class FakeKernel final : public Kernel {
       const double u = static_cast<double>(h >> 11) * 0x1.0p-53;
       out.tallies[idx % channels].add(u);
     }
-    out.counters.add(Counter::evaluations, b.sample_count);
+    out.counters.add(0, b.sample_count);  // "evaluations"
   }
 
  private:
@@ -94,8 +98,6 @@ class FakeJob final : public JobDefinition {
   std::shared_ptr<const Kernel> kernel() const override { return kernel_; }
   StopRule stop_rule() const override { return rule_; }
   uint64_t seed() const override { return seed_; }
-  nlohmann::json plan() const override { return {{"kind", "fake"}, {"image", image_ != nullptr}}; }
-  nlohmann::json result(const JobRunner&) const override { return {{"reference", 0.5}}; }
   const ImageSource* image() const override { return image_.get(); }
 
  private:

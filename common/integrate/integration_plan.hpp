@@ -1,0 +1,90 @@
+#pragma once
+// What an integration job plans to run and what it found, as typed structs: the job
+// itself (integration_job.hpp) fills them; common/protocol/integration_json.cpp writes
+// them as JSON (docs/jobs.md). Optional fields not set are absent from the JSON.
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "common/engine/stop_rule.hpp"
+#include "common/integrate/domain.hpp"
+#include "common/integrate/integrand.hpp"
+
+namespace tally {
+
+struct DensityPlan {
+  std::string type;               // "power" | "tabulated" | "cosine"
+  std::vector<double> exponent;   // power: per dimension
+  std::optional<uint64_t> cells;  // tabulated
+};
+
+// The estimator and its settings (the fields each estimator type sets, docs/jobs.md).
+struct EstimatorPlan {
+  std::string type;
+  std::optional<uint64_t> components;  // vector integrands
+  std::optional<DensityPlan> density;  // importance
+  std::optional<uint64_t> strata_per_dim, stratified_dims;  // stratified
+  std::optional<uint64_t> points_per_sample;                // stratified, qmc
+  std::optional<std::string> sequence, scramble;            // qmc
+  std::optional<uint64_t> bins;                             // vegas ...
+  std::optional<double> alpha;
+  std::optional<uint64_t> warmup_passes, max_pass_samples;
+  std::optional<std::string> combine, combination, steering;  // ... vegas
+  std::optional<uint64_t> max_attempts;                       // rejection
+  std::optional<std::string> rule;                            // quadrature ...
+  std::optional<uint64_t> points_per_dim;
+  std::optional<double> points;  // ... (a product, may exceed 2^64 before the limit check)
+};
+
+struct IntegrationPlan {
+  IntegrandInfo integrand;
+  DomainInfo domain;
+  EstimatorPlan estimator;
+  uint64_t dimensions = 0;
+  double measure = 0.0;
+  StopRule stop;
+  uint64_t seed = 0;
+};
+
+struct ComponentEstimate {
+  double mean = 0.0;
+  double std_error = 0.0;  // non-finite: unknown
+  double ci_lo = 0.0, ci_hi = 0.0;
+};
+
+struct VegasIterationSummary {
+  uint64_t n = 0;
+  double mean = 0.0;
+  std::optional<double> std_error;  // needs n > 1
+  bool warmup = false;
+};
+
+struct VegasSummary {
+  std::vector<VegasIterationSummary> iterations;
+  uint64_t used_iterations = 0;
+  double chi2_per_dof = 0.0;  // non-finite: unknown
+  double p_value = 1.0;
+  bool consistent = true;
+  double error_scale = 1.0;
+};
+
+struct IntegrationResult {
+  IntegrandInfo integrand;
+  DomainInfo domain;
+  EstimatorPlan estimator;
+  uint64_t evaluations = 0;
+  std::string sample_unit;  // "point" | "point set" | "rule"
+  // Deterministic rules only: the rule's own error estimate (non-finite: unknown).
+  std::optional<double> error_estimate;
+  // Vector integrands: each component's estimate and the covariance of the means.
+  std::vector<ComponentEstimate> components;
+  std::vector<std::vector<double>> covariance_of_means;
+  std::optional<VegasSummary> vegas;
+  // Built-ins on their natural domains: the closed form and how far the estimate is.
+  std::optional<double> reference;
+  double error_vs_reference = 0.0;
+  std::optional<double> z_score;
+};
+
+}  // namespace tally

@@ -1,0 +1,130 @@
+#include "common/protocol/integration_json.hpp"
+
+#include <cmath>
+
+#include "common/protocol/stop_rule_json.hpp"
+
+namespace tally {
+
+using nlohmann::json;
+
+namespace {
+json finite_or_null(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+
+template <class T>
+void put(json& j, const char* key, const std::optional<T>& v) {
+  if (v) j[key] = *v;
+}
+}  // namespace
+
+json integrand_json(const IntegrandInfo& info) {
+  json j = json::object();
+  if (!info.builtin.empty()) j["builtin"] = info.builtin;
+  if (info.expression) j["expression"] = *info.expression;
+  if (!info.expressions.empty()) j["expressions"] = info.expressions;
+  if (info.builtin == "genz") {
+    if (info.families.empty()) {
+      j["family"] = info.family;
+    } else {
+      j["families"] = info.families;
+    }
+    j["a"] = info.a;
+    j["u"] = info.u;
+  }
+  return j;
+}
+
+json domain_json(const DomainInfo& info) {
+  json j = {{"type", info.type}};
+  if (!info.lower.empty()) {
+    j["lower"] = info.lower;
+    j["upper"] = info.upper;
+  }
+  if (!info.center.empty()) j["center"] = info.center;
+  put(j, "radius", info.radius);
+  put(j, "dimensions", info.dimensions);
+  return j;
+}
+
+json estimator_plan_json(const EstimatorPlan& p) {
+  json j = {{"type", p.type}};
+  put(j, "components", p.components);
+  if (p.density) {
+    json d = {{"type", p.density->type}};
+    if (!p.density->exponent.empty()) d["exponent"] = p.density->exponent;
+    put(d, "cells", p.density->cells);
+    j["density"] = d;
+  }
+  put(j, "strata_per_dim", p.strata_per_dim);
+  put(j, "stratified_dims", p.stratified_dims);
+  put(j, "points_per_sample", p.points_per_sample);
+  put(j, "sequence", p.sequence);
+  put(j, "scramble", p.scramble);
+  put(j, "bins", p.bins);
+  put(j, "alpha", p.alpha);
+  put(j, "warmup_passes", p.warmup_passes);
+  put(j, "max_pass_samples", p.max_pass_samples);
+  put(j, "combine", p.combine);
+  put(j, "combination", p.combination);
+  put(j, "steering", p.steering);
+  put(j, "max_attempts", p.max_attempts);
+  put(j, "rule", p.rule);
+  put(j, "points_per_dim", p.points_per_dim);
+  put(j, "points", p.points);
+  return j;
+}
+
+json integration_plan_json(const IntegrationPlan& p) {
+  return {{"kind", "integrate"},
+          {"integrand", integrand_json(p.integrand)},
+          {"domain", domain_json(p.domain)},
+          {"estimator", estimator_plan_json(p.estimator)},
+          {"dimensions", p.dimensions},
+          {"measure", p.measure},
+          {"stop", stop_rule_to_json(p.stop)},
+          {"seed", p.seed}};
+}
+
+json integration_result_json(const IntegrationResult& r) {
+  json j;
+  j["integrand"] = integrand_json(r.integrand);
+  j["domain"] = domain_json(r.domain);
+  j["estimator"] = estimator_plan_json(r.estimator);
+  j["evaluations"] = r.evaluations;
+  j["sample_unit"] = r.sample_unit;
+  if (r.error_estimate) j["error_estimate"] = finite_or_null(*r.error_estimate);
+  if (!r.components.empty()) {
+    json comps = json::array();
+    for (const ComponentEstimate& c : r.components) {
+      comps.push_back({{"mean", c.mean}, {"std_error", finite_or_null(c.std_error)}, {"ci", {c.ci_lo, c.ci_hi}}});
+    }
+    j["components"] = comps;
+    json rows = json::array();
+    for (const auto& row : r.covariance_of_means) rows.push_back(row);
+    j["covariance_of_means"] = rows;
+  }
+  if (r.vegas) {
+    const VegasSummary& v = *r.vegas;
+    json its = json::array();
+    for (const VegasIterationSummary& it : v.iterations) {
+      its.push_back({{"n", it.n},
+                     {"mean", it.mean},
+                     {"std_error", it.std_error ? json(*it.std_error) : json(nullptr)},
+                     {"warmup", it.warmup}});
+    }
+    j["vegas"] = {{"iterations", its},
+                  {"used_iterations", v.used_iterations},
+                  {"chi2_per_dof", finite_or_null(v.chi2_per_dof)},
+                  {"p_value", v.p_value},
+                  {"consistent", v.consistent},
+                  {"error_scale", v.error_scale}};
+  }
+  if (r.reference) {
+    j["reference"] = *r.reference;
+    j["error_vs_reference"] = r.error_vs_reference;
+    put(j, "z_score", r.z_score);
+  }
+  return j;
+}
+
+}  // namespace tally
