@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common/engine/local_executor.hpp"
+#include "tests/support/cornell_box.hpp"
 #include "common/lighting/accel.hpp"
 #include "common/lighting/lighting_spec.hpp"
 #include "common/protocol/lighting_json.hpp"
@@ -21,22 +22,12 @@ using json = nlohmann::json;
 
 namespace {
 
-json diffuse(double r, double g, double b) { return {{"type", "diffuse"}, {"albedo", {r, g, b}}}; }
-
 json cornell_scene() {
-  return {{"camera", {{"position", {0, 1, 3.5}}, {"look_at", {0, 1, 0}}, {"fov_deg", 40}, {"resolution", {256, 256}}}},
-          {"materials", {{"white", diffuse(0.75, 0.75, 0.75)}, {"red", diffuse(0.7, 0.1, 0.1)}, {"green", diffuse(0.1, 0.7, 0.1)},
-                         {"lamp", {{"type", "emissive"}, {"radiance", {12, 12, 12}}}}}},
-          {"shapes", json::array({
-                         {{"type", "quad"}, {"corner", {-1, 0, -1}}, {"edge_u", {0, 0, 2}}, {"edge_v", {2, 0, 0}}, {"material", "white"}},
-                         {{"type", "quad"}, {"corner", {-1, 2, -1}}, {"edge_u", {2, 0, 0}}, {"edge_v", {0, 0, 2}}, {"material", "white"}},
-                         {{"type", "quad"}, {"corner", {-1, 0, -1}}, {"edge_u", {2, 0, 0}}, {"edge_v", {0, 2, 0}}, {"material", "white"}},
-                         {{"type", "quad"}, {"corner", {-1, 0, -1}}, {"edge_u", {0, 2, 0}}, {"edge_v", {0, 0, 2}}, {"material", "red"}},
-                         {{"type", "quad"}, {"corner", {1, 0, -1}}, {"edge_u", {0, 0, 2}}, {"edge_v", {0, 2, 0}}, {"material", "green"}},
-                         {{"type", "quad"}, {"corner", {-0.25, 1.99, -0.25}}, {"edge_u", {0.5, 0, 0}}, {"edge_v", {0, 0, 0.5}}, {"material", "lamp"}},
-                         {{"type", "sphere"}, {"center", {-0.4, 0.35, -0.3}}, {"radius", 0.35}, {"material", "white"}},
-                         {{"type", "quad"}, {"corner", {0.1, 0, 0.0}}, {"edge_u", {0.5, 0, 0}}, {"edge_v", {0, 0.7, 0.2}}, {"material", "white"}},
-                     })}};
+  json camera = scenes::cornell_camera();
+  camera["resolution"] = {256, 256};
+  json shapes = scenes::cornell_shapes("white");
+  shapes.push_back({{"type", "quad"}, {"corner", {0.1, 0, 0.0}}, {"edge_u", {0.5, 0, 0}}, {"edge_v", {0, 0.7, 0.2}}, {"material", "white"}});
+  return {{"camera", camera}, {"materials", scenes::cornell_materials()}, {"shapes", shapes}};
 }
 
 struct Timed {
@@ -100,7 +91,7 @@ int main() {
   std::printf("\nlecture scene (area light, occluder, receiver), point (0,0,0), 400k samples each\n");
   json spec = json::parse(R"({"kind":"lighting","seed":1,"estimators":["uniform_hemisphere","cosine_hemisphere","light_area","mis"],
     "query":{"type":"points","points":[{"p":[0,0,0],"n":[0,0,1],"material":"white"}]},"stop":{"max_samples":400000}})");
-  spec["scene"] = {{"materials", {{"white", diffuse(0.8, 0.8, 0.8)}, {"grey", diffuse(0.3, 0.3, 0.3)},
+  spec["scene"] = {{"materials", {{"white", scenes::cornell_diffuse(0.8, 0.8, 0.8)}, {"grey", scenes::cornell_diffuse(0.3, 0.3, 0.3)},
                                   {"lamp", {{"type", "emissive"}, {"radiance", {5, 5, 5}}}}}},
                    {"shapes", json::array({
                                   {{"type", "quad"}, {"corner", {-3, -3, 0}}, {"edge_u", {6, 0, 0}}, {"edge_v", {0, 6, 0}}, {"material", "white"}},

@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "common/engine/local_executor.hpp"
+#include "tests/support/cornell_box.hpp"
 #include "common/lighting/image_kernel.hpp"
 #include "common/lighting/lighting_spec.hpp"
 
@@ -35,21 +36,10 @@ using json = nlohmann::json;
 
 namespace {
 
-json diffuse(double r, double g, double b) { return {{"type", "diffuse"}, {"albedo", {r, g, b}}}; }
-
 json cornell_scene() {
-  return {{"camera", {{"position", {0, 1, 3.5}}, {"look_at", {0, 1, 0}}, {"fov_deg", 40}}},
-          {"materials", {{"white", diffuse(0.75, 0.75, 0.75)}, {"red", diffuse(0.7, 0.1, 0.1)}, {"green", diffuse(0.1, 0.7, 0.1)},
-                         {"lamp", {{"type", "emissive"}, {"radiance", {12, 12, 12}}}}}},
-          {"shapes", json::array({
-                         {{"type", "quad"}, {"corner", {-1, 0, -1}}, {"edge_u", {0, 0, 2}}, {"edge_v", {2, 0, 0}}, {"material", "white"}},
-                         {{"type", "quad"}, {"corner", {-1, 2, -1}}, {"edge_u", {2, 0, 0}}, {"edge_v", {0, 0, 2}}, {"material", "white"}},
-                         {{"type", "quad"}, {"corner", {-1, 0, -1}}, {"edge_u", {2, 0, 0}}, {"edge_v", {0, 2, 0}}, {"material", "white"}},
-                         {{"type", "quad"}, {"corner", {-1, 0, -1}}, {"edge_u", {0, 2, 0}}, {"edge_v", {0, 0, 2}}, {"material", "red"}},
-                         {{"type", "quad"}, {"corner", {1, 0, -1}}, {"edge_u", {0, 0, 2}}, {"edge_v", {0, 2, 0}}, {"material", "green"}},
-                         {{"type", "quad"}, {"corner", {-0.25, 1.99, -0.25}}, {"edge_u", {0.5, 0, 0}}, {"edge_v", {0, 0, 0.5}}, {"material", "lamp"}},
-                         {{"type", "sphere"}, {"center", {-0.4, 0.35, -0.3}}, {"radius", 0.35}, {"material", {{"type", "diffuse"}, {"albedo", {0.7, 0.1, 0.1}}}}},
-                     })}};
+  json camera = scenes::cornell_camera();
+  json shapes = scenes::cornell_shapes({{"type", "diffuse"}, {"albedo", {0.7, 0.1, 0.1}}});
+  return {{"camera", camera}, {"materials", scenes::cornell_materials()}, {"shapes", shapes}};
 }
 
 json lecture_scene() {

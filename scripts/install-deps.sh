@@ -9,8 +9,9 @@ build_pkgs=(cmake g++ make ninja-build pkg-config
   libsqlite3-dev libsqlitecpp-dev libembree-dev libopenimageio-dev libopenexr-dev libpng-dev libtinyobjloader-dev libtinygltf-dev
   libgtest-dev libgmock-dev libbenchmark-dev libgsl-dev libspdlog-dev libcubature-dev
   libhiredis-dev libssl-dev)
-# clang-14 + libclang-rt-14-dev: the sanitizer tree and the libFuzzer targets (make sanitize, make fuzz)
-test_pkgs=(python3 python3-pip python3-numpy python3-mypy openssl curl chromium nodejs redis-server clang-14 libclang-rt-14-dev)
+# clang-14 + libclang-rt-14-dev: the sanitizer tree and the libFuzzer targets (make test runs both);
+# llvm-14: llvm-symbolizer, so sanitizer reports name file:line
+test_pkgs=(python3 python3-pip python3-numpy python3-mypy openssl curl chromium nodejs redis-server clang-14 libclang-rt-14-dev llvm-14)
 command -v npm >/dev/null 2>&1 || test_pkgs+=(npm)  # nodesource's nodejs bundles npm
 bench_pkgs=(wrk python3-matplotlib python3-scipy python3-numpy)
 

@@ -34,20 +34,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-pid_t spawn(const std::vector<std::string>& args, const fs::path& log) {
-  const pid_t pid = ::fork();
-  if (pid == 0) {
-    const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
-    ::dup2(fd, 1);
-    ::dup2(fd, 2);
-    std::vector<char*> argv;
-    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-    argv.push_back(nullptr);
-    ::execvp(argv[0], argv.data());
-    ::_exit(127);
-  }
-  return pid;
-}
 void reap(pid_t pid) {
   if (pid <= 0) return;
   ::kill(pid, SIGKILL);
@@ -55,7 +41,7 @@ void reap(pid_t pid) {
   ::waitpid(pid, &st, 0);
 }
 pid_t worker(const std::string& url, const std::string& name, unsigned threads, const fs::path& dir) {
-  return spawn({TALLY_WORKER_BIN, "--redis", url, "--name", name, "--threads", std::to_string(threads)},
+  return spawn_logged({TALLY_WORKER_BIN, "--redis", url, "--name", name, "--threads", std::to_string(threads)},
                dir / (name + ".log"));
 }
 
@@ -151,7 +137,7 @@ int main(int argc, char** argv) {
   const std::string only = argc > 2 ? argv[2] : "";  // "reclaim": part 3 alone
   TempDir tmp;
   const fs::path sock = tmp.path / "r.sock";
-  const pid_t redis = spawn({"redis-server", "--port", "0", "--unixsocket", sock.string(), "--save", "", "--appendonly",
+  const pid_t redis = spawn_logged({"redis-server", "--port", "0", "--unixsocket", sock.string(), "--save", "", "--appendonly",
                              "no", "--maxmemory-policy", "noeviction", "--dir", tmp.path.string()},
                             tmp.path / "redis.log");
   std::this_thread::sleep_for(500ms);

@@ -1,4 +1,5 @@
 #include "cluster_process.hpp"
+#include "server_process.hpp"
 
 #include <fcntl.h>
 #include <sys/wait.h>
@@ -16,24 +17,6 @@ namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
 namespace {
-
-pid_t spawn(const std::vector<std::string>& args, const fs::path& log) {
-  const pid_t pid = ::fork();
-  if (pid < 0) throw std::runtime_error("fork failed");
-  if (pid == 0) {
-    const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
-    if (fd >= 0) {
-      ::dup2(fd, 1);
-      ::dup2(fd, 2);
-    }
-    std::vector<char*> argv;
-    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-    argv.push_back(nullptr);
-    ::execvp(argv[0], argv.data());
-    ::_exit(127);
-  }
-  return pid;
-}
 
 void reap(pid_t& pid, int sig) {
   if (pid <= 0) return;
@@ -67,7 +50,7 @@ RedisServer::~RedisServer() { stop(); }
 
 void RedisServer::start() {
   fs::remove(socket_);
-  pid_ = spawn({"redis-server", "--port", "0", "--unixsocket", socket_.string(), "--save", "", "--appendonly", "no",
+  pid_ = spawn_logged({"redis-server", "--port", "0", "--unixsocket", socket_.string(), "--save", "", "--appendonly", "no",
                 "--maxmemory-policy", "noeviction", "--dir", dir_.string()},
                dir_ / "redis.log");
   const auto deadline = std::chrono::steady_clock::now() + 10s;
@@ -98,7 +81,7 @@ void WorkerProcess::start() {
   std::vector<std::string> args = {TALLY_WORKER_BIN, "--redis", url_, "--name", name_, "--threads",
                                    std::to_string(threads_)};
   args.insert(args.end(), extra_.begin(), extra_.end());
-  pid_ = spawn(args, log_);
+  pid_ = spawn_logged(args, log_);
 }
 void WorkerProcess::kill9() { reap(pid_, SIGKILL); }
 void WorkerProcess::pause() {

@@ -14,6 +14,11 @@
 
 namespace tally::e2e {
 
+// Starts `args` (argv[0] by path or looked up in PATH) with stdout and stderr appended
+// to `log`; returns its pid. The one process launcher of the process tests and the
+// cluster benchmark.
+pid_t spawn_logged(const std::vector<std::string>& args, const std::filesystem::path& log);
+
 struct TempDir {
   TempDir();
   ~TempDir();

@@ -15,6 +15,24 @@ namespace tally::e2e {
 using nlohmann::json;
 namespace fs = std::filesystem;
 
+pid_t spawn_logged(const std::vector<std::string>& args, const fs::path& log) {
+  const pid_t pid = ::fork();
+  if (pid < 0) throw std::runtime_error("fork failed");
+  if (pid == 0) {
+    const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
+    if (fd >= 0) {
+      ::dup2(fd, 1);
+      ::dup2(fd, 2);
+    }
+    std::vector<char*> argv;
+    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    ::execvp(argv[0], argv.data());
+    ::_exit(127);
+  }
+  return pid;
+}
+
 TempDir::TempDir() {
   static int counter = 0;
   path = fs::temp_directory_path() / ("tally_e2e_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
@@ -42,21 +60,7 @@ void ServerProcess::start() {
   std::vector<std::string> args = {TALLY_SERVER_BIN, "--listen", "127.0.0.1:0", "--port-file", port_file_.string(),
                                    "--data-dir", data_dir_.string(), "--workers", "2"};
   args.insert(args.end(), extra_.begin(), extra_.end());
-  const pid_t pid = ::fork();
-  if (pid < 0) throw std::runtime_error("fork failed");
-  if (pid == 0) {
-    const int fd = ::open(log_file_.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
-    if (fd >= 0) {
-      ::dup2(fd, 1);
-      ::dup2(fd, 2);
-    }
-    std::vector<char*> argv;
-    for (auto& a : args) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    ::execv(argv[0], argv.data());
-    ::_exit(127);
-  }
-  pid_ = pid;
+  pid_ = spawn_logged(args, log_file_);
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
   while (std::chrono::steady_clock::now() < deadline) {
     std::ifstream in(port_file_);

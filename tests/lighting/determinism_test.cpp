@@ -13,28 +13,20 @@
 #include "common/lighting/scene_json.hpp"
 #include "common/protocol/spec_reader.hpp"
 #include "lighting/lighting_test_support.hpp"
+#include "support/cornell_box.hpp"
 
 namespace tally::test {
 namespace {
 
 json cornell_image_spec() {
-  json m = {{"white", diffuse(0.75)}, {"red", {{"type", "diffuse"}, {"albedo", {0.7, 0.1, 0.1}}}},
-            {"green", {{"type", "diffuse"}, {"albedo", {0.1, 0.7, 0.1}}}}, {"lamp", emitter(12.0)},
-            {"gloss", {{"type", "phong"}, {"reflectance", {0.8, 0.8, 0.8}}, {"exponent", 30}}}};
-  json shapes = json::array({
-      {{"type", "quad"}, {"corner", {-1, 0, -1}}, {"edge_u", {0, 0, 2}}, {"edge_v", {2, 0, 0}}, {"material", "white"}},
-      {{"type", "quad"}, {"corner", {-1, 2, -1}}, {"edge_u", {2, 0, 0}}, {"edge_v", {0, 0, 2}}, {"material", "white"}},
-      {{"type", "quad"}, {"corner", {-1, 0, -1}}, {"edge_u", {2, 0, 0}}, {"edge_v", {0, 2, 0}}, {"material", "white"}},
-      {{"type", "quad"}, {"corner", {-1, 0, -1}}, {"edge_u", {0, 2, 0}}, {"edge_v", {0, 0, 2}}, {"material", "red"}},
-      {{"type", "quad"}, {"corner", {1, 0, -1}}, {"edge_u", {0, 0, 2}}, {"edge_v", {0, 2, 0}}, {"material", "green"}},
-      {{"type", "quad"}, {"corner", {-0.25, 1.99, -0.25}}, {"edge_u", {0.5, 0, 0}}, {"edge_v", {0, 0, 0.5}}, {"material", "lamp"}},
-      {{"type", "sphere"}, {"center", {-0.4, 0.35, -0.3}}, {"radius", 0.35}, {"material", "gloss"}},
-  });
+  json m = scenes::cornell_materials();
+  m["lamp"] = emitter(12.0);
+  m["gloss"] = {{"type", "phong"}, {"reflectance", {0.8, 0.8, 0.8}}, {"exponent", 30}};
+  json camera = scenes::cornell_camera();
+  camera["resolution"] = {40, 30};
   return {{"kind", "lighting"},
           {"seed", 5},
-          {"scene", {{"camera", {{"position", {0, 1, 3.5}}, {"look_at", {0, 1, 0}}, {"fov_deg", 40}, {"resolution", {40, 30}}}},
-                     {"materials", m},
-                     {"shapes", shapes}}},
+          {"scene", {{"camera", camera}, {"materials", m}, {"shapes", scenes::cornell_shapes("gloss")}}},
           {"query", {{"type", "image"}, {"max_depth", 4}, {"russian_roulette", true}, {"tile_size", 16}}},
           {"estimators", {"mis"}},
           {"stop", {{"max_samples", 24}}}};
