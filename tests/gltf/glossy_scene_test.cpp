@@ -68,7 +68,7 @@ TEST(GlossyScene, PointLightOnGgxIsTheClosedForm) {
     const json mat = {{"type", "ggx"}, {"reflectance", {0.9, 0.9, 0.9}}, {"roughness", 0.3}};
     const test::JobRun r = test::run_spec(point_query(scene, mat, wo, {"mis"}, 4));
     bool seen = false;
-    const json plan = r.job->plan();
+    const json plan = plan_json(*r.job);
     for (const json& e : plan["plan"]["effects"]) {
       if (e["effect"] != "specular") continue;
       seen = true;
