@@ -1,6 +1,6 @@
 #pragma once
 // `tally submit`'s asset step: the local files a scene names (in the fields of
-// is_scene_file_field: "obj", "map", ...) are uploaded to the server's asset store,
+// is_scene_file_field: "obj", "map", "file" (glTF), ...) are uploaded to the server's asset store,
 // only those it lacks (HEAD first), and the spec is rewritten to name them
 // "sha256:<hex>". A name that is not a local file is left alone (the server may have
 // it in its --asset-dir).

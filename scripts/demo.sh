@@ -21,7 +21,9 @@ if (exec 3<>/dev/tcp/127.0.0.1/8080) 2>/dev/null; then
   listen=127.0.0.1:0
 fi
 rm -f "$OUT/port"
-"$SERVER_BIN" --listen "$listen" --data-dir var --port-file "$OUT/port" >"$OUT/server.log" 2>&1 &
+# The glTF example's files, written by a script (no downloads); scenes load them from here.
+python3 scripts/gltf_example.py "$OUT/assets" >/dev/null
+"$SERVER_BIN" --listen "$listen" --data-dir var --asset-dir "$OUT/assets" --port-file "$OUT/port" >"$OUT/server.log" 2>&1 &
 server_pid=$!
 stop_server() {
   if kill -0 "$server_pid" 2>/dev/null; then
@@ -72,12 +74,18 @@ id=$("$CLI" submit examples/lecture_lighting_image.json)
 "$CLI" get "$id" --image "$OUT/lecture.exr"
 "$CLI" get "$id" --image "$OUT/lecture.png"
 
+say "7. A glTF 2.0 scene (scripts/gltf_example.py): rough gold sphere, glossy block, emissive panel, spot light"
+id=$("$CLI" submit examples/gltf_cornell.json)
+"$CLI" watch "$id"
+"$CLI" get "$id" --image "$OUT/gltf_cornell.exr"
+"$CLI" get "$id" --image "$OUT/gltf_cornell.png"
+
 say "Jobs on the server"
 "$CLI" list
 
 echo
 echo "server: $TALLY_SERVER  (data in ./var, log in $OUT/server.log, pid $server_pid)"
-echo "images: $OUT/lecture.exr, $OUT/lecture.png"
+echo "images: $OUT/lecture.exr, $OUT/lecture.png, $OUT/gltf_cornell.exr, $OUT/gltf_cornell.png"
 if [ $interactive = 1 ]; then
   echo "The server keeps running: open $TALLY_SERVER/ for the live preview; stop it with: kill $server_pid"
 else

@@ -8,7 +8,7 @@ want=${1:-all}
 
 build_pkgs=(cmake g++ make ninja-build pkg-config
   libboost-dev libboost-system-dev nlohmann-json3-dev libmuparser-dev libfmt-dev libcli11-dev
-  libsqlite3-dev libsqlitecpp-dev libembree-dev libopenimageio-dev libopenexr-dev libpng-dev libtinyobjloader-dev
+  libsqlite3-dev libsqlitecpp-dev libembree-dev libopenimageio-dev libopenexr-dev libpng-dev libtinyobjloader-dev libtinygltf-dev
   libgtest-dev libgmock-dev libbenchmark-dev libgsl-dev libspdlog-dev libcubature-dev
   libhiredis-dev libssl-dev)
 # clang-14 + libclang-rt-14-dev: the sanitizer tree and the libFuzzer targets (make test runs both);

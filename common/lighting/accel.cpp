@@ -203,6 +203,19 @@ std::optional<Hit> Accel::intersect(const Vec3& o, const Vec3& d, double t_max) 
       const Vec3 n = cross(b - a, c - a);
       const double len = length(n);
       h.n = len > 0 ? n / len : -normalize(df);  // degenerate: face the ray, never NaN
+      const double w = 1.0 - u - v;
+      if (!s.normals.empty()) {
+        const Vec3 ns = s.normals[tri[0]] * w + s.normals[tri[1]] * u + s.normals[tri[2]] * v;
+        const double nl = length(ns);
+        if (nl > 0 && std::isfinite(nl)) {
+          h.has_ns = true;
+          h.ns = ns / nl;
+        }
+      }
+      if (!s.uvs.empty()) {
+        const Vec2 &ta = s.uvs[tri[0]], &tb = s.uvs[tri[1]], &tc = s.uvs[tri[2]];
+        h.uv = {ta.x * w + tb.x * u + tc.x * v, ta.y * w + tb.y * u + tc.y * v};
+      }
       break;
     }
   }

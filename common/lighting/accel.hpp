@@ -18,6 +18,9 @@ struct Hit {
   Vec3 n{};  // unit geometric normal of the shape (outward / winding side)
   uint32_t shape = 0;
   uint32_t prim = 0;
+  bool has_ns = false;  // meshes with vertex normals
+  Vec3 ns{};            // unit interpolated shading normal (the vertex normals' side)
+  Vec2 uv{};            // interpolated texture coordinates (meshes with uvs)
 };
 
 class Accel {

@@ -36,8 +36,11 @@ inline std::optional<std::string> asset_ref_hex(std::string_view ref) {
 
 // The scene fields whose string value names a file (a path or a "sha256:" reference).
 // Loaders of new file kinds add their field here: the CLI uploads what these name and
-// cluster mode ships it to workers.
-inline bool is_scene_file_field(std::string_view key) { return key == "obj" || key == "map"; }
+// cluster mode ships it to workers. "file" is a glTF (gltf_scene.hpp); the files *it*
+// names (external buffers) and an OBJ's .mtl libraries are read through the same
+// resolver but are not uploaded or shipped: over the API use .glb, or name them by
+// "sha256:" URIs inside the file.
+inline bool is_scene_file_field(std::string_view key) { return key == "obj" || key == "map" || key == "file"; }
 
 // The store's layout, shared by the server's AssetStore and the cluster worker's
 // cache: one file per asset, named by its hash, directly in the store directory.

@@ -1,9 +1,19 @@
 #pragma once
 // The reflection models: Lambertian (diffuse, and the reflective part of emissive
-// materials), a perfect mirror (a delta distribution) and normalised Phong,
-//   f = k_s (e + 2) / (2 pi) cos^e(alpha),  alpha = angle(w_i, mirror(w_o)),
-// whose albedo is <= k_s. Directions are in world space; `n` is the unit normal on
-// the side of w_o. Every routine returns 0 (never NaN/Inf) below the horizon.
+// materials), a perfect mirror (a delta distribution), normalised Phong,
+//   f = k_d / pi + k_s (e + 2) / (2 pi) cos^e(alpha),  alpha = angle(w_i, mirror(w_o)),
+// (k_d = 0 unless an OBJ .mtl gives both Kd and Ks) whose albedo is <= k_d + k_s, and
+// glTF's metallic-roughness model (docs/lighting.md, "glTF"):
+//   f = F(w_o.h) D(h) G2(w_o, w_i) / (4 cos_o cos_i)                      (GGX specular)
+//     + (1 - metallic) base / pi (1 - F_d(cos_o)) (1 - F_d(cos_i))      (diffuse base)
+// with Trowbridge-Reitz D and Smith's height-correlated G2 at alpha = roughness^2,
+// Schlick's F with F0 = lerp(0.04, base, metallic), and F_d Schlick's at F0 = 0.04: the
+// diffuse layer gets what the dielectric coating transmits on the way in and out, so
+// the albedo stays <= 1 (a furnace test checks it). Specular directions are drawn from
+// the distribution of visible normals (Heitz 2018, "Sampling the GGX Distribution of
+// Visible Normals", JCGT 7(4)). Directions are in world space; `n` is the unit (shading)
+// normal on the side of w_o. Every routine returns 0 (never NaN/Inf) below the horizon.
+#include <algorithm>
 #include <cmath>
 
 #include "common/lighting/scene.hpp"
@@ -16,6 +26,114 @@ enum class Strategy { uniform_hemisphere, cosine_hemisphere, light_area, mis };
 
 inline Vec3 reflect(const Vec3& wo, const Vec3& n) { return n * (2.0 * dot(n, wo)) - wo; }
 
+// GGX below this alpha (roughness 0.0316) is clamped: D's peak 1/(pi alpha^2) stays finite.
+inline constexpr double kMinGgxAlpha = 1e-3;
+inline constexpr double kDielectricF0 = 0.04;  // glTF's dielectric (IOR 1.5)
+
+inline double ggx_alpha(double roughness) { return std::max(roughness * roughness, kMinGgxAlpha); }
+
+// Trowbridge-Reitz normal distribution at cos(theta_h) = c.
+inline double ggx_d(double c, double alpha) {
+  if (c <= 0) return 0.0;
+  const double a2 = alpha * alpha;
+  const double d = c * c * (a2 - 1.0) + 1.0;
+  return a2 / (kPi * d * d);
+}
+
+// Smith's Lambda for GGX at cos(theta) = c > 0.
+inline double ggx_lambda(double c, double alpha) {
+  const double c2 = c * c;
+  const double t2 = std::max(0.0, 1.0 - c2) / c2;
+  return 0.5 * (std::sqrt(1.0 + alpha * alpha * t2) - 1.0);
+}
+inline double ggx_g1(double c, double alpha) { return c > 0 ? 1.0 / (1.0 + ggx_lambda(c, alpha)) : 0.0; }
+
+inline double schlick_weight(double c) {
+  const double m = std::clamp(1.0 - c, 0.0, 1.0);
+  const double m2 = m * m;
+  return m2 * m2 * m;
+}
+inline Rgb schlick(const Rgb& f0, double c) {
+  const double w = schlick_weight(c);
+  return f0 + (Rgb{1, 1, 1} - f0) * w;
+}
+inline double schlick(double f0, double c) { return f0 + (1.0 - f0) * schlick_weight(c); }
+
+inline Rgb mr_f0(const Material& m) {
+  return Rgb{kDielectricF0, kDielectricF0, kDielectricF0} * (1.0 - m.metallic) + m.base_color * m.metallic;
+}
+
+// Probability that metallic-roughness sampling picks the specular lobe: the lobes'
+// albedos at w_o, estimated by Schlick's F at cos_o (1 for a pure metal).
+inline double mr_specular_probability(const Material& m, double cos_o) {
+  const double ws = luminance(schlick(mr_f0(m), cos_o));
+  const double wd = luminance(m.base_color) * (1.0 - m.metallic) * (1.0 - schlick(kDielectricF0, cos_o));
+  return ws + wd > 0 ? ws / (ws + wd) : 1.0;
+}
+
+// Probability that Phong with a diffuse part (OBJ Kd + Ks) samples the Phong lobe.
+inline double phong_lobe_probability(const Material& m) {
+  const double ws = luminance(m.reflectance), wd = luminance(m.albedo);
+  return ws + wd > 0 ? ws / (ws + wd) : 1.0;
+}
+
+inline Rgb mr_eval(const Material& m, const Vec3& n, const Vec3& wo, const Vec3& wi) {
+  const double cos_o = dot(n, wo), cos_i = dot(n, wi);
+  if (cos_o <= 0 || cos_i <= 0) return {};
+  const Vec3 hv = wo + wi;
+  const double hl = length(hv);
+  Rgb f{};
+  if (hl > 0) {
+    const Vec3 h = hv / hl;
+    const double alpha = ggx_alpha(m.roughness);
+    const double g2 = 1.0 / (1.0 + ggx_lambda(cos_o, alpha) + ggx_lambda(cos_i, alpha));
+    f = schlick(mr_f0(m), dot(wo, h)) * (ggx_d(dot(n, h), alpha) * g2 / (4.0 * cos_o * cos_i));
+  }
+  const double kd = (1.0 - m.metallic) * (1.0 - schlick(kDielectricF0, cos_o)) * (1.0 - schlick(kDielectricF0, cos_i));
+  return f + m.base_color * (kd * kInvPi);
+}
+
+// Solid-angle density of a visible-normal GGX sample w_i (reflected about h).
+inline double ggx_vndf_pdf(const Vec3& n, const Vec3& wo, const Vec3& wi, double alpha) {
+  const double cos_o = dot(n, wo);
+  if (cos_o <= 0 || dot(n, wi) <= 0) return 0.0;
+  const Vec3 hv = wo + wi;
+  const double hl = length(hv);
+  if (!(hl > 0)) return 0.0;
+  const Vec3 h = hv / hl;
+  if (dot(wo, h) <= 0) return 0.0;
+  return ggx_g1(cos_o, alpha) * ggx_d(dot(n, h), alpha) / (4.0 * cos_o);
+}
+
+inline double mr_pdf(const Material& m, const Vec3& n, const Vec3& wo, const Vec3& wi) {
+  const double cos_i = dot(n, wi);
+  if (cos_i <= 0) return 0.0;
+  const double ps = mr_specular_probability(m, dot(n, wo));
+  return ps * ggx_vndf_pdf(n, wo, wi, ggx_alpha(m.roughness)) + (1.0 - ps) * cos_i * kInvPi;
+}
+
+// Heitz 2018, listing 1 (isotropic alpha): a visible normal for w_o (local frame, z = n).
+inline Vec3 sample_ggx_vndf(const Vec3& wo_local, double alpha, Vec2 u) {
+  const Vec3 vh = normalize(Vec3{alpha * wo_local.x, alpha * wo_local.y, wo_local.z});
+  const double lensq = vh.x * vh.x + vh.y * vh.y;
+  const Vec3 t1 = lensq > 0 ? Vec3{-vh.y, vh.x, 0.0} / std::sqrt(lensq) : Vec3{1, 0, 0};
+  const Vec3 t2 = cross(vh, t1);
+  const double r = std::sqrt(u.x);
+  const double phi = 2.0 * kPi * u.y;
+  const double p1 = r * std::cos(phi);
+  double p2 = r * std::sin(phi);
+  const double s = 0.5 * (1.0 + vh.z);
+  p2 = (1.0 - s) * safe_sqrt(1.0 - p1 * p1) + s * p2;
+  const Vec3 nh = t1 * p1 + t2 * p2 + vh * safe_sqrt(1.0 - p1 * p1 - p2 * p2);
+  return normalize(Vec3{alpha * nh.x, alpha * nh.y, std::max(0.0, nh.z)});
+}
+
+// Picks a lobe with u.x < p and rescales u.x to [0, 1) for the lobe's own sampler.
+inline double rescale_choice(double x, double p, bool first) {
+  const double r = first ? x / p : (x - p) / (1.0 - p);
+  return std::clamp(r, 0.0, std::nextafter(1.0, 0.0));
+}
+
 // f_r(w_i -> w_o) for non-delta materials (mirror: 0).
 inline Rgb bsdf_eval(const Material& m, const Vec3& n, const Vec3& wo, const Vec3& wi) {
   if (dot(n, wi) <= 0) return {};
@@ -24,9 +142,10 @@ inline Rgb bsdf_eval(const Material& m, const Vec3& n, const Vec3& wo, const Vec
     case MaterialType::emissive: return m.albedo * kInvPi;
     case MaterialType::phong: {
       const double c = dot(reflect(wo, n), wi);
-      if (c <= 0) return {};
-      return m.reflectance * ((m.exponent + 2.0) * kInv2Pi * std::pow(c, m.exponent));
+      const Rgb spec = c <= 0 ? Rgb{} : m.reflectance * ((m.exponent + 2.0) * kInv2Pi * std::pow(c, m.exponent));
+      return is_black(m.albedo) ? spec : spec + m.albedo * kInvPi;
     }
+    case MaterialType::metallic_roughness: return mr_eval(m, n, wo, wi);
     case MaterialType::mirror: return {};
   }
   return {};
@@ -50,8 +169,12 @@ inline double direction_pdf(Strategy s, const Material& m, const Vec3& n, const 
     case Strategy::mis:
       if (m.type == MaterialType::phong) {
         const double c = dot(reflect(wo, n), wi);
-        return c > 0 ? (m.exponent + 1.0) * kInv2Pi * std::pow(c, m.exponent) : 0.0;
+        const double lobe = c > 0 ? (m.exponent + 1.0) * kInv2Pi * std::pow(c, m.exponent) : 0.0;
+        if (is_black(m.albedo)) return lobe;
+        const double ps = phong_lobe_probability(m);
+        return ps * lobe + (1.0 - ps) * cos_i * kInvPi;
       }
+      if (m.type == MaterialType::metallic_roughness) return mr_pdf(m, n, wo, wi);
       return cos_i * kInvPi;
   }
   return 0.0;
@@ -59,7 +182,9 @@ inline double direction_pdf(Strategy s, const Material& m, const Vec3& n, const 
 
 // Samples the next direction the way `strategy` does: uniform or cosine hemisphere for
 // the lecture's estimators, the BSDF's own distribution (cosine / Phong lobe) for
-// light_area's indirect bounces and MIS; the mirror direction for a mirror.
+// light_area's indirect bounces and MIS; the mirror direction for a mirror. Two-lobe
+// materials (metallic-roughness, Phong with a diffuse part) pick a lobe with u.x and
+// reuse its rescaled remainder; the pdf is the mixture's (one-sample MIS of the lobes).
 inline DirectionSample sample_direction(Strategy s, const Material& m, const Vec3& n, const Vec3& wo, Vec2 u) {
   DirectionSample out;
   if (m.is_delta()) {
@@ -72,9 +197,22 @@ inline DirectionSample sample_direction(Strategy s, const Material& m, const Vec
   const Frame frame = Frame::from_normal(n);
   if (s == Strategy::uniform_hemisphere) {
     out.wi = frame.to_world(sample_uniform_hemisphere(u));
-  } else if (s == Strategy::cosine_hemisphere || m.type != MaterialType::phong) {
+  } else if (s == Strategy::cosine_hemisphere ||
+             (m.type != MaterialType::phong && m.type != MaterialType::metallic_roughness)) {
     out.wi = frame.to_world(sample_cosine_hemisphere(u));
+  } else if (m.type == MaterialType::metallic_roughness) {
+    const double ps = mr_specular_probability(m, dot(n, wo));
+    if (u.x < ps) {
+      const Vec3 h = frame.to_world(
+          sample_ggx_vndf(frame.to_local(wo), ggx_alpha(m.roughness), {rescale_choice(u.x, ps, true), u.y}));
+      out.wi = reflect(wo, h);
+    } else {
+      out.wi = frame.to_world(sample_cosine_hemisphere({rescale_choice(u.x, ps, false), u.y}));
+    }
+  } else if (!is_black(m.albedo) && u.x >= phong_lobe_probability(m)) {
+    out.wi = frame.to_world(sample_cosine_hemisphere({rescale_choice(u.x, phong_lobe_probability(m), false), u.y}));
   } else {
+    if (!is_black(m.albedo)) u.x = rescale_choice(u.x, phong_lobe_probability(m), true);
     // Phong lobe around the mirror direction: cos(alpha) = u^(1 / (e + 1)).
     const double cos_a = std::pow(u.x, 1.0 / (m.exponent + 1.0));
     const double sin_a = safe_sqrt(1.0 - cos_a * cos_a);

@@ -24,6 +24,16 @@ double power_heuristic(double a, double b) {
 
 }  // namespace
 
+Vertex PathTracer::vertex_at(const Hit& hit, const Vec3& d) const {
+  Vertex v{hit.p, hit.n, -d, scene_.shapes[hit.shape].material};
+  if (dot(v.n, d) > 0) v.n = -v.n;  // face the incoming ray
+  if (hit.has_ns) {
+    v.has_ns = true;
+    v.ns = dot(hit.ns, v.n) < 0 ? -hit.ns : hit.ns;  // on wo's side, whatever the winding
+  }
+  return v;
+}
+
 template <class Rng>
 Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint32_t dim0, Counters& c) const {
   Rgb L{};
@@ -34,25 +44,34 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
     if (!m.reflects() && !plan_.full) break;
     const uint32_t d0 = dim0 + kDimsPerVertex * static_cast<uint32_t>(bounce);
     const Vec3 origin = offset_ray_origin(v.p, v.n);
+    // The shading normal (= v.n without vertex normals, and then every line below
+    // computes exactly what it did before shading normals existed).
+    const Vec3 ns = v.has_ns ? v.ns : v.n;
+    auto below_geometric = [&](const Vec3& w) { return v.has_ns && dot(v.n, w) <= 0; };
 
     if (!m.is_delta()) {
       for (const DeltaLight& dl : scene_.delta_lights) {
         Vec3 wi;
         double dist = kInf;
         Rgb e = dl.intensity;
-        if (dl.type == DeltaLightType::point) {
+        if (dl.type == DeltaLightType::point || dl.type == DeltaLightType::spot) {
           const Vec3 to = dl.position - v.p;
           const double d2 = dot(to, to);
           if (!(d2 > 0)) continue;
           dist = std::sqrt(d2);
           wi = to / dist;
           e = e / d2;
+          if (dl.type == DeltaLightType::spot) {
+            const double fall = spot_falloff(dl, -wi);
+            if (!(fall > 0)) continue;
+            e = e * fall;
+          }
         } else {
           wi = dl.direction;
         }
-        const double cos_i = dot(v.n, wi);
-        if (cos_i <= 0) continue;
-        const Rgb f = bsdf_eval(m, v.n, v.wo, wi);
+        const double cos_i = dot(ns, wi);
+        if (cos_i <= 0 || below_geometric(wi)) continue;
+        const Rgb f = bsdf_eval(m, ns, v.wo, wi);
         if (is_black(f)) continue;
         if (plan_.shadows) {
           c.add(LightingCounter::shadow_rays);
@@ -64,11 +83,11 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
       }
       if (nee && !lights_.empty()) {
         c.add(LightingCounter::light_samples);
-        const LightSample ls = lights_.sample(v.p, v.n, rng.uniform(d0 + kDimLightChoice), rng.uniform(d0 + kDimLightPoint),
+        const LightSample ls = lights_.sample(v.p, ns, rng.uniform(d0 + kDimLightChoice), rng.uniform(d0 + kDimLightPoint),
                                                 rng.uniform(d0 + kDimLightPoint + 1));
-        const double cos_i = dot(v.n, ls.wi);
-        if (ls.pdf > 0 && !is_black(ls.le) && cos_i > 0) {
-          const Rgb f = bsdf_eval(m, v.n, v.wo, ls.wi);
+        const double cos_i = dot(ns, ls.wi);
+        if (ls.pdf > 0 && !is_black(ls.le) && cos_i > 0 && !below_geometric(ls.wi)) {
+          const Rgb f = bsdf_eval(m, ns, v.wo, ls.wi);
           if (!is_black(f)) {
             bool visible = true;
             if (plan_.shadows) {
@@ -86,7 +105,7 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
             if (visible) {
               double w = 1.0;
               if (s.strategy == Strategy::mis) {
-                w = power_heuristic(ls.pdf, direction_pdf(s.strategy, m, v.n, v.wo, ls.wi));
+                w = power_heuristic(ls.pdf, direction_pdf(s.strategy, m, ns, v.wo, ls.wi));
               }
               L += beta * f * ls.le * (cos_i * w / ls.pdf);
             }
@@ -100,9 +119,9 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
     const bool more_vertices = bounce + 1 < s.max_depth && plan_.indirect;
     const bool gathers = s.strategy != Strategy::light_area || m.is_delta();
     if (!gathers && !more_vertices) break;
-    const DirectionSample ds = sample_direction(s.strategy, m, v.n, v.wo, {rng.uniform(d0 + kDimDirection), rng.uniform(d0 + kDimDirection + 1)});
+    const DirectionSample ds = sample_direction(s.strategy, m, ns, v.wo, {rng.uniform(d0 + kDimDirection), rng.uniform(d0 + kDimDirection + 1)});
     c.add(ds.delta ? LightingCounter::specular_events : LightingCounter::bsdf_samples);
-    if (!(ds.pdf > 0) || (is_black(ds.weight) && !plan_.full)) break;
+    if (!(ds.pdf > 0) || (is_black(ds.weight) && !plan_.full) || below_geometric(ds.wi)) break;
     const Rgb beta_next = beta * ds.weight;
     // Weight of emission found by this ray (MIS needs the light pdf of its direction).
     auto emission_weight = [&](double light_pdf) {
@@ -123,7 +142,7 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
       if (plan_.sky && (counts_emission || plan_.full)) {
         c.add(LightingCounter::sky_lookups);
         if (scene_.sky && counts_emission) {
-          const double w = emission_weight(s.strategy == Strategy::mis ? lights_.pdf_sky(v.n, ds.wi) : 0.0);
+          const double w = emission_weight(s.strategy == Strategy::mis ? lights_.pdf_sky(ns, ds.wi) : 0.0);
           L += beta_next * *scene_.sky * w;
         }
       }
@@ -152,9 +171,7 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
       }
       beta = beta / q;
     }
-    Vec3 n = hit->n;
-    if (dot(n, ds.wi) > 0) n = -n;  // face the incoming ray
-    v = Vertex{hit->p, n, -ds.wi, scene_.shapes[hit->shape].material};
+    v = vertex_at(*hit, ds.wi);
   }
   return L;
 }
@@ -176,9 +193,7 @@ Rgb PathTracer::camera(const Vec3& o, const Vec3& d, const PathSettings& s, cons
     c.add(LightingCounter::emission_lookups);
     L += emitted(scene_, hit->shape, hit->n, -d);
   }
-  Vec3 n = hit->n;
-  if (dot(n, d) > 0) n = -n;
-  L += reflected(Vertex{hit->p, n, -d, scene_.shapes[hit->shape].material}, s, rng, dim0, c);
+  L += reflected(vertex_at(*hit, d), s, rng, dim0, c);
   return L;
 }
 

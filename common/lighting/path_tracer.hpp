@@ -8,7 +8,7 @@
 //   light_area          one light sample by area (next-event estimation) + a shadow
 //                       ray; BSDF-sampled bounces carry indirect light only
 //   mis                 one light sample and one BSDF sample, power heuristic (beta=2)
-// Point/directional lights are added deterministically by every strategy; a mirror is
+// Point/spot/directional lights are added deterministically by every strategy; a mirror is
 // always followed in its one direction. Random numbers: dimensions dim0 + 6k .. + 5 at
 // the k-th vertex: light choice, roulette, light point x2, direction x2 -- three 2-D
 // pairs (dim0 is even), see common/lighting/pixel_sampler.hpp. `Rng` is SampleRng
@@ -27,9 +27,13 @@ namespace tally {
 
 struct Vertex {
   Vec3 p{};
-  Vec3 n{};   // unit normal on the side of wo
+  Vec3 n{};   // unit geometric normal on the side of wo (ray offsets, the horizon)
   Vec3 wo{};  // unit, away from the surface
   uint32_t material = 0;
+  // Interpolated shading normal (meshes with vertex normals), flipped with n: the BSDF
+  // and the cosines use it; directions below the geometric horizon get nothing.
+  bool has_ns = false;
+  Vec3 ns{};
 };
 
 struct PathSettings {
@@ -49,6 +53,9 @@ class PathTracer {
   // Radiance along a camera ray (o, unit d); uses dimensions from dim0.
   template <class Rng>
   Rgb camera(const Vec3& o, const Vec3& d, const PathSettings& s, const Rng& rng, uint32_t dim0, Counters& c) const;
+
+  // The shading vertex of a ray (direction d) hitting `hit`.
+  Vertex vertex_at(const Hit& hit, const Vec3& d) const;
 
   static constexpr uint32_t kDimsPerVertex = 6;
   // Offsets inside a vertex's dimensions.

@@ -51,7 +51,20 @@ Plan make_plan(const Scene& scene, const PlanQuery& q, bool full) {
     return scene.materials[s.material].is_delta();
   });
   for (uint32_t m : q.point_materials) mirror = mirror || scene.materials[m].is_delta();
-  add("specular", p.specular, mirror, mirror ? "a mirror material is present" : "no mirror materials");
+  // Glossy surfaces (GGX / metallic-roughness, Phong) are not delta: they need BSDF
+  // sampling and light samples (always on), never the specular effect.
+  bool glossy = std::any_of(scene.shapes.begin(), scene.shapes.end(), [&](const Shape& s) {
+    const MaterialType t = scene.materials[s.material].type;
+    return t == MaterialType::metallic_roughness || t == MaterialType::phong;
+  });
+  for (uint32_t m : q.point_materials) {
+    glossy = glossy || scene.materials[m].type == MaterialType::metallic_roughness ||
+             scene.materials[m].type == MaterialType::phong;
+  }
+  add("specular", p.specular, mirror,
+      mirror ? "a mirror material is present"
+             : (glossy ? "no mirror materials (glossy surfaces are sampled through their lobes, not followed as delta bounces)"
+                       : "no mirror materials"));
 
   // sky
   const bool sky = scene.sky.has_value() && !is_black(*scene.sky);

@@ -10,7 +10,10 @@
 //             Also off when nothing traces shadow rays (hemisphere estimators and no
 //             point/directional lights).
 //   indirect  off when max_depth is 1 or no shape reflects light (all albedos zero).
-//   specular  off when no material is a mirror (no delta bounces can happen).
+//   specular  off when no material is a mirror (no delta bounces can happen). Glossy
+//             materials (GGX / metallic-roughness, Phong) are not delta: they need what
+//             diffuse ones need (BSDF and light samples, shadow rays, indirect when
+//             max_depth > 1), and the plan says so in the specular line.
 //   sky       off without a sky (misses return 0 without a lookup).
 //   emission  off when no shape emits (hits are not looked up for emitted radiance).
 // "plan": "full" forces every effect on: the tests compare both.

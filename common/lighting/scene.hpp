@@ -6,7 +6,9 @@
 // bounds (Scene::origin holds the world position of the local origin) and rounds every
 // vertex to float there, so the geometry the estimators sample is exactly the geometry
 // Embree traces, and a scene translated far from the world origin keeps full precision.
+#include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -21,7 +23,7 @@ using Rgb = Vec3;
 inline double luminance(const Rgb& c) { return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z; }
 inline bool is_black(const Rgb& c) { return c.x == 0.0 && c.y == 0.0 && c.z == 0.0; }
 
-enum class MaterialType { diffuse, emissive, mirror, phong };
+enum class MaterialType { diffuse, emissive, mirror, phong, metallic_roughness };
 
 struct Material {
   MaterialType type = MaterialType::diffuse;
@@ -29,14 +31,26 @@ struct Material {
   Rgb emission{};     // emitted radiance (emissive)
   bool two_sided = false;  // emissive: emit from both faces
   Rgb reflectance{};  // mirror / phong specular reflectance
-  double exponent = 0.0;  // phong
+  double exponent = 0.0;  // phong (phong may also have a Lambertian `albedo`: OBJ Kd + Ks)
+  // metallic_roughness (glTF's model, bsdf.hpp): GGX specular with F0 = lerp(0.04,
+  // base_color, metallic) over a diffuse base_color (1 - metallic); roughness is glTF's
+  // perceptual roughness, alpha = roughness^2. "ggx" in JSON is metallic 1.
+  Rgb base_color{};
+  double metallic = 0.0;
+  double roughness = 1.0;
   std::string name;
 
-  bool emits() const { return type == MaterialType::emissive && !is_black(emission); }
+  // Any material may emit (glTF emissive materials reflect too); the JSON "emissive"
+  // type is a Lambertian reflector with an emission.
+  bool emits() const { return !is_black(emission); }
   bool is_delta() const { return type == MaterialType::mirror; }
   bool reflects() const {
-    return type == MaterialType::mirror || type == MaterialType::phong ? !is_black(reflectance)
-                                                                        : !is_black(albedo);
+    switch (type) {
+      case MaterialType::mirror: return !is_black(reflectance);
+      case MaterialType::phong: return !is_black(reflectance) || !is_black(albedo);
+      case MaterialType::metallic_roughness: return !is_black(base_color) || metallic < 1.0;
+      default: return !is_black(albedo);
+    }
   }
 };
 
@@ -55,6 +69,11 @@ struct Shape {
   Vec3 normal{};  // disk
   // quad: corner + s * edge_u + t * edge_v, s, t in [0, 1]; normal edge_u x edge_v
   Vec3 corner{}, edge_u{}, edge_v{};
+  // mesh: optional per-vertex shading normals (glTF NORMAL, OBJ vn; unit, in the same
+  // order as vertices) and texture coordinates (glTF TEXCOORD_0). Empty = none: the
+  // geometric normal shades.
+  std::vector<Vec3> normals;
+  std::vector<Vec2> uvs;
 
   // Convex shapes cannot shadow their own points; the planner relies on this.
   bool convex() const {
@@ -62,14 +81,27 @@ struct Shape {
   }
 };
 
-enum class DeltaLightType { point, directional };
+enum class DeltaLightType { point, directional, spot };
 
 struct DeltaLight {
   DeltaLightType type = DeltaLightType::point;
-  Vec3 position{};   // point
-  Vec3 direction{};  // directional: unit vector from the scene towards the light
-  Rgb intensity{};   // point: W/sr-like (radiant intensity); directional: irradiance
+  Vec3 position{};   // point, spot
+  Vec3 direction{};  // directional: unit vector from the scene towards the light;
+                     // spot: unit axis of the cone, from the light outwards
+  Rgb intensity{};   // point, spot: W/sr-like (radiant intensity on the axis); directional: irradiance
+  // spot: glTF's smooth falloff between the cosines of the outer and inner cone angles
+  // (KHR_lights_punctual): t = clamp((cos a - cos_outer) / max(1e-3, cos_inner - cos_outer), 0, 1),
+  // intensity factor t^2, a the angle from the axis.
+  double cos_inner = 1.0, cos_outer = 0.0;
 };
+
+// The spot light's factor for the unit direction `w` from the light towards a point.
+inline double spot_falloff(const DeltaLight& l, const Vec3& w) {
+  const double c = dot(l.direction, w);
+  const double scale = 1.0 / std::max(1e-3, l.cos_inner - l.cos_outer);
+  const double t = std::clamp((c - l.cos_outer) * scale, 0.0, 1.0);
+  return t * t;
+}
 
 struct Camera {
   Vec3 position{}, look_at{0, 0, -1}, up{0, 1, 0};

@@ -1,6 +1,7 @@
 #include "common/lighting/scene_json.hpp"
 
 #include "common/lighting/asset_resolver.hpp"
+#include "common/sampling/safe_math.hpp"
 
 #include <fmt/format.h>
 #include <tiny_obj_loader.h>
@@ -14,6 +15,7 @@
 #include <cstring>
 #include <limits>
 #include <map>
+#include <optional>
 
 namespace tally {
 
@@ -30,7 +32,8 @@ Rgb read_rgb(SpecReader& r, std::string_view key, double hi) {
 Material parse_material(SpecReader r, std::string name) {
   Material m;
   m.name = std::move(name);
-  const std::string type = r.enumeration("type", {"diffuse", "emissive", "mirror", "phong"});
+  const std::string type =
+      r.enumeration("type", {"diffuse", "emissive", "mirror", "phong", "ggx", "metallic_roughness"});
   if (type == "diffuse") {
     m.type = MaterialType::diffuse;
     m.albedo = read_rgb(r, "albedo", 1.0);
@@ -42,10 +45,23 @@ Material parse_material(SpecReader r, std::string name) {
   } else if (type == "mirror") {
     m.type = MaterialType::mirror;
     m.reflectance = r.has("reflectance") ? read_rgb(r, "reflectance", 1.0) : Rgb{1, 1, 1};
-  } else {
+  } else if (type == "phong") {
     m.type = MaterialType::phong;
     m.reflectance = read_rgb(r, "reflectance", 1.0);
     m.exponent = r.number("exponent", 0.0, 1e6);
+  } else {
+    // GGX: "ggx" is a rough metal (F0 = reflectance), "metallic_roughness" glTF's model.
+    m.type = MaterialType::metallic_roughness;
+    if (type == "ggx") {
+      m.base_color = read_rgb(r, "reflectance", 1.0);
+      m.metallic = 1.0;
+    } else {
+      m.base_color = read_rgb(r, "base_color", 1.0);
+      m.metallic = r.number("metallic", 0.0, 1.0);
+    }
+    m.roughness = r.number("roughness", 0.0, 1.0);
+    if (r.has("emission")) m.emission = read_rgb(r, "emission", 1e12);
+    m.two_sided = r.boolean_or("two_sided", false);
   }
   r.finish();
   return m;
@@ -56,16 +72,90 @@ void add_triangle_mesh(Shape& s, std::vector<Vec3> vertices, std::vector<std::ar
   s.triangles = std::move(tris);
 }
 
-void load_obj(Shape& s, const std::filesystem::path& path, const std::string& pointer,
-              const JobLimits& limits, size_t triangles_so_far) {
+// The `mtllib` names of an OBJ (each line may list several files).
+std::vector<std::string> mtllib_names(const std::string& obj_text) {
+  std::vector<std::string> out;
+  size_t pos = 0;
+  while (pos < obj_text.size()) {
+    size_t end = obj_text.find('\n', pos);
+    if (end == std::string::npos) end = obj_text.size();
+    std::string line = obj_text.substr(pos, end - pos);
+    pos = end + 1;
+    const size_t b = line.find_first_not_of(" \t");
+    if (b == std::string::npos || line.compare(b, 6, "mtllib") != 0) continue;
+    size_t i = b + 6;
+    if (i < line.size() && line[i] != ' ' && line[i] != '\t') continue;
+    while (i < line.size()) {
+      const size_t w = line.find_first_not_of(" \t\r", i);
+      if (w == std::string::npos) break;
+      const size_t e = std::min(line.find_first_of(" \t\r", w), line.size());
+      out.push_back(line.substr(w, e - w));
+      i = e;
+    }
+  }
+  return out;
+}
+
+Rgb mtl_rgb(const tinyobj::real_t* v) {
+  Rgb c{static_cast<double>(v[0]), static_cast<double>(v[1]), static_cast<double>(v[2])};
+  for (int k = 0; k < 3; ++k) {
+    const double x = c[k];
+    const double clamped = std::isfinite(x) ? std::clamp(x, 0.0, 1e12) : 0.0;
+    if (k == 0) c.x = clamped;
+    if (k == 1) c.y = clamped;
+    if (k == 2) c.z = clamped;
+  }
+  return c;
+}
+
+// An .mtl material as a tally material (docs/lighting.md, "OBJ materials"): Kd -> the
+// Lambertian albedo, Ks + Ns -> a normalised Phong lobe, Ke -> emission; where Kd + Ks
+// exceeds 1 both are scaled down so the material cannot create energy.
+Material mtl_material(const tinyobj::material_t& t, const std::string& name, const std::string& pointer) {
+  if (!t.diffuse_texname.empty()) {
+    throw SpecError(pointer, fmt::format("material \"{}\": map_Kd textures are not supported yet", t.name));
+  }
+  Material m;
+  m.name = name;
+  Rgb kd = mtl_rgb(t.diffuse), ks = mtl_rgb(t.specular);
+  const Rgb ke = mtl_rgb(t.emission);
+  const double peak = max_component(kd + ks);
+  if (peak > 1.0) {
+    kd = kd / peak;
+    ks = ks / peak;
+  }
+  if (!is_black(ks)) {
+    m.type = MaterialType::phong;
+    m.reflectance = ks;
+    m.exponent = std::isfinite(t.shininess) ? std::clamp(static_cast<double>(t.shininess), 0.0, 1e6) : 0.0;
+    m.albedo = kd;
+  } else {
+    m.type = is_black(ke) ? MaterialType::diffuse : MaterialType::emissive;
+    m.albedo = kd;
+  }
+  m.emission = ke;
+  return m;
+}
+
+// Loads an OBJ into one shape per material. With `material` set (the scene names one)
+// every face gets it and `mtllib` opens nothing; otherwise the .mtl files it names are
+// read through `read` (relative to the OBJ's directory, with the same checks as every
+// asset) and each face gets its `usemtl` material.
+std::vector<Shape> load_obj(const std::string& relative, const std::string& pointer, const AssetReader& read,
+                            const JobLimits& limits, size_t triangles_so_far, std::optional<uint32_t> material,
+                            Scene& scene) {
   tinyobj::ObjReaderConfig config;
   config.triangulate = true;
   config.vertex_color = false;
-  // The OBJ's text is read here, through read_asset_file. Its `mtllib` lines open
-  // nothing: materials come from the scene JSON, and an mtllib path would escape the
-  // asset directory's checks (and a FIFO there would block the thread forever).
+  const std::string text = read(relative, pointer);
+  std::string mtl_text;
+  if (!material) {
+    const auto slash = relative.find_last_of('/');
+    const std::string dir = slash == std::string::npos ? std::string() : relative.substr(0, slash + 1);
+    for (const std::string& lib : mtllib_names(text)) mtl_text += read(dir + lib, pointer) + "\n";
+  }
   tinyobj::ObjReader reader;
-  if (!reader.ParseFromString(read_asset_file(path, pointer), std::string(), config)) {
+  if (!reader.ParseFromString(text, mtl_text, config)) {
     throw SpecError(pointer, fmt::format("cannot read OBJ: {}", reader.Error()));
   }
   const auto& attrib = reader.GetAttrib();
@@ -79,10 +169,13 @@ void load_obj(Shape& s, const std::filesystem::path& path, const std::string& po
       }
     }
   }
-  std::vector<std::array<uint32_t, 3>> tris;
+  // Faces grouped by OBJ material (-1: none), in order of first use.
+  std::vector<int> group_ids;
+  std::vector<std::vector<std::array<uint32_t, 3>>> groups;
+  size_t total = 0;
   for (const auto& shape : reader.GetShapes()) {
     const auto& idx = shape.mesh.indices;
-    if (triangles_so_far + tris.size() + idx.size() / 3 > limits.max_table_size) {
+    if (triangles_so_far + total + idx.size() / 3 > limits.max_table_size) {
       throw SpecError(pointer, fmt::format("too many triangles (limit {})", limits.max_table_size));
     }
     for (size_t f = 0; f + 2 < idx.size(); f += 3) {
@@ -92,17 +185,53 @@ void load_obj(Shape& s, const std::filesystem::path& path, const std::string& po
         if (vi < 0 || static_cast<size_t>(vi) >= nv) throw SpecError(pointer, "OBJ index out of range");
         t[k] = static_cast<uint32_t>(vi);
       }
-      tris.push_back(t);
+      const int mid = material ? -1 : (f / 3 < shape.mesh.material_ids.size() ? shape.mesh.material_ids[f / 3] : -1);
+      auto it = std::find(group_ids.begin(), group_ids.end(), mid);
+      if (it == group_ids.end()) {
+        group_ids.push_back(mid);
+        groups.emplace_back();
+        it = group_ids.end() - 1;
+      }
+      groups[static_cast<size_t>(it - group_ids.begin())].push_back(t);
+      ++total;
     }
   }
-  if (tris.empty()) throw SpecError(pointer, "OBJ file has no triangles");
-  add_triangle_mesh(s, std::move(verts), std::move(tris));
+  if (total == 0) throw SpecError(pointer, "OBJ file has no triangles");
+  const auto& mats = reader.GetMaterials();
+  std::vector<Shape> out;
+  for (size_t g = 0; g < groups.size(); ++g) {
+    Shape s;
+    s.type = ShapeType::mesh;
+    s.pointer = pointer;
+    if (material) {
+      s.material = *material;
+    } else {
+      const int mid = group_ids[g];
+      if (mid < 0 || static_cast<size_t>(mid) >= mats.size()) {
+        throw SpecError(pointer, "some OBJ faces have no .mtl material (no usemtl, or an unknown one) and the shape names no \"material\"");
+      }
+      if (scene.materials.size() >= 4096) throw SpecError(pointer, "too many materials (limit 4096)");
+      scene.materials.push_back(mtl_material(mats[static_cast<size_t>(mid)], relative + "#" + mats[static_cast<size_t>(mid)].name, pointer));
+      s.material = static_cast<uint32_t>(scene.materials.size() - 1);
+    }
+    // Every group keeps all vertices (simple; Embree ignores unreferenced ones).
+    add_triangle_mesh(s, g + 1 == groups.size() ? std::move(verts) : verts, std::move(groups[g]));
+    out.push_back(std::move(s));
+  }
+  return out;
 }
 
-Shape parse_shape(SpecReader r, Scene& scene, const JobLimits& limits, size_t triangles_so_far) {
+std::vector<Shape> parse_shape(SpecReader r, Scene& scene, const JobLimits& limits, size_t triangles_so_far) {
   Shape s;
   s.pointer = r.pointer();
   const std::string type = r.enumeration("type", {"mesh", "sphere", "quad", "disk", "triangle"});
+  if (type == "mesh" && r.has("obj") && !r.has("material")) {  // materials from the OBJ's .mtl
+    const std::string rel = r.string("obj", 1024);
+    std::vector<Shape> shapes = load_obj(rel, r.pointer_of("obj"), scene_asset_reader(limits), limits,
+                                         triangles_so_far, std::nullopt, scene);
+    r.finish();
+    return shapes;
+  }
   s.material = parse_material_ref(r.at("material"), r.pointer_of("material"), scene);
   if (type == "sphere") {
     s.type = ShapeType::sphere;
@@ -138,8 +267,10 @@ Shape parse_shape(SpecReader r, Scene& scene, const JobLimits& limits, size_t tr
     s.type = ShapeType::mesh;
     if (r.has("obj")) {
       const std::string rel = r.string("obj", 1024);
-      load_obj(s, resolve_scene_file(rel, limits, r.pointer_of("obj")), r.pointer_of("obj"), limits,
-               triangles_so_far);
+      std::vector<Shape> shapes = load_obj(rel, r.pointer_of("obj"), scene_asset_reader(limits), limits,
+                                           triangles_so_far, s.material, scene);
+      s.vertices = std::move(shapes[0].vertices);
+      s.triangles = std::move(shapes[0].triangles);
     } else {
       const nlohmann::json& vj = r.at("vertices");
       const nlohmann::json& ij = r.at("indices");
@@ -173,7 +304,41 @@ Shape parse_shape(SpecReader r, Scene& scene, const JobLimits& limits, size_t tr
     }
   }
   r.finish();
-  return s;
+  return {std::move(s)};
+}
+
+// {"type": "gltf", "file": "x.gltf" | "x.glb", "camera": index | name, "resolution": [w, h]}
+void parse_gltf(SpecReader r, Scene& scene, const JobLimits& limits) {
+  r.enumeration("type", {"gltf"});
+  GltfRequest req;
+  req.file = r.string("file", 1024);
+  req.pointer = r.pointer_of("file");
+  if (r.has("camera")) {
+    const nlohmann::json& c = r.at("camera");
+    req.camera_pointer = r.pointer_of("camera");
+    if (c.is_number_integer() && c.get<int64_t>() >= 0) {
+      req.camera = static_cast<size_t>(c.get<int64_t>());
+    } else if (c.is_string()) {
+      req.camera = c.get<std::string>();
+    } else {
+      throw SpecError(req.camera_pointer, "must be a camera index or name");
+    }
+    if (scene.camera) throw SpecError(req.camera_pointer, "the scene already has a \"camera\"");
+    const std::vector<double> res = r.numbers("resolution", 2, 2, 1, 1 << 20);
+    if (res[0] != std::floor(res[0]) || res[1] != std::floor(res[1])) {
+      throw SpecError(r.pointer_of("resolution"), "must be two integers [width, height]");
+    }
+    req.width = static_cast<int>(res[0]);
+    req.height = static_cast<int>(res[1]);
+    if (static_cast<uint64_t>(req.width) * static_cast<uint64_t>(req.height) > limits.max_pixels) {
+      throw SpecError(r.pointer_of("resolution"),
+                      fmt::format("{}x{} pixels exceed the limit of {}", req.width, req.height, limits.max_pixels));
+    }
+  } else if (r.has("resolution")) {
+    throw SpecError(r.pointer_of("resolution"), "is only used with \"camera\"");
+  }
+  r.finish();
+  load_gltf(scene, req, scene_asset_reader(limits), limits);
 }
 
 DeltaLight parse_delta_light(SpecReader& r, const std::string& type) {
@@ -182,6 +347,16 @@ DeltaLight parse_delta_light(SpecReader& r, const std::string& type) {
     l.type = DeltaLightType::point;
     l.position = read_vec3(r, "position");
     l.intensity = read_rgb(r, "intensity", 1e15);
+  } else if (type == "spot") {
+    l.type = DeltaLightType::spot;
+    l.position = read_vec3(r, "position");
+    l.direction = read_direction(r, "direction");
+    l.intensity = read_rgb(r, "intensity", 1e15);
+    const double outer = r.number_or("outer_cone_deg", 45.0, 0.0, 90.0);
+    const double inner = r.number_or("inner_cone_deg", 0.0, 0.0, 90.0);
+    if (!(inner < outer)) throw SpecError(r.pointer_of("inner_cone_deg"), "must be smaller than outer_cone_deg");
+    l.cos_inner = std::cos(inner * kPi / 180.0);
+    l.cos_outer = std::cos(outer * kPi / 180.0);
   } else {
     l.type = DeltaLightType::directional;
     l.direction = read_direction(r, "direction");
@@ -191,6 +366,12 @@ DeltaLight parse_delta_light(SpecReader& r, const std::string& type) {
 }
 
 }  // namespace
+
+AssetReader scene_asset_reader(const JobLimits& limits) {
+  return [limits](const std::string& name, const std::string& pointer) {
+    return read_scene_file(name, limits, pointer);
+  };
+}
 
 Vec3 read_vec3(SpecReader& r, std::string_view key) {
   return to_vec3(r.numbers(key, 3, 3, -kCoordLimit, kCoordLimit));
@@ -310,8 +491,15 @@ Scene parse_scene(SpecReader& r, const JobLimits& limits) {
     if (!sj->is_array()) throw SpecError(sp, "must be an array");
     if (sj->size() > 65536) throw SpecError(sp, "too many shapes (limit 65536)");
     for (size_t i = 0; i < sj->size(); ++i) {
-      scene.shapes.push_back(parse_shape(SpecReader((*sj)[i], json_pointer_append(sp, i)), scene,
-                                         limits, scene.triangle_count()));
+      const nlohmann::json& e = (*sj)[i];
+      if (e.is_object() && e.contains("type") && e["type"] == "gltf") {
+        parse_gltf(SpecReader(e, json_pointer_append(sp, i)), scene, limits);
+        continue;
+      }
+      for (Shape& s : parse_shape(SpecReader(e, json_pointer_append(sp, i)), scene, limits, scene.triangle_count())) {
+        if (scene.shapes.size() >= 65536) throw SpecError(sp, "too many shapes (limit 65536)");
+        scene.shapes.push_back(std::move(s));
+      }
     }
   }
   if (const nlohmann::json* lj = r.find("lights")) {
@@ -320,7 +508,7 @@ Scene parse_scene(SpecReader& r, const JobLimits& limits) {
     if (lj->size() > 4096) throw SpecError(lp, "too many lights (limit 4096)");
     for (size_t i = 0; i < lj->size(); ++i) {
       SpecReader l((*lj)[i], json_pointer_append(lp, i));
-      const std::string type = l.enumeration("type", {"point", "directional", "sky"});
+      const std::string type = l.enumeration("type", {"point", "spot", "directional", "sky"});
       if (type == "sky") {
         if (scene.sky) throw SpecError(l.pointer(), "only one sky is allowed");
         scene.sky = read_rgb(l, "radiance", 1e12);
@@ -353,7 +541,7 @@ void localize_scene(Scene& scene) {
     }
   }
   for (DeltaLight& l : scene.delta_lights) {
-    if (l.type == DeltaLightType::point) l.position = l.position - origin;
+    if (l.type != DeltaLightType::directional) l.position = l.position - origin;
   }
   if (scene.camera) {
     scene.camera->position = scene.camera->position - origin;

@@ -8,6 +8,7 @@
 
 #include "common/engine/limits.hpp"
 #include "common/protocol/spec_reader.hpp"
+#include "common/lighting/gltf_scene.hpp"
 #include "common/lighting/scene.hpp"
 #include "common/lighting/scene_bounds.hpp"
 
@@ -31,6 +32,11 @@ std::filesystem::path resolve_asset(const std::string& asset_dir, const std::str
 // Every file a scene causes to be read goes through resolve_asset and this.
 std::string read_asset_file(const std::filesystem::path& path, const std::string& pointer,
                             size_t max_bytes = size_t{1} << 30);
+
+// The reader every file a scene names goes through (OBJ, .mtl, glTF and its buffers):
+// read_scene_file (asset_resolver.hpp: "sha256:<hex>" from the asset store, or a path
+// inside limits.asset_dir; regular files only, no escape, never blocking).
+AssetReader scene_asset_reader(const JobLimits& limits);
 
 // Moves the scene into its local frame (see scene.hpp) and returns the translation.
 void localize_scene(Scene& scene);

@@ -10,7 +10,8 @@ set(allowed
   common/integrate/integration_spec.hpp common/integrate/integration_spec.cpp
   common/lighting/lighting_spec.hpp common/lighting/lighting_spec.cpp
   common/lighting/scene_json.hpp common/lighting/scene_json.cpp
-  common/lighting/asset_resolver.hpp common/lighting/asset_resolver.cpp
+  common/lighting/gltf_scene.cpp       # scene reader: glTF files, errors are SpecErrors
+  common/lighting/asset_resolver.hpp common/lighting/asset_resolver.cpp  # scene file names -> files, errors are SpecErrors
   common/jobs/job_factory.hpp common/jobs/job_factory.cpp)
 set(patterns "<nlohmann/" "nlohmann::" "\"common/protocol/" "_spec\\.hpp\"" "scene_json\\.hpp\"" "job_factory\\.hpp\"")
 file(GLOB_RECURSE files RELATIVE ${ROOT}

@@ -373,7 +373,7 @@ class Client:
 
 
 # Scene fields that name a file (common/lighting/asset_resolver.hpp: is_scene_file_field).
-_FILE_FIELDS = frozenset({"obj", "map"})
+_FILE_FIELDS = frozenset({"obj", "map", "file"})
 
 
 def _sha256_file(path: str) -> str:
