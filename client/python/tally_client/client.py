@@ -251,7 +251,8 @@ class Client:
             if isinstance(v, list):
                 return [walk(x) for x in v]
             return v
-        return walk(spec)
+        out: JsonObject = walk(dict(spec))
+        return out
 
     # --- HTTP ----------------------------------------------------------------------
 
