@@ -78,6 +78,10 @@ class Job : public std::enable_shared_from_this<Job> {
   // the I/O threads (on_pass_done, finish) and shared by every watcher.
   mutable std::shared_ptr<const std::string> watch_progress_;
   mutable uint64_t watch_progress_version_ = 0;
+  // A committed pass whose progress event is not yet in the log (on_pass_done builds it
+  // without the lock): a snapshot then shows the last published progress, or none, and
+  // the new one follows live — never the same pass twice.
+  bool publishing_ = false;
   // engine_json at engine_version_ for a running job's status, built at the pass
   // boundary on the worker thread (a status GET then does no pass over every pixel).
   std::shared_ptr<const nlohmann::json> engine_;

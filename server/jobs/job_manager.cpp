@@ -141,6 +141,8 @@ std::shared_ptr<const std::string> JobManager::watch_progress_locked(const Job& 
   if (!job.runner_) return nullptr;
   // While a pass is being published (on_pass_done builds it without the lock) the
   // previous pass's progress serves: the new one follows as a live event.
+  // No progress published yet for a pass being published (the first one): none serves.
+  if (job.publishing_ && !job.watch_progress_) return nullptr;
   const bool publishing = job.status_ == JobStatus::running && job.watch_progress_;
   if (!job.watch_progress_ || (job.watch_progress_version_ != job.version_ && !publishing)) {
     job.watch_progress_ = std::make_shared<const std::string>(dump(progress_event_json(*job.runner_)));
@@ -167,7 +169,7 @@ std::vector<Event> JobManager::watch_snapshot(const Job& job) const {
   if (job.runner_ && job.runner_->state().passes > 0) {
     // Built on a worker thread at the pass boundary; only a rare transition
     // (start, cancel of a queued job, extend) leaves it to be built here.
-    out.push_back(Event{id, "progress", *watch_progress_locked(job)});
+    if (auto progress = watch_progress_locked(job)) out.push_back(Event{id, "progress", *progress});
   } else if (!job.runner_ && facts && !facts->progress_event.empty()) {
     out.push_back(Event{id, "progress", facts->progress_event});
   }
@@ -421,6 +423,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     }
     job->version_++;
     version = job->version_;
+    job->publishing_ = true;  // until this pass's progress event is in the log (below)
     const bool cancel_now = job->cancel_requested_ && !r.finished();
     if (!cancel_now && !r.finished()) {
       next.pass = r.state().passes;
@@ -436,6 +439,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
       for (std::string& t : tile_events(job->def_->image(), blocks, r.state().passes)) {
         job->events_.append("tile", std::move(t));
       }
+      job->publishing_ = false;
       if (cancel_now) r.cancel();  // takes effect at this boundary
       finish_locked(*job, unix_now());
       finished = true;
@@ -462,6 +466,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     for (std::string& t : tiles) job->events_.append("tile", std::move(t));
     job->watch_progress_ = std::move(progress);
     job->watch_progress_version_ = version;
+    job->publishing_ = false;
     job->engine_ = std::move(engine);
     job->engine_version_ = version;
   }
