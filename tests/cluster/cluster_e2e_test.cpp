@@ -608,7 +608,12 @@ TEST(Cluster, DroppedConnectionsReconnectWithoutARedisRestartBitIdentical) {
   // Reconnected to the same Redis (no restart), so nothing was republished as lost.
   EXPECT_EQ(rc.run_id(), [&] { auto r2 = redis.connect(); return r2.run_id(); }());
   const std::string logs = w1.log() + w2.log();
-  EXPECT_NE(logs.find("connected to redis again"), std::string::npos) << logs;
+  // A worker reconnects either in its read loop ("connected to redis again") or while
+  // storing a computed result ("reconnecting to store them", then the store succeeds:
+  // the job's bits above prove nothing was lost).
+  EXPECT_TRUE(logs.find("connected to redis again") != std::string::npos ||
+              logs.find("reconnecting to store them") != std::string::npos)
+      << logs;
   std::this_thread::sleep_for(1200ms);
   const json r = metrics_counts(c);
   EXPECT_EQ(r.at("first"), r.at("blocks_merged")) << r.dump();
