@@ -328,9 +328,19 @@ TEST(RequestHandler, EventStreamAsNdjson) {
 }
 
 TEST(RequestHandler, ImageJobsStreamTilesAndServeThem) {
-  Harness h;
+  // The watcher must be attached before the image job runs: a watcher that arrives
+  // after the end gets a snapshot (state, progress, end) and fetches every tile once.
+  // So one running slot, a long job holding it, and the image job queued behind.
+  ManagerConfig mc = test_manager_config();
+  mc.max_running = 1;
+  Harness h(mc);
+  const std::string blocker = h.submit(fake_spec(kForever, 50));
+  ASSERT_TRUE(h.wait_state(blocker, "running"));
   const std::string id = h.submit(fake_spec(8192, 0, 1, true));
+  ASSERT_EQ(h.state(id), "queued");
   const auto r = h.call("GET", "/v1/jobs/" + id + "/events");
+  ASSERT_TRUE(r.stream);
+  EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + blocker).status / 100, 2);
   const auto ev = drain(*r.stream);
   std::set<int> tiles;
   for (const auto& e : ev) {
