@@ -24,6 +24,9 @@ struct JobLimits {
   uint64_t max_pixels = 4096ULL * 4096ULL;
   uint64_t max_quadrature_points = 1ULL << 26;
   size_t max_table_size = 1 << 20;  // tabulated densities, inline meshes
+  // Decoded texels of one lighting job's textures (12 bytes a texel: linear RGB floats);
+  // a scene over it is refused naming the texture that crossed it.
+  uint64_t max_texture_bytes = uint64_t{1} << 30;
   std::string asset_dir;            // OBJ files for lighting scenes; empty = none allowed
   // The content-addressed asset store ("sha256:<hex>" names in scenes, see
   // common/lighting/asset_resolver.hpp); empty = no store, such names are refused.

@@ -182,8 +182,43 @@ int encode_png_rgb8(int32_t width, int32_t height, const unsigned char* rgb8, ta
       error, error_context);
 }
 
+// PNG only (libpng's simplified API, 8 bits a channel; 16-bit files are reduced to 8
+// bits by libpng). Other formats need the OpenImageIO module.
+int decode(const unsigned char* bytes, size_t size, const char* format, uint64_t max_pixels,
+           tally_image_receiver receive, void* receive_context, tally_image_sink error, void* error_context) {
+  return guarded(
+      [&] {
+        if (std::string(format) != "png") {
+          throw std::runtime_error(std::string("this image module (OpenEXR + libpng) decodes PNG only, not ") + format +
+                                   "; build the OpenImageIO module (-DTALLY_IMAGE_BACKEND=oiio)");
+        }
+        png_image image{};
+        image.version = PNG_IMAGE_VERSION;
+        if (!png_image_begin_read_from_memory(&image, bytes, size)) {
+          throw std::runtime_error(std::string("cannot decode the png image: ") + image.message);
+        }
+        const uint64_t pixels = static_cast<uint64_t>(image.width) * static_cast<uint64_t>(image.height);
+        if (pixels == 0 || pixels > max_pixels) {
+          png_image_free(&image);
+          throw std::runtime_error("the image has " + std::to_string(image.width) + "x" + std::to_string(image.height) +
+                                   " pixels, more than the limit of " + std::to_string(max_pixels));
+        }
+        image.format = PNG_FORMAT_RGB;
+        std::vector<unsigned char> px(PNG_IMAGE_SIZE(image));
+        if (!png_image_finish_read(&image, nullptr, px.data(), 0, nullptr)) {
+          const std::string m = image.message;
+          png_image_free(&image);
+          throw std::runtime_error("cannot decode the png image: " + m);
+        }
+        const tally_decoded_image out{static_cast<int32_t>(image.width), static_cast<int32_t>(image.height), 3, 8,
+                                      px.data()};
+        receive(receive_context, &out);
+      },
+      error, error_context);
+}
+
 constexpr tally_image_api kApi{tally::kTallyImageAbiVersion, "OpenEXR " OPENEXR_VERSION_STRING " + libpng " PNG_LIBPNG_VER_STRING,
-                               &encode_exr, &encode_png_rgb8};
+                               &encode_exr, &encode_png_rgb8, &decode};
 
 }  // namespace
 

@@ -10,6 +10,7 @@
 #include <limits>
 #include <stdexcept>
 
+#include "common/lighting/texture.hpp"
 #include "common/protocol/spec_reader.hpp"
 #include "common/sampling/safe_math.hpp"
 
@@ -27,6 +28,7 @@ struct FsContext {
   std::string pointer;
   std::map<std::string, std::vector<unsigned char>> files;
   std::string refused;  // why the last file was refused (named in the error)
+  std::map<std::string, std::string> refused_by_path;  // every refusal (images are optional to tinygltf)
 };
 
 bool fs_exists(const std::string& path, void* user) {
@@ -41,6 +43,7 @@ bool fs_exists(const std::string& path, void* user) {
   } catch (const std::exception& e) {
     ctx->refused = fmt::format("\"{}\": {}", path, e.what());
   }
+  ctx->refused_by_path[path] = ctx->refused;
   return false;
 }
 
@@ -106,8 +109,9 @@ Mat4 operator*(const Mat4& a, const Mat4& b) {
 
 class GltfLoader {
  public:
-  GltfLoader(Scene& scene, const GltfRequest& req, const JobLimits& limits, const tinygltf::Model& model)
-      : scene_(scene), req_(req), limits_(limits), model_(model) {}
+  GltfLoader(Scene& scene, const GltfRequest& req, const JobLimits& limits, const tinygltf::Model& model,
+             const FsContext& fs)
+      : scene_(scene), req_(req), limits_(limits), model_(model), fs_(fs) {}
 
   [[noreturn]] void fail(const std::string& field, const std::string& what) const {
     throw SpecError(req_.pointer, fmt::format("glTF \"{}\" {}: {}", req_.file, field, what));
@@ -327,15 +331,85 @@ class GltfLoader {
     }
     if (!g.emissiveFactor.empty()) m.emission = color3(g.emissiveFactor, 1.0, mp + "/emissiveFactor") * strength;
     m.two_sided = g.doubleSided;
-    const std::pair<const tinygltf::TextureInfo*, const char*> textures[] = {
-        {&pbr.baseColorTexture, "/pbrMetallicRoughness/baseColorTexture"},
-        {&pbr.metallicRoughnessTexture, "/pbrMetallicRoughness/metallicRoughnessTexture"},
-        {&g.emissiveTexture, "/emissiveTexture"}};
-    for (const auto& [info, field] : textures) {
-      if (info->index >= 0) fail(mp + field, "textures are not supported yet (docs/lighting.md, glTF)");
-    }
+    // Colour textures are sRGB, the metallic-roughness texture linear (glTF 2.0 3.9.2).
+    // normalTexture and occlusionTexture are ignored (docs/lighting.md, glTF).
+    m.base_color_texture = texture(pbr.baseColorTexture, mp + "/pbrMetallicRoughness/baseColorTexture", true);
+    m.metallic_roughness_texture =
+        texture(pbr.metallicRoughnessTexture, mp + "/pbrMetallicRoughness/metallicRoughnessTexture", false);
+    m.emission_texture = texture(g.emissiveTexture, mp + "/emissiveTexture", true);
     slot = push_material(std::move(m));
     return slot;
+  }
+
+  static TextureWrap wrap_mode(int gl, const std::string& field, const GltfLoader& self) {
+    switch (gl) {
+      case TINYGLTF_TEXTURE_WRAP_REPEAT: return TextureWrap::repeat;
+      case TINYGLTF_TEXTURE_WRAP_CLAMP_TO_EDGE: return TextureWrap::clamp_to_edge;
+      case TINYGLTF_TEXTURE_WRAP_MIRRORED_REPEAT: return TextureWrap::mirrored_repeat;
+      default: self.fail(field, fmt::format("unknown wrap mode {} (10497, 33071 or 33648)", gl));
+    }
+  }
+
+  // The texture a material's textureInfo at `field` names, as an index into
+  // scene.textures (-1: none). Each image is decoded once per colour space.
+  int32_t texture(const tinygltf::TextureInfo& info, const std::string& field, bool srgb) {
+    if (info.index < 0) return -1;
+    if (info.texCoord != 0) fail(field + "/texCoord", "only texture coordinate set 0 (TEXCOORD_0) is supported");
+    if (info.extensions.count("KHR_texture_transform") != 0) {
+      fail(field + "/extensions/KHR_texture_transform", "is not supported");
+    }
+    if (static_cast<size_t>(info.index) >= model_.textures.size()) fail(field + "/index", "names no texture");
+    const std::string tp = fmt::format("/textures/{}", info.index);
+    const tinygltf::Texture& t = model_.textures[static_cast<size_t>(info.index)];
+    if (t.source < 0) fail(tp + "/source", "is missing (texture extensions such as KHR_texture_basisu are not supported)");
+    if (static_cast<size_t>(t.source) >= model_.images.size()) fail(tp + "/source", "names no image");
+    Texture tex;
+    if (t.sampler >= 0) {
+      if (static_cast<size_t>(t.sampler) >= model_.samplers.size()) fail(tp + "/sampler", "names no sampler");
+      const std::string sp = fmt::format("/samplers/{}", t.sampler);
+      const tinygltf::Sampler& smp = model_.samplers[static_cast<size_t>(t.sampler)];
+      tex.wrap_s = wrap_mode(smp.wrapS, sp + "/wrapS", *this);
+      tex.wrap_t = wrap_mode(smp.wrapT, sp + "/wrapT", *this);
+    }
+    tex.texels = texels(t.source, srgb);
+    for (size_t i = 0; i < scene_.textures.size(); ++i) {
+      const Texture& o = scene_.textures[i];
+      if (o.texels == tex.texels && o.wrap_s == tex.wrap_s && o.wrap_t == tex.wrap_t) return static_cast<int32_t>(i);
+    }
+    if (scene_.textures.size() >= 4096) fail("/textures", "too many textures (limit 4096 in the scene)");
+    scene_.textures.push_back(std::move(tex));
+    return static_cast<int32_t>(scene_.textures.size() - 1);
+  }
+
+  std::shared_ptr<const TexelGrid> texels(int index, bool srgb) {
+    auto& cached = texels_[{index, srgb}];
+    if (cached) return cached;
+    const std::string ip = fmt::format("/images/{}", index);
+    const tinygltf::Image& im = model_.images[static_cast<size_t>(index)];
+    if (im.image.empty()) {
+      // tinygltf keeps an external image it could not read as a bare uri.
+      std::string why;
+      for (const auto& [path, reason] : fs_.refused_by_path) {
+        if (!im.uri.empty() && path.size() >= im.uri.size() && path.compare(path.size() - im.uri.size(), im.uri.size(), im.uri) == 0) {
+          why = reason;
+        }
+      }
+      fail(im.uri.empty() ? ip : ip + "/uri", why.empty() ? "the image has no data" : fmt::format("cannot be read: {}", why));
+    }
+    const uint64_t left = limits_.max_texture_bytes > scene_.texture_bytes ? limits_.max_texture_bytes - scene_.texture_bytes : 0;
+    try {
+      cached = decode_texels(std::string_view(reinterpret_cast<const char*>(im.image.data()), im.image.size()), srgb,
+                             left / kTexelBytes);
+    } catch (const std::exception& e) {
+      const std::string what = e.what();
+      fail(ip, fmt::format("cannot be used as a texture: {}{}", what,
+                           what.find("more than the limit") == std::string::npos
+                               ? ""
+                               : fmt::format(" (the job's textures may take {} bytes decoded, {} a texel)",
+                                             limits_.max_texture_bytes, kTexelBytes)));
+    }
+    scene_.texture_bytes += cached->bytes();
+    return cached;
   }
 
   uint32_t push_material(Material m) {
@@ -482,6 +556,9 @@ class GltfLoader {
           s.uvs[i] = {uv[2 * i], uv[2 * i + 1]};
         }
       }
+      if (s.uvs.empty() && scene_.materials[s.material].textured()) {
+        fail(pp + "/attributes", "has no TEXCOORD_0, but its material has textures");
+      }
       std::vector<double> idx;
       size_t ni = 0;
       if (prim.indices >= 0) {
@@ -516,6 +593,8 @@ class GltfLoader {
   const GltfRequest& req_;
   const JobLimits& limits_;
   const tinygltf::Model& model_;
+  const FsContext& fs_;
+  std::map<std::pair<int, bool>, std::shared_ptr<const TexelGrid>> texels_;  // (image, sRGB) -> decoded
   std::vector<uint32_t> materials_;
   uint32_t default_material_ = UINT32_MAX;
   bool camera_found_ = false;
@@ -559,7 +638,7 @@ void load_gltf(Scene& scene, const GltfRequest& req, const AssetReader& read, co
   if (req.camera && std::holds_alternative<size_t>(*req.camera) && std::get<size_t>(*req.camera) >= model.cameras.size()) {
     throw SpecError(req.camera_pointer, fmt::format("the glTF has {} camera(s)", model.cameras.size()));
   }
-  GltfLoader(scene, req, limits, model).run();
+  GltfLoader(scene, req, limits, model, ctx).run();
 }
 
 }  // namespace tally

@@ -1,6 +1,7 @@
 #include "common/lighting/light_set.hpp"
 
 #include "common/lighting/scene_bounds.hpp"
+#include "common/lighting/texture.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -40,10 +41,10 @@ double area_to_solid_angle(double pdf_area, const Vec3& x, const Vec3& p, const 
 }
 }  // namespace
 
-Rgb emitted(const Scene& scene, uint32_t shape, const Vec3& n, const Vec3& w) {
+Rgb emitted(const Scene& scene, uint32_t shape, const Vec3& n, const Vec3& w, Vec2 uv) {
   const Material& m = scene.materials[scene.shapes[shape].material];
   if (!m.emits()) return {};
-  if (m.two_sided || dot(n, w) > 0) return m.emission;
+  if (m.two_sided || dot(n, w) > 0) return textured_emission(scene, m, uv);
   return {};
 }
 
@@ -145,6 +146,7 @@ LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1,
   const double select = l.pick;
   const Shape& s = scene_.shapes[l.shape];
   double pdf_solid = 0;
+  Vec2 uv{};  // texture coordinates of the light point (meshes with uvs)
   if (s.type == ShapeType::sphere && outside_sphere(s, x)) {
     const Vec3 to_c = s.center - x;
     const double dc = length(to_c);
@@ -188,6 +190,10 @@ LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1,
         const TrianglePointSample ts = sample_triangle_point(a, b, c, {u1, u2});
         if (!(ts.pdf > 0)) return out;
         out.p = ts.p;
+        if (!s.uvs.empty()) {
+          const Vec2 &ta = s.uvs[tri[0]], &tb = s.uvs[tri[1]], &tc = s.uvs[tri[2]];
+          uv = {ta.x * ts.b[0] + tb.x * ts.b[1] + tc.x * ts.b[2], ta.y * ts.b[0] + tb.y * ts.b[1] + tc.y * ts.b[2]};
+        }
         const Vec3 nn = cross(b - a, c - a);
         const double len = length(nn);
         if (!(len > 0)) return out;
@@ -204,7 +210,7 @@ LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1,
     pdf_solid = pdf_area * d2 / cos_l;
   }
   out.dist = length(out.p - x);
-  out.le = emitted(scene_, l.shape, out.n, -out.wi);
+  out.le = emitted(scene_, l.shape, out.n, -out.wi, uv);
   out.pdf = pdf_solid * select;
   if (!std::isfinite(out.pdf)) out.pdf = 0;
   return out;

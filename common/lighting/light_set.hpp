@@ -91,7 +91,8 @@ class LightSet {
 // channel so that a pure-blue light keeps a fair share).
 double light_power_radiance(const Rgb& radiance);
 
-// Emitted radiance of `shape` at a point with normal n towards direction w (unit).
-Rgb emitted(const Scene& scene, uint32_t shape, const Vec3& n, const Vec3& w);
+// Emitted radiance of `shape` at a point with normal n towards direction w (unit), at
+// texture coordinates uv (an emissive texture multiplies the emission there).
+Rgb emitted(const Scene& scene, uint32_t shape, const Vec3& n, const Vec3& w, Vec2 uv = {});
 
 }  // namespace tally

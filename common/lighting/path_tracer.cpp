@@ -6,6 +6,7 @@
 
 #include "common/lighting/pixel_sampler.hpp"
 #include "common/lighting/ray_offset.hpp"
+#include "common/lighting/texture.hpp"
 
 namespace tally {
 
@@ -31,6 +32,7 @@ Vertex PathTracer::vertex_at(const Hit& hit, const Vec3& d) const {
     v.has_ns = true;
     v.ns = dot(hit.ns, v.n) < 0 ? -hit.ns : hit.ns;  // on wo's side, whatever the winding
   }
+  v.uv = hit.uv;
   return v;
 }
 
@@ -39,8 +41,9 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
   Rgb L{};
   Rgb beta{1, 1, 1};
   const bool nee = s.strategy == Strategy::light_area || s.strategy == Strategy::mis;
+  Material scratch;  // the vertex's material with its textures applied (texture.hpp)
   for (int bounce = 0;; ++bounce) {
-    const Material& m = scene_.materials[v.material];
+    const Material& m = textured_material(scene_, v.material, v.uv, scratch);
     if (!m.reflects() && !plan_.full) break;
     const uint32_t d0 = dim0 + kDimsPerVertex * static_cast<uint32_t>(bounce);
     const Vec3 origin = offset_ray_origin(v.p, v.n);
@@ -150,7 +153,7 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
     }
     if (plan_.emission && (counts_emission || plan_.full)) {
       c.add(LightingCounter::emission_lookups);
-      const Rgb le = emitted(scene_, hit->shape, hit->n, -ds.wi);
+      const Rgb le = emitted(scene_, hit->shape, hit->n, -ds.wi, hit->uv);
       if (!is_black(le) && counts_emission) {
         // The light pdf of the direction ds.wi at v.p, where light samples are drawn from,
         // not pdf_hit(v.p, hit): the hit was found by a ray from the offset origin o, and
@@ -191,7 +194,7 @@ Rgb PathTracer::camera(const Vec3& o, const Vec3& d, const PathSettings& s, cons
   Rgb L{};
   if (plan_.emission) {
     c.add(LightingCounter::emission_lookups);
-    L += emitted(scene_, hit->shape, hit->n, -d);
+    L += emitted(scene_, hit->shape, hit->n, -d, hit->uv);
   }
   L += reflected(vertex_at(*hit, d), s, rng, dim0, c);
   return L;

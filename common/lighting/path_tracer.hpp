@@ -34,6 +34,7 @@ struct Vertex {
   // and the cosines use it; directions below the geometric horizon get nothing.
   bool has_ns = false;
   Vec3 ns{};
+  Vec2 uv{};  // texture coordinates (meshes with uvs): textured materials are looked up here
 };
 
 struct PathSettings {

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "common/lighting/texture.hpp"
 #include "common/math/vec3.hpp"
 
 namespace tally {
@@ -39,7 +40,15 @@ struct Material {
   double metallic = 0.0;
   double roughness = 1.0;
   std::string name;
+  // Image textures (indices into Scene::textures, -1: none), looked up at the hit's
+  // texture coordinates by textured_material (texture.hpp), which multiplies them in.
+  int32_t base_color_texture = -1;          // albedo or base_color x RGB (sRGB file)
+  int32_t metallic_roughness_texture = -1;  // roughness x G, metallic x B (linear file)
+  int32_t emission_texture = -1;            // emission x RGB (sRGB file)
 
+  bool textured() const {
+    return base_color_texture >= 0 || metallic_roughness_texture >= 0 || emission_texture >= 0;
+  }
   // Any material may emit (glTF emissive materials reflect too); the JSON "emissive"
   // type is a Lambertian reflector with an emission.
   bool emits() const { return !is_black(emission); }
@@ -115,6 +124,10 @@ struct Scene {
   std::vector<Shape> shapes;
   std::vector<DeltaLight> delta_lights;
   std::optional<Rgb> sky;
+  // Textures the materials name; their texels are shared (a file used by several
+  // textures is decoded once) and immutable (texture.hpp).
+  std::vector<Texture> textures;
+  uint64_t texture_bytes = 0;  // decoded texels of all textures, each grid counted once
   Vec3 origin{};  // world position of the local origin (see above)
   size_t triangle_count() const {
     size_t n = 0;
