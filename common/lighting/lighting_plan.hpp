@@ -22,6 +22,8 @@ struct LightingScenePlan {
   uint64_t delta_lights = 0;
   std::vector<std::string> dropped_zero_area_lights;
   Vec3 local_origin;
+  uint64_t textures = 0;       // image textures the materials use
+  uint64_t texture_bytes = 0;  // their decoded texels (JobLimits::max_texture_bytes caps it)
 };
 
 struct LightingImagePlan {

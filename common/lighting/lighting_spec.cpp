@@ -116,6 +116,9 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
       rp.n = read_direction(pr, "n");
       rp.wo = pr.has("wo") ? read_direction(pr, "wo") : rp.n;
       rp.material = parse_material_ref(pr.at("material"), pr.pointer_of("material"), scene);
+      if (scene.materials[rp.material].textured()) {
+        throw SpecError(pr.pointer_of("material"), "has textures; a query point has no texture coordinates");
+      }
       pr.finish();
       pq.point_materials.push_back(rp.material);
       raw.push_back(rp);
@@ -158,6 +161,8 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
                                   : "sample variance, Student t with n - 1 dof";
   const Vec3 origin = scene.origin;
   lp.scene.triangles = scene.triangle_count();
+  lp.scene.textures = scene.textures.size();
+  lp.scene.texture_bytes = scene.texture_bytes;
   lp.scene.local_origin = origin;
   std::shared_ptr<const CompiledScene> cs = CompiledScene::build(std::move(scene), std::move(plan));
   lp.scene.shapes = cs->scene.shapes.size();

@@ -1,6 +1,7 @@
 #include "common/lighting/scene_json.hpp"
 
 #include "common/lighting/asset_resolver.hpp"
+#include "common/lighting/texture.hpp"
 #include "common/sampling/safe_math.hpp"
 
 #include <fmt/format.h>
@@ -110,11 +111,9 @@ Rgb mtl_rgb(const tinyobj::real_t* v) {
 
 // An .mtl material as a tally material (docs/lighting.md, "OBJ materials"): Kd -> the
 // Lambertian albedo, Ks + Ns -> a normalised Phong lobe, Ke -> emission; where Kd + Ks
-// exceeds 1 both are scaled down so the material cannot create energy.
-Material mtl_material(const tinyobj::material_t& t, const std::string& name, const std::string& pointer) {
-  if (!t.diffuse_texname.empty()) {
-    throw SpecError(pointer, fmt::format("material \"{}\": map_Kd textures are not supported yet", t.name));
-  }
+// exceeds 1 both are scaled down so the material cannot create energy. map_Kd (read by
+// the caller) multiplies the albedo.
+Material mtl_material(const tinyobj::material_t& t, const std::string& name) {
   Material m;
   m.name = name;
   Rgb kd = mtl_rgb(t.diffuse), ks = mtl_rgb(t.specular);
@@ -135,6 +134,45 @@ Material mtl_material(const tinyobj::material_t& t, const std::string& name, con
   }
   m.emission = ke;
   return m;
+}
+
+// The map_Kd texture of an .mtl material as an index into scene.textures (-1: none).
+// The file is named relative to the OBJ's directory and read through `read` (the same
+// checks as every asset); it is decoded as sRGB unless "-colorspace linear"; "-clamp on"
+// clamps to the edge, otherwise it repeats. Other options are refused.
+int32_t mtl_texture(const tinyobj::material_t& t, const std::string& dir, const std::string& pointer,
+                    const AssetReader& read, const JobLimits& limits, Scene& scene) {
+  if (t.diffuse_texname.empty()) return -1;
+  const tinyobj::texture_option_t& o = t.diffuse_texopt;
+  const std::string what = fmt::format("material \"{}\": map_Kd \"{}\"", t.name, t.diffuse_texname);
+  if (o.origin_offset[0] != 0 || o.origin_offset[1] != 0 || o.origin_offset[2] != 0 || o.scale[0] != 1 ||
+      o.scale[1] != 1 || o.scale[2] != 1 || o.turbulence[0] != 0 || o.turbulence[1] != 0 || o.turbulence[2] != 0 ||
+      o.brightness != 0 || o.contrast != 1) {
+    throw SpecError(pointer, what + ": the options -o, -s, -t and -mm are not supported");
+  }
+  if (!o.colorspace.empty() && o.colorspace != "sRGB" && o.colorspace != "linear") {
+    throw SpecError(pointer, what + fmt::format(": unknown -colorspace \"{}\" (sRGB or linear)", o.colorspace));
+  }
+  const bool srgb = o.colorspace != "linear";
+  const std::string bytes = [&] {
+    try {
+      return read(dir + t.diffuse_texname, pointer);
+    } catch (const SpecError& e) {
+      throw SpecError(pointer, fmt::format("{}: {}", what, e.detail()));
+    }
+  }();
+  const uint64_t left = limits.max_texture_bytes > scene.texture_bytes ? limits.max_texture_bytes - scene.texture_bytes : 0;
+  Texture tex;
+  try {
+    tex.texels = decode_texels(bytes, srgb, left / kTexelBytes);
+  } catch (const std::exception& e) {
+    throw SpecError(pointer, fmt::format("{}: cannot be used as a texture: {}", what, e.what()));
+  }
+  tex.wrap_s = tex.wrap_t = o.clamp ? TextureWrap::clamp_to_edge : TextureWrap::repeat;
+  scene.texture_bytes += tex.texels->bytes();
+  if (scene.textures.size() >= 4096) throw SpecError(pointer, "too many textures (limit 4096)");
+  scene.textures.push_back(std::move(tex));
+  return static_cast<int32_t>(scene.textures.size() - 1);
 }
 
 // Loads an OBJ into one shape per material. With `material` set (the scene names one)
@@ -172,6 +210,8 @@ std::vector<Shape> load_obj(const std::string& relative, const std::string& poin
   // Faces grouped by OBJ material (-1: none), in order of first use.
   std::vector<int> group_ids;
   std::vector<std::vector<std::array<uint32_t, 3>>> groups;
+  std::vector<std::vector<std::array<int, 3>>> group_vt;  // vt indices of the same faces (-1: none)
+  const size_t nvt = attrib.texcoords.size() / 2;
   size_t total = 0;
   for (const auto& shape : reader.GetShapes()) {
     const auto& idx = shape.mesh.indices;
@@ -180,24 +220,32 @@ std::vector<Shape> load_obj(const std::string& relative, const std::string& poin
     }
     for (size_t f = 0; f + 2 < idx.size(); f += 3) {
       std::array<uint32_t, 3> t{};
+      std::array<int, 3> vt{};
       for (size_t k = 0; k < 3; ++k) {
         const int vi = idx[f + k].vertex_index;
         if (vi < 0 || static_cast<size_t>(vi) >= nv) throw SpecError(pointer, "OBJ index out of range");
         t[k] = static_cast<uint32_t>(vi);
+        const int ti = idx[f + k].texcoord_index;
+        if (ti >= 0 && static_cast<size_t>(ti) >= nvt) throw SpecError(pointer, "OBJ texture coordinate index out of range");
+        vt[k] = ti;
       }
       const int mid = material ? -1 : (f / 3 < shape.mesh.material_ids.size() ? shape.mesh.material_ids[f / 3] : -1);
       auto it = std::find(group_ids.begin(), group_ids.end(), mid);
       if (it == group_ids.end()) {
         group_ids.push_back(mid);
         groups.emplace_back();
+        group_vt.emplace_back();
         it = group_ids.end() - 1;
       }
       groups[static_cast<size_t>(it - group_ids.begin())].push_back(t);
+      group_vt[static_cast<size_t>(it - group_ids.begin())].push_back(vt);
       ++total;
     }
   }
   if (total == 0) throw SpecError(pointer, "OBJ file has no triangles");
   const auto& mats = reader.GetMaterials();
+  const auto slash = relative.find_last_of('/');
+  const std::string dir = slash == std::string::npos ? std::string() : relative.substr(0, slash + 1);
   std::vector<Shape> out;
   for (size_t g = 0; g < groups.size(); ++g) {
     Shape s;
@@ -211,8 +259,39 @@ std::vector<Shape> load_obj(const std::string& relative, const std::string& poin
         throw SpecError(pointer, "some OBJ faces have no .mtl material (no usemtl, or an unknown one) and the shape names no \"material\"");
       }
       if (scene.materials.size() >= 4096) throw SpecError(pointer, "too many materials (limit 4096)");
-      scene.materials.push_back(mtl_material(mats[static_cast<size_t>(mid)], relative + "#" + mats[static_cast<size_t>(mid)].name, pointer));
+      const tinyobj::material_t& mt = mats[static_cast<size_t>(mid)];
+      Material m = mtl_material(mt, relative + "#" + mt.name);
+      m.base_color_texture = mtl_texture(mt, dir, pointer, read, limits, scene);
+      scene.materials.push_back(std::move(m));
       s.material = static_cast<uint32_t>(scene.materials.size() - 1);
+    }
+    if (scene.materials[s.material].textured()) {
+      // One vertex per distinct (v, vt) pair, so each carries its texture coordinates.
+      // OBJ's v runs up the image, glTF's (and tally's) down: v -> 1 - v.
+      std::map<std::pair<uint32_t, int>, uint32_t> seen;
+      for (size_t f = 0; f < groups[g].size(); ++f) {
+        for (size_t k = 0; k < 3; ++k) {
+          const int ti = group_vt[g][f][k];
+          if (ti < 0) {
+            throw SpecError(pointer, fmt::format("material \"{}\" has a texture, but face {} of its faces has no vt",
+                                                 scene.materials[s.material].name, f));
+          }
+          const auto key = std::make_pair(groups[g][f][k], ti);
+          auto [it, fresh] = seen.emplace(key, static_cast<uint32_t>(s.vertices.size()));
+          if (fresh) {
+            s.vertices.push_back(verts[key.first]);
+            s.uvs.push_back({attrib.texcoords[2 * static_cast<size_t>(ti)],
+                             1.0 - static_cast<double>(attrib.texcoords[2 * static_cast<size_t>(ti) + 1])});
+          }
+          groups[g][f][k] = it->second;
+        }
+      }
+      for (const Vec2& uv : s.uvs) {
+        if (!std::isfinite(uv.x) || !std::isfinite(uv.y)) throw SpecError(pointer, "OBJ texture coordinates must be finite");
+      }
+      s.triangles = std::move(groups[g]);
+      out.push_back(std::move(s));
+      continue;
     }
     // Every group keeps all vertices (simple; Embree ignores unreferenced ones).
     add_triangle_mesh(s, g + 1 == groups.size() ? std::move(verts) : verts, std::move(groups[g]));
@@ -271,6 +350,7 @@ std::vector<Shape> parse_shape(SpecReader r, Scene& scene, const JobLimits& limi
                                            triangles_so_far, s.material, scene);
       s.vertices = std::move(shapes[0].vertices);
       s.triangles = std::move(shapes[0].triangles);
+      s.uvs = std::move(shapes[0].uvs);
     } else {
       const nlohmann::json& vj = r.at("vertices");
       const nlohmann::json& ij = r.at("indices");
@@ -500,6 +580,12 @@ Scene parse_scene(SpecReader& r, const JobLimits& limits) {
         if (scene.shapes.size() >= 65536) throw SpecError(sp, "too many shapes (limit 65536)");
         scene.shapes.push_back(std::move(s));
       }
+    }
+  }
+  for (const Shape& s : scene.shapes) {
+    if (scene.materials[s.material].textured() && s.uvs.empty()) {
+      throw SpecError(s.pointer, fmt::format("material \"{}\" has textures, but the shape has no texture coordinates",
+                                             scene.materials[s.material].name));
     }
   }
   if (const nlohmann::json* lj = r.find("lights")) {

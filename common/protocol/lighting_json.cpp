@@ -27,6 +27,9 @@ json lighting_plan_json(const LightingPlan& p) {
                        {"local_origin", vec_json(p.scene.local_origin)}}},
             {"channels", p.channels},
             {"channel_layout", p.channel_layout}};
+  if (p.scene.textures > 0) {  // absent without textures (older plans keep their bytes)
+    j["scene"]["textures"] = {{"count", p.scene.textures}, {"decoded_bytes", p.scene.texture_bytes}};
+  }
   const PassSchedule& s = p.pass_schedule;
   if (p.image) {
     j["pass_schedule"] = {{"spp_first_pass", s.first_pass_samples},
