@@ -115,7 +115,11 @@ int decode(const unsigned char* bytes, size_t size, const char* format, uint64_t
                                                           : std::string(format) == "openexr" ? "exr"
                                                                                             : format);
         OIIO::Filesystem::IOMemReader proxy(bytes, size);
-        auto in = OIIO::ImageInput::open(name, nullptr, &proxy);
+        OIIO::ImageSpec config;
+        config.attribute("oiio:UnassociatedAlpha", 1);  // the stored colours, never premultiplied by alpha
+        OIIO::Filesystem::IOProxy* proxy_ptr = &proxy;  // with a config, the reader takes the proxy from it
+        config.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &proxy_ptr);
+        auto in = OIIO::ImageInput::open(name, &config, &proxy);
         if (!in) throw std::runtime_error("cannot decode the " + std::string(format) + " image: " + OIIO::geterror());
         const OIIO::ImageSpec& spec = in->spec();
         if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth != 1) {
