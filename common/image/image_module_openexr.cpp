@@ -203,15 +203,18 @@ int decode(const unsigned char* bytes, size_t size, const char* format, uint64_t
           throw std::runtime_error("the image has " + std::to_string(image.width) + "x" + std::to_string(image.height) +
                                    " pixels, more than the limit of " + std::to_string(max_pixels));
         }
-        image.format = PNG_FORMAT_RGB;
+        // RGBA keeps colours as stored (8-bit output is never premultiplied); without an
+        // alpha channel in the request libpng would composite onto black.
+        const bool alpha = (image.format & PNG_FORMAT_FLAG_ALPHA) != 0;
+        image.format = alpha ? PNG_FORMAT_RGBA : PNG_FORMAT_RGB;
         std::vector<unsigned char> px(PNG_IMAGE_SIZE(image));
         if (!png_image_finish_read(&image, nullptr, px.data(), 0, nullptr)) {
           const std::string m = image.message;
           png_image_free(&image);
           throw std::runtime_error("cannot decode the png image: " + m);
         }
-        const tally_decoded_image out{static_cast<int32_t>(image.width), static_cast<int32_t>(image.height), 3, 8,
-                                      px.data()};
+        const tally_decoded_image out{static_cast<int32_t>(image.width), static_cast<int32_t>(image.height),
+                                      alpha ? 4 : 3, 8, px.data()};
         receive(receive_context, &out);
       },
       error, error_context);
