@@ -4,6 +4,7 @@
 #include <openssl/evp.h>
 #include <unistd.h>
 
+#include <cstring>
 #include <fstream>
 #include <sstream>
 
@@ -37,6 +38,98 @@ std::string read_file(const fs::path& p) {
   return ss.str();
 }
 
+std::string directory_of(const std::string& name) {
+  const auto slash = name.find_last_of('/');
+  return slash == std::string::npos ? std::string() : name.substr(0, slash + 1);
+}
+
+// The lines of `text` that start with `keyword` (then a blank), without the keyword.
+std::vector<std::string> keyword_lines(const std::string& text, std::string_view keyword) {
+  std::vector<std::string> out;
+  std::istringstream in(text);
+  std::string line;
+  while (std::getline(in, line)) {
+    const size_t b = line.find_first_not_of(" \t");
+    if (b == std::string::npos || line.compare(b, keyword.size(), keyword) != 0) continue;
+    const size_t rest = b + keyword.size();
+    if (rest >= line.size() || (line[rest] != ' ' && line[rest] != '\t')) continue;
+    std::string tail = line.substr(rest);
+    while (!tail.empty() && (tail.back() == '\r' || tail.back() == ' ' || tail.back() == '\t')) tail.pop_back();
+    out.push_back(tail);
+  }
+  return out;
+}
+
+std::vector<std::string> words(const std::string& s) {
+  std::vector<std::string> out;
+  std::istringstream in(s);
+  for (std::string w; in >> w;) out.push_back(w);
+  return out;
+}
+
+// The files a scene file itself names, as the compiler's reader will ask for them: a
+// glTF's buffer and image URIs (not data: URIs; relative to the glTF's directory, or
+// "sha256:" references), an OBJ's mtllib files and their map_Kd textures (relative to the
+// OBJ's directory). Unreadable or malformed files name nothing here: the compiler reports
+// them (the server compiled the job at submit with the same files).
+std::vector<std::string> named_by(const std::string& field, const std::string& name, const std::string& bytes,
+                                  const JobLimits& limits, const std::string& pointer) {
+  std::vector<std::string> out;
+  const std::string dir = directory_of(name);
+  auto add = [&](const std::string& ref) {
+    if (ref.empty() || ref.rfind("data:", 0) == 0) return;
+    out.push_back(looks_like_asset_ref(ref) ? ref : dir + ref);
+  };
+  if (field == "file") {
+    std::string_view text = bytes;
+    if (bytes.size() >= 20 && bytes.compare(0, 4, "glTF") == 0) {  // .glb: the JSON chunk
+      uint32_t len = 0;
+      std::memcpy(&len, bytes.data() + 12, 4);
+      text = std::string_view(bytes).substr(20, len);
+    }
+    const json doc = json::parse(text, nullptr, false);
+    if (!doc.is_object()) return out;
+    for (const char* list : {"buffers", "images"}) {
+      const auto it = doc.find(list);
+      if (it == doc.end() || !it->is_array()) continue;
+      for (const json& e : *it) {
+        if (e.is_object() && e.contains("uri") && e["uri"].is_string()) add(e["uri"].get<std::string>());
+      }
+    }
+  } else if (field == "obj") {
+    for (const std::string& libs : keyword_lines(bytes, "mtllib")) {
+      for (const std::string& lib : words(libs)) {
+        const std::string mtl_name = dir + lib;
+        out.push_back(mtl_name);
+        std::string mtl;
+        try {
+          mtl = read_scene_file(mtl_name, limits, pointer);
+        } catch (const std::exception&) {
+          continue;
+        }
+        for (const std::string& map : keyword_lines(mtl, "map_Kd")) {
+          const std::vector<std::string> w = words(map);  // options first, the file last
+          if (!w.empty()) add(w.back());
+        }
+      }
+    }
+  }
+  return out;
+}
+
+void add_file(const std::string& name, const std::string& pointer, const JobLimits& limits,
+              std::map<std::string, JobAsset>& out) {
+  if (out.count(name)) return;
+  JobAsset a;
+  try {
+    a.bytes = read_scene_file(name, limits, pointer);
+  } catch (const std::exception&) {
+    return;  // the compiler names it
+  }
+  a.sha256 = sha256_hex(a.bytes);
+  out.emplace(name, std::move(a));
+}
+
 void walk(const json& j, const std::string& pointer, const JobLimits& limits, std::map<std::string, JobAsset>& out) {
   if (j.is_string()) {
     const std::string& name = j.get_ref<const std::string&>();
@@ -44,6 +137,8 @@ void walk(const json& j, const std::string& pointer, const JobLimits& limits, st
     JobAsset a;
     a.bytes = read_scene_file(name, limits, pointer);  // same rule as the compiler
     a.sha256 = sha256_hex(a.bytes);
+    const std::string field = pointer.substr(pointer.find_last_of('/') + 1);
+    for (const std::string& dep : named_by(field, name, a.bytes, limits, pointer)) add_file(dep, pointer, limits, out);
     out.emplace(name, std::move(a));
   } else if (j.is_object()) {
     for (const auto& [k, v] : j.items()) {
@@ -54,6 +149,7 @@ void walk(const json& j, const std::string& pointer, const JobLimits& limits, st
         JobAsset a;
         a.bytes = read_file(resolve_scene_file(rel, limits, p));
         a.sha256 = sha256_hex(a.bytes);
+        for (const std::string& dep : named_by(k, rel, a.bytes, limits, p)) add_file(dep, p, limits, out);
         out.emplace(rel, std::move(a));
       } else {
         walk(v, p, limits, out);

@@ -23,9 +23,12 @@ struct JobAsset {
 std::string sha256_hex(std::string_view bytes);
 
 // name -> asset, for every file the spec names: a relative path in a file field ("obj",
-// "map") read from asset_dir, or a "sha256:<hex>" string anywhere, read from the asset
-// store (both through resolve_scene_file, the compiler's own rule). Throws (SpecError
-// or std::runtime_error) when a file cannot be read.
+// "map", "file") read from asset_dir, or a "sha256:<hex>" string anywhere, read from the
+// asset store (both through resolve_scene_file, the compiler's own rule), and the files
+// those name in turn: a glTF's external buffers and images, an OBJ's .mtl libraries and
+// their map_Kd textures (each by the name the compiler will ask for; skipped when it
+// cannot be read: the worker's compiler then names it). Throws (SpecError or
+// std::runtime_error) when a file the spec names cannot be read.
 std::map<std::string, JobAsset> collect_assets(const nlohmann::json& spec, const std::string& asset_dir,
                                                const std::string& asset_store = {});
 // {"name": "sha256", ...}

@@ -4,6 +4,7 @@
 // server for images), through killed, stalled and late workers, a killed coordinator,
 // a restarted Redis, cancel and extend, and a block that fails on every worker.
 #include <gtest/gtest.h>
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 
 #include <bit>
@@ -12,6 +13,7 @@
 #include <fstream>
 #include <thread>
 
+#include "../gltf/gltf_writer.hpp"
 #include "cluster_process.hpp"
 #include "common/engine/local_executor.hpp"
 #include "common/jobs/job_factory.hpp"
@@ -415,6 +417,69 @@ TEST(Cluster, ObjAssetsReachWorkersWithoutASharedDirectory) {
   EXPECT_TRUE(fs::exists(tmp.path / "cache1" / "blobs" / sha));
 }
 
+
+// An 8-bit RGB PNG written with OpenImageIO.
+std::string png_bytes(int w, int h, const std::vector<uint8_t>& rgb) {
+  std::vector<unsigned char> buf;
+  OIIO::Filesystem::IOVecOutput proxy(buf);
+  auto out = OIIO::ImageOutput::create("t.png", &proxy);
+  OIIO::ImageSpec spec(w, h, 3, OIIO::TypeDesc::UINT8);
+  out->open("t.png", spec);
+  out->write_image(OIIO::TypeDesc::UINT8, rgb.data());
+  out->close();
+  return {buf.begin(), buf.end()};
+}
+
+// Textures (issue 16): the files an OBJ and a glTF name themselves (.mtl + map_Kd; the
+// glTF's external .bin and .png) are shipped by hash with the file the spec names.
+TEST(Cluster, TexturesAndFilesNamedInsideSceneFilesReachWorkers) {
+  TempDir tmp;
+  const fs::path assets = tmp.path / "assets";
+  fs::create_directories(assets / "m" / "tex");
+  fs::create_directories(assets / "g");
+  std::vector<uint8_t> px;
+  for (int i = 0; i < 64; ++i) px.insert(px.end(), {uint8_t(i * 4), uint8_t(255 - i * 2), 100});
+  std::ofstream(assets / "m" / "tex" / "ramp.png", std::ios::binary) << png_bytes(8, 8, px);
+  std::ofstream(assets / "m" / "quad.obj") << "mtllib quad.mtl\nv -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\n"
+                                           << "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl ramp\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n";
+  std::ofstream(assets / "m" / "quad.mtl") << "newmtl ramp\nKd 1 1 1\nmap_Kd -clamp on tex/ramp.png\n";
+  test::GltfWriter g;
+  g.doc["images"] = {{{"uri", "side.png"}}};
+  g.doc["textures"] = {{{"source", 0}}};
+  const int mat = g.material({{"pbrMetallicRoughness", {{"baseColorTexture", {{"index", 0}}}, {"metallicFactor", 0.0}}}});
+  g.node({{"mesh", g.mesh({-1, -1, -0.5, 1, -1, -0.5, 1, 1, -0.5}, {0, 1, 2}, mat, {}, {0, 0, 1, 0, 1, 1})},
+          {"translation", {1.5, 0, 0}}});
+  g.save_gltf(assets / "g", "side");
+  std::ofstream(assets / "g" / "side.png", std::ios::binary) << png_bytes(8, 8, px);
+  const json spec = {
+      {"kind", "lighting"}, {"seed", 4}, {"sampler", "sobol"},
+      {"scene", {{"camera", {{"position", {0, 0, 2}}, {"look_at", {0, 0, 0}}, {"resolution", {8, 8}}}},
+                 {"shapes", json::array({{{"type", "mesh"}, {"obj", "m/quad.obj"}}, {{"type", "gltf"}, {"file", "g/side.gltf"}}})},
+                 {"lights", json::array({{{"type", "directional"}, {"direction", {0.2, 0.1, 1}}, {"irradiance", {3, 3, 3}}}})}}},
+      {"query", {{"type", "image"}, {"max_depth", 2}, {"tile_size", 8}}},
+      {"estimators", {"mis"}}, {"stop", {{"max_samples", 8}}}};
+  JobLimits limits;
+  limits.asset_dir = assets.string();
+  const json expected = local_bits(spec, 0, limits);
+
+  RedisServer redis(tmp.path);
+  std::vector<std::string> flags = cluster_flags(redis);
+  flags.insert(flags.end(), {"--asset-dir", assets.string()});
+  ServerProcess server(tmp.path / "data", flags);
+  WorkerProcess w1(redis.url(), "w1", tmp.path, 1, {"--cache-dir", (tmp.path / "cache1").string()});
+  HttpClient c = server.client();
+  wait_until([&] { return live_workers(c) == 1; }, 20, "a worker");
+  const std::string id = submit(c, spec);
+  const json s = wait_state(c, id, "succeeded", 60);
+  EXPECT_EQ(s.at("bits"), expected);
+  // Each named file is in the worker's job directory under the name the compiler asks for.
+  size_t linked = 0;
+  for (const auto& e : fs::recursive_directory_iterator(tmp.path / "cache1" / "jobs")) {
+    const std::string name = e.path().filename().string();
+    linked += name == "quad.mtl" || name == "ramp.png" || name == "side.bin" || name == "side.png";
+  }
+  EXPECT_EQ(linked, 4u);
+}
 
 // ---------------------------------------------------------------- guarantees that need
 // injected faults: tally-test-worker (tests/cluster/fault_worker_main.cpp) wraps the
