@@ -158,7 +158,8 @@ void ceiling(const std::string& url, size_t max_entry_blocks, size_t passes, siz
 
 int main(int argc, char** argv) {
   const int rounds = argc > 1 ? std::atoi(argv[1]) : 9;
-  const std::string only = argc > 2 ? argv[2] : "";  // "reclaim": part 3 alone
+  // "reclaim": part 3 alone; "lighting": the lighting image overhead alone.
+  const std::string only = argc > 2 ? argv[2] : "";
   TempDir tmp;
   const fs::path sock = tmp.path / "r.sock";
   const pid_t redis = spawn_logged({"redis-server", "--port", "0", "--unixsocket", sock.string(), "--save", "", "--appendonly",
@@ -169,14 +170,14 @@ int main(int argc, char** argv) {
   int rc = 0;
   std::vector<pid_t> pids;
   try {
-    if (only.empty()) {
+    if (only.empty() || only == "lighting") {
     // 1. Overhead at equal cores.
     ServerProcess in_process(tmp.path / "a", {"--checkpoint-interval", "0.5"});
     ServerProcess cluster(tmp.path / "b", {"--redis", url, "--checkpoint-interval", "0.5"});
     pids.push_back(worker(url, "bench", 2, tmp.path));
     std::this_thread::sleep_for(1500ms);
     HttpClient ca = in_process.client(), cb = cluster.client();
-    overhead("integration (unit disk, 4e8 samples)", disk_spec(400'000'000, 1), ca, cb, rounds);
+    if (only.empty()) overhead("integration (unit disk, 4e8 samples)", disk_spec(400'000'000, 1), ca, cb, rounds);
     std::ifstream in(std::string(TALLY_SOURCE_DIR) + "/examples/lecture_lighting_image.json");
     json image = json::parse(in);
     image["stop"] = {{"max_samples", 256}};
@@ -186,7 +187,8 @@ int main(int argc, char** argv) {
     cluster.terminate();
     reap(pids.back());
     pids.pop_back();
-
+    }
+    if (only.empty()) {
     // 2. Coordinator ceiling (its own Redis database; one worker process, 2 threads).
     const std::string url1 = url + "?db=1";
     pids.push_back(worker(url1, "ceiling", 2, tmp.path));
@@ -194,6 +196,11 @@ int main(int argc, char** argv) {
     ceiling(url1, 4096, 10, 20000);
     reap(pids.back());
     pids.pop_back();
+    }
+    if (only == "lighting") {
+      for (pid_t p : pids) reap(p);
+      reap(redis);
+      return 0;
     }
 
     // 3. Reclaim latency after kill -9, lease 1 s.

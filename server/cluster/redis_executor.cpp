@@ -20,6 +20,9 @@ double unix_seconds() {
   return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
+// Milliseconds since `t`, for the pass-boundary latency lines (debug level).
+double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+
 // Live workers: a heartbeat within this many leases (at least 10 s).
 double worker_timeout_s(std::chrono::milliseconds lease) {
   return std::max(10.0, 3.0 * static_cast<double>(lease.count()) / 1000.0);
@@ -222,6 +225,7 @@ void RedisExecutor::step() {
   // Wait briefly for a completed pass (the store script pushes the job id).
   std::vector<std::string> notified;
   const RValue r = conn_->cmd({"BLPOP", kNotify, "0.05"});
+  notified_at_ = Clock::now();
   if (r.is_array() && r.elems.size() == 2) {
     notified.push_back(r.elems[1].str);
     for (int i = 0; i < 1000; ++i) {
@@ -324,6 +328,7 @@ void RedisExecutor::publish(Job& job) {
   {
     std::lock_guard lock(mu_);
     job.entry_blocks = std::max<size_t>(1, largest);
+    job.entry_count = entries.size();
   }
   // The whole pass in one round trip (the pass boundary is the coordinator's only
   // serial latency: workers idle until this lands).
@@ -443,9 +448,14 @@ void RedisExecutor::merge(const std::string& id) {
   const std::string r = pass_key('r', id, job->run, pass.pass);
   conn_->append({"HGETALL", r});
   conn_->append({"HMGET", job_key(id), "compute_s", "computed"});
+  const auto t_read = Clock::now();
   const RValue all = conn_->get_reply();
   const RValue m = conn_->get_reply();
   if (all.type == RValue::Type::error) throw RedisReplyError("HGETALL: " + all.str);
+  const double read_ms = ms_since(t_read);
+  const auto t_decode = Clock::now();
+  size_t result_bytes = 0;
+  for (size_t i = 1; i < all.elems.size(); i += 2) result_bytes += all.elems[i].str.size();
   std::vector<BlockResult> results(n);
   std::vector<bool> seen(n, false);
   std::string error;
@@ -480,6 +490,7 @@ void RedisExecutor::merge(const std::string& id) {
     leave(id, true, error);
     return;
   }
+  const double decode_ms = ms_since(t_decode);
   const double wall = std::chrono::duration<double>(Clock::now() - job->pass_start).count();
   {
     try {
@@ -513,7 +524,10 @@ void RedisExecutor::merge(const std::string& id) {
     counters_.merged += n;
     samples_done_ += samples;
   }
+  const auto t_merge = Clock::now();
+  const uint64_t pass_no = pass.pass;
   PassWork next = cb_.pass_done(id, pass, std::move(results), wall);
+  const double merge_ms = ms_since(t_merge);
   bool leave_now = false;
   {
     std::lock_guard lock(mu_);
@@ -533,7 +547,15 @@ void RedisExecutor::merge(const std::string& id) {
     std::lock_guard lock(mu_);
     jobs_.erase(id);
   } else if (!job->cancel_requested) {
+    const auto t_publish = Clock::now();
     publish(*job);
+    // One line per pass boundary: where the coordinator's serial time goes.
+    log::job(log::Level::debug, id,
+             "pass {} ({} blocks, {} result bytes): noticed {:.3f} ms after BLPOP returned, read {:.3f} ms, decode "
+             "{:.3f} ms, merge {:.3f} ms, publish {:.3f} ms ({} entries), boundary {:.3f} ms; at unix {:.6f}",
+             pass_no, n, result_bytes, std::chrono::duration<double, std::milli>(t_read - notified_at_).count(), read_ms,
+             decode_ms, merge_ms, ms_since(t_publish), job->entry_count,
+             std::chrono::duration<double, std::milli>(Clock::now() - notified_at_).count(), unix_seconds());
   }
 }
 

@@ -87,6 +87,7 @@ class RedisExecutor final : public Executor {
     ExecutorStats::JobBlocks blocks;
     double block_seconds = 0;  // workers' measured compute time per block
     size_t entry_blocks = 1;   // blocks per stream entry in the current pass
+    size_t entry_count = 0;    // stream entries of the current pass
   };
 
   void loop();
@@ -108,6 +109,7 @@ class RedisExecutor final : public Executor {
   bool first_connect_ = true;
   uint64_t generation_ = 0;
   std::chrono::steady_clock::time_point last_poll_{}, last_refresh_{};
+  std::chrono::steady_clock::time_point notified_at_{};  // the last BLPOP's return (latency lines)
 
   mutable std::mutex mu_;
   std::condition_variable cv_;
