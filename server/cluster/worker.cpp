@@ -394,7 +394,11 @@ class Worker {
     const std::string n = std::to_string(meta->n);
     const std::string secs_s = fmt::format("{:.9f}", secs);
     std::vector<std::string_view> args = {slot, entry_id, sk->run, n, sk->id, secs_s};
+    std::vector<std::string> digests;
+    digests.reserve(results.size());
+    for (const auto& r : results) digests.push_back(result_digest(r));
     for (const auto& r : results) args.push_back(r);
+    for (const auto& d : digests) args.push_back(d);
     size_t bytes = 0;
     for (const auto& r : results) bytes += r.size();
     const auto t_store = Clock::now();

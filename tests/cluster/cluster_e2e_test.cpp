@@ -502,7 +502,8 @@ TEST(Cluster, DifferingDuplicateFailsTheJobLoudly) {
   const std::string pass = rest.substr(c2 + 1);
   const std::string n = rc.cmd({"HGET", "tally:p:" + rest, "n"}).str;
   const auto r = rc.cmd({"EVAL", cluster::kStoreScript, "6", rkey, "tally:s:" + rest, "tally:job:" + id,
-                         "tally:d:" + rest, "tally:counters", "tally:notify", slot, "0-1", run, n, id, "0", bytes});
+                         "tally:d:" + rest, "tally:counters", "tally:notify", slot, "0-1", run, n, id, "0", bytes,
+                         cluster::result_digest(bytes)});
   ASSERT_EQ(r.elems.size(), 4u);
   EXPECT_EQ(r.elems[2].integer, 1) << "the script did not see the difference";
   const json s = wait_state(c, id, "failed", 30);
