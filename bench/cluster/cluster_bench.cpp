@@ -212,7 +212,7 @@ void ceiling(const std::string& url, size_t max_entry_blocks, size_t passes, siz
 
 int main(int argc, char** argv) {
   const int rounds = argc > 1 ? std::atoi(argv[1]) : 9;
-  // "reclaim": part 3 alone; "lighting": the lighting image overhead alone.
+  // "reclaim": part 3 alone; "lighting" / "integration": that overhead alone.
   const std::string only = argc > 2 ? argv[2] : "";
   TempDir tmp;
   const fs::path sock = tmp.path / "r.sock";
@@ -224,7 +224,7 @@ int main(int argc, char** argv) {
   int rc = 0;
   std::vector<pid_t> pids;
   try {
-    if (only.empty() || only == "lighting") {
+    if (only.empty() || only == "lighting" || only == "integration") {
     // 1. Overhead at equal cores.
     ServerProcess in_process(tmp.path / "a", {"--checkpoint-interval", "0.5"});
     ServerProcess cluster(tmp.path / "b", {"--redis", url, "--checkpoint-interval", "0.5"});
@@ -232,14 +232,14 @@ int main(int argc, char** argv) {
     std::this_thread::sleep_for(1500ms);
     HttpClient ca = in_process.client(), cb = cluster.client();
     const std::vector<pid_t> pids_a = {in_process.pid()}, pids_b = {cluster.pid(), pids.back(), redis};
-    if (only.empty()) {
+    if (only.empty() || only == "integration") {
       overhead("integration (unit disk, 4e8 samples)", disk_spec(400'000'000, 1), ca, cb, rounds, pids_a, pids_b);
     }
     std::ifstream in(std::string(TALLY_SOURCE_DIR) + "/examples/lecture_lighting_image.json");
     json image = json::parse(in);
     image["stop"] = {{"max_samples", 256}};
     image["query"].erase("adaptive");
-    overhead("lighting image (128x96, 256 spp)", image, ca, cb, rounds, pids_a, pids_b);
+    if (only != "integration") overhead("lighting image (128x96, 256 spp)", image, ca, cb, rounds, pids_a, pids_b);
     in_process.terminate();
     cluster.terminate();
     reap(pids.back());
@@ -254,7 +254,7 @@ int main(int argc, char** argv) {
     reap(pids.back());
     pids.pop_back();
     }
-    if (only == "lighting") {
+    if (only == "lighting" || only == "integration") {
       for (pid_t p : pids) reap(p);
       reap(redis);
       return 0;
