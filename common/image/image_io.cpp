@@ -155,6 +155,37 @@ std::string encode_png(const ImageSnapshot& im) {
   return out;
 }
 
+namespace {
+void take_pixels(void* context, int32_t width, int32_t height, const float* rgb) {
+  auto* out = static_cast<DecodedImage*>(context);
+  out->width = width;
+  out->height = height;
+  out->rgb.assign(rgb, rgb + 3 * static_cast<size_t>(width) * static_cast<size_t>(height));
+}
+}  // namespace
+
+DecodedImage decode_hdr_image(std::string_view bytes, uint64_t max_pixels) {
+  const char* format = nullptr;
+  if (bytes.size() >= 4 && static_cast<unsigned char>(bytes[0]) == 0x76 && static_cast<unsigned char>(bytes[1]) == 0x2f &&
+      static_cast<unsigned char>(bytes[2]) == 0x31 && static_cast<unsigned char>(bytes[3]) == 0x01) {
+    format = "exr";
+  } else if (bytes.size() >= 2 && bytes[0] == '#' && bytes[1] == '?') {
+    format = "hdr";
+  } else {
+    throw std::runtime_error("not an OpenEXR or Radiance .hdr image (neither magic number found)");
+  }
+  const tally_image_api& a = api();
+  DecodedImage out;
+  std::string error;
+  if (a.decode_rgb(bytes.data(), bytes.size(), format, max_pixels, &take_pixels, &out, &append_to_string, &error) != 0) {
+    throw std::runtime_error(error);
+  }
+  if (out.width <= 0 || out.height <= 0 || out.rgb.size() != 3 * static_cast<size_t>(out.width) * static_cast<size_t>(out.height)) {
+    throw std::runtime_error("the image module returned no pixels");
+  }
+  return out;
+}
+
 void write_image_files(const ImageSnapshot& image, const nlohmann::json& metadata,
                        const std::filesystem::path& exr_path, const std::filesystem::path& png_path) {
   if (!exr_path.empty()) write_file(exr_path, encode_exr(image, metadata));
