@@ -12,8 +12,6 @@
 #include <nlohmann/json.hpp>
 #include <stdexcept>
 #include <string>
-#include <string_view>
-#include <vector>
 
 #include "common/engine/image_source.hpp"
 
@@ -44,19 +42,6 @@ double srgb_oetf(double linear);
 void write_image_files(const ImageSnapshot& image, const nlohmann::json& metadata,
                        const std::filesystem::path& exr_path,
                        const std::filesystem::path& png_path);
-
-// A decoded image: linear RGB floats as stored in the file, row-major from the top row.
-struct DecodedImage {
-  int width = 0, height = 0;
-  std::vector<float> rgb;  // 3 * width * height
-};
-
-// Decodes an OpenEXR or Radiance .hdr (RGBE) image held in `bytes`; the format is told by
-// its first bytes (EXR magic 76 2f 31 01, Radiance "#?"), not by a file name, so stored
-// assets named by hash decode too. 1-2 channels read as grey, 3 or more as their first
-// three (alpha ignored). Throws ImageModuleUnavailable, or std::runtime_error saying what
-// is wrong with the data (unknown format, more than `max_pixels` pixels, corrupt file).
-DecodedImage decode_hdr_image(std::string_view bytes, uint64_t max_pixels);
 
 // Path of the loaded image module, and what it is built on ("OpenImageIO 2.4.7", "OpenEXR
 // 3.1.5 + libpng 1.6.39"). Both load it; both throw ImageModuleUnavailable.

@@ -20,9 +20,14 @@ struct tally_image_view {
 // Receives output bytes (or an error message); may be called several times.
 typedef void (*tally_image_sink)(void* context, const char* data, size_t size);
 
-// Receives a decoded image: width x height pixels of 3 floats (R, G, B), row-major from
-// the top row; called once.
-typedef void (*tally_image_pixels_sink)(void* context, int32_t width, int32_t height, const float* rgb);
+// A decoded image as the file stores it (no colour conversion): `channels` values a
+// pixel, rows from the top, `bits` 8 or 16 (unsigned integers, uint8_t / uint16_t) or 32
+// (float). Valid only during the call of the receiver.
+struct tally_decoded_image {
+  int32_t width, height, channels, bits;
+  const void* pixels;
+};
+typedef void (*tally_image_receiver)(void* context, const tally_decoded_image* image);
 
 // Every function returns 0 on success; otherwise it has written a message to `error`.
 struct tally_image_api {
@@ -35,12 +40,11 @@ struct tally_image_api {
   // 8-bit sRGB PNG of the means (already clamped and encoded by the caller: 3 bytes a pixel).
   int (*encode_png_rgb8)(int32_t width, int32_t height, const unsigned char* rgb8, tally_image_sink out,
                          void* out_context, tally_image_sink error, void* error_context);
-  // Decodes the image in `data` (`format`: "exr" or "hdr", Radiance RGBE) to linear float
-  // RGB as stored (no colour conversion): 1 or 2 channels -> grey in R, G and B; 3 or more
-  // -> the first three (R, G, B; alpha ignored). The data window is the image. Refuses
-  // images of more than `max_pixels` pixels before reading their pixels.
-  int (*decode_rgb)(const char* data, size_t size, const char* format, uint64_t max_pixels,
-                    tally_image_pixels_sink out, void* out_context, tally_image_sink error, void* error_context);
+  // Decodes an encoded file held in memory (PNG, JPEG, ...; `format` names it: "png",
+  // "jpeg", "openexr", "hdr"). Refuses images of more than `max_pixels` pixels before
+  // decoding their pixels. Calls `receive` once on success.
+  int (*decode)(const unsigned char* bytes, size_t size, const char* format, uint64_t max_pixels,
+                tally_image_receiver receive, void* receive_context, tally_image_sink error, void* error_context);
 };
 
 // The module's one exported symbol.
@@ -49,6 +53,6 @@ const tally_image_api* tally_image_module_api(void);
 }  // extern "C"
 
 namespace tally {
-inline constexpr uint32_t kTallyImageAbiVersion = 2;  // 2: decode_rgb
+inline constexpr uint32_t kTallyImageAbiVersion = 2;  // 2: decode
 inline constexpr const char* kTallyImageModuleSymbol = "tally_image_module_api";
 }  // namespace tally

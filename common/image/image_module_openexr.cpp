@@ -9,8 +9,8 @@
 #include <OpenEXR/ImfFrameBuffer.h>
 #include <OpenEXR/ImfHeader.h>
 #include <OpenEXR/ImfIO.h>
-#include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/ImfInputFile.h>
+#include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/ImfStandardAttributes.h>
 #include <OpenEXR/ImfStringAttribute.h>
 #include <OpenEXR/OpenEXRConfig.h>
@@ -186,11 +186,9 @@ int encode_png_rgb8(int32_t width, int32_t height, const unsigned char* rgb8, ta
 // An OpenEXR input stream over bytes in memory.
 class MemoryInput : public Imf::IStream {
  public:
-  MemoryInput(const char* data, size_t size) : Imf::IStream("memory"), data_(data), size_(size) {}
+  MemoryInput(const unsigned char* data, size_t size) : Imf::IStream("memory"), data_(data), size_(size) {}
   bool read(char c[], int n) override {
-    if (n < 0 || pos_ > size_ || static_cast<size_t>(n) > size_ - pos_) {
-      throw std::runtime_error("the EXR data ends early");
-    }
+    if (n < 0 || pos_ > size_ || static_cast<size_t>(n) > size_ - pos_) throw std::runtime_error("the EXR data ends early");
     std::memcpy(c, data_ + pos_, static_cast<size_t>(n));
     pos_ += static_cast<size_t>(n);
     return pos_ < size_;
@@ -199,59 +197,90 @@ class MemoryInput : public Imf::IStream {
   void seekg(uint64_t pos) override { pos_ = static_cast<size_t>(pos); }
 
  private:
-  const char* data_;
+  const unsigned char* data_;
   size_t size_;
   size_t pos_ = 0;
 };
 
-int decode_rgb(const char* data, size_t size, const char* format, uint64_t max_pixels, tally_image_pixels_sink out,
-               void* out_context, tally_image_sink error, void* error_context) {
+// OpenEXR (environment maps): R, G, B as 32-bit floats (half and uint channels converted
+// by OpenEXR), 3 channels; a file without R, G and B gives its Y channel (or its first)
+// as 1 channel. The data window is the image.
+void decode_exr(const unsigned char* bytes, size_t size, uint64_t max_pixels, tally_image_receiver receive,
+                void* receive_context) {
+  MemoryInput stream(bytes, size);
+  Imf::InputFile file(stream, 1);
+  const Imath::Box2i dw = file.header().dataWindow();
+  const int64_t w = static_cast<int64_t>(dw.max.x) - dw.min.x + 1, h = static_cast<int64_t>(dw.max.y) - dw.min.y + 1;
+  if (w <= 0 || h <= 0) throw std::runtime_error("the image has no pixels or is not a 2-D image");
+  if (static_cast<uint64_t>(w) * static_cast<uint64_t>(h) > max_pixels) {
+    throw std::runtime_error("the image has " + std::to_string(w) + "x" + std::to_string(h) +
+                             " pixels, more than the limit of " + std::to_string(max_pixels));
+  }
+  const Imf::ChannelList& ch = file.header().channels();
+  const bool rgb = ch.findChannel("R") && ch.findChannel("G") && ch.findChannel("B");
+  const char* grey = rgb ? nullptr : (ch.findChannel("Y") ? "Y" : (ch.begin() != ch.end() ? ch.begin().name() : nullptr));
+  if (!rgb && grey == nullptr) throw std::runtime_error("the image has no channels");
+  const size_t nc = rgb ? 3 : 1;
+  const size_t n = static_cast<size_t>(w) * static_cast<size_t>(h);
+  std::vector<float> px(nc * n, 0.0f);
+  const size_t xs = nc * sizeof(float), ys = xs * static_cast<size_t>(w);
+  const std::ptrdiff_t origin = static_cast<std::ptrdiff_t>(dw.min.x) * static_cast<std::ptrdiff_t>(xs) +
+                                static_cast<std::ptrdiff_t>(dw.min.y) * static_cast<std::ptrdiff_t>(ys);
+  static const char* const names[3] = {"R", "G", "B"};
+  Imf::FrameBuffer fb;
+  for (size_t c = 0; c < nc; ++c) {
+    fb.insert(rgb ? names[c] : grey, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(px.data() + c) - origin, xs, ys));
+  }
+  file.setFrameBuffer(fb);
+  file.readPixels(dw.min.y, dw.max.y);
+  const tally_decoded_image out{static_cast<int32_t>(w), static_cast<int32_t>(h), static_cast<int32_t>(nc), 32, px.data()};
+  receive(receive_context, &out);
+}
+
+// PNG (libpng's simplified API, 8 bits a channel; 16-bit files are reduced to 8 bits by
+// libpng) and OpenEXR (decode_exr). Other formats need the OpenImageIO module.
+int decode(const unsigned char* bytes, size_t size, const char* format, uint64_t max_pixels,
+           tally_image_receiver receive, void* receive_context, tally_image_sink error, void* error_context) {
   return guarded(
       [&] {
-        const std::string fmt(format);
-        if (fmt == "hdr") {
-          throw std::runtime_error("Radiance .hdr images need the OpenImageIO image module; this one is built on OpenEXR (convert the map to EXR)");
+        if (std::string(format) == "openexr") {
+          decode_exr(bytes, size, max_pixels, receive, receive_context);
+          return;
         }
-        if (fmt != "exr") throw std::runtime_error("cannot decode format \"" + fmt + "\"");
-        MemoryInput stream(data, size);
-        Imf::InputFile file(stream, 1);
-        const Imath::Box2i dw = file.header().dataWindow();
-        const int64_t w = static_cast<int64_t>(dw.max.x) - dw.min.x + 1, h = static_cast<int64_t>(dw.max.y) - dw.min.y + 1;
-        if (w <= 0 || h <= 0) throw std::runtime_error("the image has no pixels");
-        if (static_cast<uint64_t>(w) * static_cast<uint64_t>(h) > max_pixels) {
-          throw std::runtime_error("the image has " + std::to_string(w) + "x" + std::to_string(h) +
+        if (std::string(format) != "png") {
+          throw std::runtime_error(std::string("this image module (OpenEXR + libpng) decodes PNG and OpenEXR only, not ") +
+                                   format + "; build the OpenImageIO module (-DTALLY_IMAGE_BACKEND=oiio)");
+        }
+        png_image image{};
+        image.version = PNG_IMAGE_VERSION;
+        if (!png_image_begin_read_from_memory(&image, bytes, size)) {
+          throw std::runtime_error(std::string("cannot decode the png image: ") + image.message);
+        }
+        const uint64_t pixels = static_cast<uint64_t>(image.width) * static_cast<uint64_t>(image.height);
+        if (pixels == 0 || pixels > max_pixels) {
+          png_image_free(&image);
+          throw std::runtime_error("the image has " + std::to_string(image.width) + "x" + std::to_string(image.height) +
                                    " pixels, more than the limit of " + std::to_string(max_pixels));
         }
-        // R, G, B as 32-bit float (half and uint channels are converted by OpenEXR); a
-        // luminance-only image (Y) is grey, as the OpenImageIO module reads one channel.
-        const Imf::ChannelList& ch = file.header().channels();
-        const bool rgb_present = ch.findChannel("R") && ch.findChannel("G") && ch.findChannel("B");
-        const char* grey = rgb_present ? nullptr : (ch.findChannel("Y") ? "Y" : (ch.begin() != ch.end() ? ch.begin().name() : nullptr));
-        if (!rgb_present && grey == nullptr) throw std::runtime_error("the image has no channels");
-        const size_t n = static_cast<size_t>(w) * static_cast<size_t>(h);
-        std::vector<float> rgb(3 * n, 0.0f);
-        const size_t xs = 3 * sizeof(float), ys = xs * static_cast<size_t>(w);
-        const std::ptrdiff_t origin = static_cast<std::ptrdiff_t>(dw.min.x) * static_cast<std::ptrdiff_t>(xs) +
-                                      static_cast<std::ptrdiff_t>(dw.min.y) * static_cast<std::ptrdiff_t>(ys);
-        Imf::FrameBuffer fb;
-        static const char* const names[3] = {"R", "G", "B"};
-        for (size_t c = 0; c < 3; ++c) {
-          char* base = reinterpret_cast<char*>(rgb.data() + c) - origin;
-          fb.insert(rgb_present ? names[c] : grey, Imf::Slice(Imf::FLOAT, base, xs, ys));
-          if (!rgb_present) break;
+        // RGBA keeps colours as stored (8-bit output is never premultiplied); without an
+        // alpha channel in the request libpng would composite onto black.
+        const bool alpha = (image.format & PNG_FORMAT_FLAG_ALPHA) != 0;
+        image.format = alpha ? PNG_FORMAT_RGBA : PNG_FORMAT_RGB;
+        std::vector<unsigned char> px(PNG_IMAGE_SIZE(image));
+        if (!png_image_finish_read(&image, nullptr, px.data(), 0, nullptr)) {
+          const std::string m = image.message;
+          png_image_free(&image);
+          throw std::runtime_error("cannot decode the png image: " + m);
         }
-        file.setFrameBuffer(fb);
-        file.readPixels(dw.min.y, dw.max.y);
-        if (!rgb_present) {
-          for (size_t i = 0; i < n; ++i) rgb[3 * i + 1] = rgb[3 * i + 2] = rgb[3 * i];
-        }
-        out(out_context, static_cast<int32_t>(w), static_cast<int32_t>(h), rgb.data());
+        const tally_decoded_image out{static_cast<int32_t>(image.width), static_cast<int32_t>(image.height),
+                                      alpha ? 4 : 3, 8, px.data()};
+        receive(receive_context, &out);
       },
       error, error_context);
 }
 
 constexpr tally_image_api kApi{tally::kTallyImageAbiVersion, "OpenEXR " OPENEXR_VERSION_STRING " + libpng " PNG_LIBPNG_VER_STRING,
-                               &encode_exr, &encode_png_rgb8, &decode_rgb};
+                               &encode_exr, &encode_png_rgb8, &decode};
 
 }  // namespace
 

@@ -1,6 +1,6 @@
 #include "common/lighting/scene_json.hpp"
 
-#include "common/image/image_io.hpp"
+#include "common/image/image_decode.hpp"
 #include "common/lighting/asset_resolver.hpp"
 #include "common/lighting/environment_map.hpp"
 #include "common/sampling/safe_math.hpp"
@@ -480,15 +480,29 @@ void parse_sky(SpecReader& l, Scene& scene, const JobLimits& limits) {
   const double intensity = l.number_or("intensity", 1.0, 0.0, 1e12);
   const double rotation = l.number_or("rotation_deg", 0.0, -360.0, 360.0);
   const std::string bytes = read_scene_file(name, limits, map_ptr);
+  auto refuse = [&](const std::string& why) { return SpecError(map_ptr, fmt::format("environment map \"{}\": {}", name, why)); };
+  const std::optional<std::string> format = sniff_image_format(bytes);
+  if (!format || (*format != "openexr" && *format != "hdr")) {
+    throw refuse(fmt::format("not an OpenEXR or Radiance .hdr image{} (an environment map holds linear HDR radiance)",
+                             format ? ", a " + *format + " file" : ""));
+  }
   DecodedImage im;
   try {
-    im = decode_hdr_image(bytes, kMaxEnvironmentTexels);
+    im = decode_image(bytes, kMaxEnvironmentTexels);
   } catch (const std::runtime_error& e) {
-    throw SpecError(map_ptr, fmt::format("environment map \"{}\": {}", name, e.what()));
+    throw refuse(e.what());
+  }
+  // R, G, B from the first three channels (alpha and others ignored); 1-2 channels: grey.
+  const size_t n = static_cast<size_t>(im.width) * static_cast<size_t>(im.height);
+  const size_t nc = static_cast<size_t>(im.channels);
+  if (im.bits != 32 || nc == 0 || im.floats.size() != n * nc) throw refuse("the image module returned no float pixels");
+  std::vector<float> rgb(3 * n);
+  for (size_t i = 0; i < n; ++i) {
+    for (size_t c = 0; c < 3; ++c) rgb[3 * i + c] = im.floats[nc * i + (nc >= 3 ? c : 0)];
   }
   std::shared_ptr<const EnvironmentMap> env;
   try {
-    env = std::make_shared<const EnvironmentMap>(im.width, im.height, im.rgb, intensity, rotation);
+    env = std::make_shared<const EnvironmentMap>(im.width, im.height, rgb, intensity, rotation);
   } catch (const std::invalid_argument& e) {
     throw SpecError(map_ptr, fmt::format("environment map \"{}\": {}", name, e.what()));
   }

@@ -10,6 +10,7 @@
 #include <iostream>
 #include <limits>
 
+#include "common/image/image_decode.hpp"
 #include "common/image/image_io.hpp"
 #include "common/lighting/environment_map.hpp"
 #include "common/lighting/light_set.hpp"
@@ -30,17 +31,20 @@ TEST(EnvLightDecode, ExrFloatsRoundTripExactly) {
   write_image(dir.path / "m.exr", 6, 3, rgb);
   std::ifstream f(dir.path / "m.exr", std::ios::binary);
   const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  const DecodedImage im = decode_hdr_image(bytes, 1000);
+  EXPECT_EQ(sniff_image_format(bytes), "openexr");
+  const DecodedImage im = decode_image(bytes, 1000);
   EXPECT_EQ(im.width, 6);
   EXPECT_EQ(im.height, 3);
-  ASSERT_EQ(im.rgb.size(), rgb.size());
-  for (size_t i = 0; i < rgb.size(); ++i) EXPECT_EQ(im.rgb[i], rgb[i]) << i;  // 32-bit float, bit for bit
+  EXPECT_EQ(im.channels, 3);
+  EXPECT_EQ(im.bits, 32);
+  ASSERT_EQ(im.floats.size(), rgb.size());
+  for (size_t i = 0; i < rgb.size(); ++i) EXPECT_EQ(im.floats[i], rgb[i]) << i;  // 32-bit float, bit for bit
   // Over the pixel limit: refused before the pixels are read.
-  EXPECT_THROW(decode_hdr_image(bytes, 17), std::runtime_error);
+  EXPECT_THROW(decode_image(bytes, 17), std::runtime_error);
   // Not an image; a truncated one.
-  EXPECT_THROW(decode_hdr_image("P6 not an hdr", 1000), std::runtime_error);
-  EXPECT_THROW(decode_hdr_image(bytes.substr(0, bytes.size() / 2), 1000), std::runtime_error);
-  EXPECT_THROW(decode_hdr_image("", 1000), std::runtime_error);
+  EXPECT_THROW(decode_image("P6 not an hdr", 1000), std::runtime_error);
+  EXPECT_THROW(decode_image(bytes.substr(0, bytes.size() / 2), 1000), std::runtime_error);
+  EXPECT_THROW(decode_image("", 1000), std::runtime_error);
 }
 
 TEST(EnvLightDecode, RadianceHdrDecodesWithTheOpenImageIoModule) {
@@ -49,22 +53,25 @@ TEST(EnvLightDecode, RadianceHdrDecodesWithTheOpenImageIoModule) {
   write_image(dir.path / "m.hdr", 2, 2, rgb);
   std::ifstream f(dir.path / "m.hdr", std::ios::binary);
   const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(sniff_image_format(bytes), "hdr");
   if (image_module_backend().rfind("OpenImageIO", 0) != 0) {
     try {
-      decode_hdr_image(bytes, 100);
+      decode_image(bytes, 100);
       FAIL() << "the OpenEXR module decoded an .hdr";
     } catch (const std::runtime_error& e) {
-      EXPECT_NE(std::string(e.what()).find("need the OpenImageIO image module"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("decodes PNG and OpenEXR only, not hdr"), std::string::npos) << e.what();
     }
     return;
   }
-  const DecodedImage im = decode_hdr_image(bytes, 100);
+  const DecodedImage im = decode_image(bytes, 100);
   ASSERT_EQ(im.width, 2);
   ASSERT_EQ(im.height, 2);
+  ASSERT_EQ(im.channels, 3);
+  ASSERT_EQ(im.floats.size(), 12u);
   // RGBE keeps 8 mantissa bits per pixel's largest channel: within 1/128 of that channel.
   for (size_t p = 0; p < 4; ++p) {
     const float peak = std::max({rgb[3 * p], rgb[3 * p + 1], rgb[3 * p + 2]});
-    for (size_t c = 0; c < 3; ++c) EXPECT_NEAR(im.rgb[3 * p + c], rgb[3 * p + c], static_cast<double>(peak) / 128.0) << p << " " << c;
+    for (size_t c = 0; c < 3; ++c) EXPECT_NEAR(im.floats[3 * p + c], rgb[3 * p + c], static_cast<double>(peak) / 128.0) << p << " " << c;
   }
 }
 
@@ -489,6 +496,17 @@ TEST(EnvLight, BadInputsNameTheField) {
   EXPECT_NE(msg.find("not an OpenEXR or Radiance"), std::string::npos) << msg;
   std::ofstream(dir.path / "text.exr") << "hello";
   EXPECT_EQ(error_of(spec(sky_map("text.exr")), lim, &msg), map_ptr) << msg;
+  write_image(dir.path / "ldr.png", 8, 4, constant_rgb(8, 4, 0.5f, 0.5f, 0.5f));  // 8-bit: not radiance
+  EXPECT_EQ(error_of(spec(sky_map("ldr.png")), lim, &msg), map_ptr);
+  EXPECT_NE(msg.find("not an OpenEXR or Radiance .hdr image, a png file"), std::string::npos) << msg;
+  std::string exr_bytes;
+  write_image(dir.path / "cut_src.exr", 16, 8, constant_rgb(16, 8, 1, 2, 3));
+  {
+    std::ifstream f(dir.path / "cut_src.exr", std::ios::binary);
+    exr_bytes.assign((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  }
+  std::ofstream(dir.path / "cut.exr", std::ios::binary) << exr_bytes.substr(0, exr_bytes.size() / 2);
+  EXPECT_EQ(error_of(spec(sky_map("cut.exr")), lim, &msg), map_ptr) << msg;  // truncated: the decoder's error
   write_image(dir.path / "square.exr", 8, 8, constant_rgb(8, 8, 1, 1, 1));
   EXPECT_EQ(error_of(spec(sky_map("square.exr")), lim, &msg), map_ptr);
   EXPECT_NE(msg.find("2:1"), std::string::npos) << msg;
