@@ -14,7 +14,7 @@ namespace tally {
 // The file's values as stored, without colour conversion: `channels` values a pixel,
 // rows from the top. 8- and 16-bit files give integer codes in `codes` (0..255 or
 // 0..65535, `bits` 8 or 16); float files (EXR, HDR) give `floats` (`bits` 32).
-struct DecodedPixels {
+struct DecodedImage {
   int width = 0, height = 0, channels = 0, bits = 0;
   std::vector<uint16_t> codes;
   std::vector<float> floats;
@@ -28,6 +28,6 @@ std::optional<std::string> sniff_image_format(std::string_view bytes);
 // ImageModuleUnavailable (image_io.hpp) without the module, std::runtime_error when the
 // file is not an image of that format, or has more than `max_pixels` pixels (checked
 // before its pixels are decoded).
-DecodedPixels decode_image(std::string_view bytes, uint64_t max_pixels);
+DecodedImage decode_image(std::string_view bytes, uint64_t max_pixels);
 
 }  // namespace tally

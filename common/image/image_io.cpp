@@ -167,7 +167,7 @@ std::optional<std::string> sniff_image_format(std::string_view b) {
 
 namespace {
 void receive_decoded(void* context, const tally_decoded_image* im) {
-  auto* out = static_cast<DecodedPixels*>(context);
+  auto* out = static_cast<DecodedImage*>(context);
   out->width = im->width;
   out->height = im->height;
   out->channels = im->channels;
@@ -186,11 +186,11 @@ void receive_decoded(void* context, const tally_decoded_image* im) {
 }
 }  // namespace
 
-DecodedPixels decode_image(std::string_view bytes, uint64_t max_pixels) {
+DecodedImage decode_image(std::string_view bytes, uint64_t max_pixels) {
   const auto format = sniff_image_format(bytes);
   if (!format) throw std::runtime_error("not a PNG, JPEG, OpenEXR or Radiance HDR file");
   const tally_image_api& a = api();
-  DecodedPixels out;
+  DecodedImage out;
   std::string error;
   if (a.decode(reinterpret_cast<const unsigned char*>(bytes.data()), bytes.size(), format->c_str(), max_pixels,
                &receive_decoded, &out, &append_to_string, &error) != 0) {

@@ -16,7 +16,7 @@ double srgb_eotf(double c) {
   return c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4);
 }
 
-std::shared_ptr<const TexelGrid> make_texels(const DecodedPixels& im, bool srgb) {
+std::shared_ptr<const TexelGrid> make_texels(const DecodedImage& im, bool srgb) {
   if (im.width <= 0 || im.height <= 0 || im.channels <= 0) throw std::runtime_error("the image has no pixels");
   const size_t n = static_cast<size_t>(im.width) * static_cast<size_t>(im.height);
   const size_t nc = static_cast<size_t>(im.channels);

@@ -21,7 +21,7 @@
 
 namespace tally {
 
-struct DecodedPixels;
+struct DecodedImage;
 struct Material;
 struct Scene;
 using Rgb = Vec3;
@@ -50,7 +50,7 @@ double srgb_eotf(double encoded);
 // normalised (code / (2^bits - 1)) and, with `srgb`, decoded by srgb_eotf; float
 // files are taken as linear. Throws std::runtime_error on a non-finite or negative
 // float texel.
-std::shared_ptr<const TexelGrid> make_texels(const DecodedPixels& image, bool srgb);
+std::shared_ptr<const TexelGrid> make_texels(const DecodedImage& image, bool srgb);
 
 // Decodes an encoded file (PNG or JPEG; common/image) into texels of at most
 // `max_texels` texels. Throws std::runtime_error (what() says why) or
