@@ -4,15 +4,17 @@
 // estimate of the albedo against an independent uniform-hemisphere estimate of ∫ f cos.
 #include <gtest/gtest.h>
 
-#include <boost/math/distributions/chi_squared.hpp>
 #include <cmath>
 #include <vector>
 
 #include "common/lighting/bsdf.hpp"
 #include "common/rng/counter_rng.hpp"
+#include "support/chi_square.hpp"
 
 namespace tally {
 namespace {
+
+using test::chi_square_p;
 
 Material metal(double f0, double roughness) {
   Material m;
@@ -110,25 +112,6 @@ TEST(Ggx, SampledAlbedoMatchesUniformEstimate) {
       EXPECT_NEAR(a.mean, b.mean, 4.0 * std::hypot(a.se, b.se)) << "roughness " << r << " metallic " << m.metallic;
     }
   }
-}
-
-double chi_square_p(const std::vector<double>& observed, const std::vector<double>& expected) {
-  double chi2 = 0, pool_o = 0, pool_e = 0;
-  int dof = -1;
-  for (size_t i = 0; i < observed.size(); ++i) {
-    if (expected[i] < 5) {
-      pool_o += observed[i];
-      pool_e += expected[i];
-      continue;
-    }
-    chi2 += (observed[i] - expected[i]) * (observed[i] - expected[i]) / expected[i];
-    ++dof;
-  }
-  if (pool_e > 0) {
-    chi2 += (pool_o - pool_e) * (pool_o - pool_e) / pool_e;
-    ++dof;
-  }
-  return boost::math::cdf(boost::math::complement(boost::math::chi_squared(dof), chi2));
 }
 
 TEST(Ggx, ChiSquareSamplingAgainstPdf) {

@@ -2,14 +2,13 @@
 // sampling routines' direction distributions against the pdf that MIS uses.
 #include <gtest/gtest.h>
 
-#include <boost/math/distributions/chi_squared.hpp>
-
 #include "common/lighting/accel.hpp"
 #include "common/lighting/light_set.hpp"
 #include "common/lighting/scene_json.hpp"
 #include "common/rng/counter_rng.hpp"
 #include "common/sampling/safe_math.hpp"
 #include "lighting/lighting_test_support.hpp"
+#include "support/chi_square.hpp"
 
 namespace tally::test {
 namespace {
@@ -30,26 +29,6 @@ TEST(Statistical, CoverageOfTheInterval) {
   const double frac = static_cast<double>(covered) / seeds;
   EXPECT_GE(frac, 0.93);
   EXPECT_LE(frac, 0.97);
-}
-
-// Pearson chi-square with cells of expected count < 5 pooled; returns the p-value.
-double chi_square_p(const std::vector<double>& observed, const std::vector<double>& expected) {
-  double chi2 = 0, pool_o = 0, pool_e = 0;
-  int dof = -1;
-  for (size_t i = 0; i < observed.size(); ++i) {
-    if (expected[i] < 5) {
-      pool_o += observed[i];
-      pool_e += expected[i];
-      continue;
-    }
-    chi2 += (observed[i] - expected[i]) * (observed[i] - expected[i]) / expected[i];
-    ++dof;
-  }
-  if (pool_e > 0) {
-    chi2 += (pool_o - pool_e) * (pool_o - pool_e) / pool_e;
-    ++dof;
-  }
-  return boost::math::cdf(boost::math::complement(boost::math::chi_squared(dof), chi2));
 }
 
 Scene local_scene(const json& j) {
