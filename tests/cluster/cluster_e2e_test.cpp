@@ -516,7 +516,10 @@ TEST(Cluster, DifferingDuplicateFailsTheJobLoudly) {
   const std::string msg = s.value("error_message", "");
   EXPECT_NE(msg.find("non-determinism"), std::string::npos) << msg;
   EXPECT_NE(msg.find("slot " + slot), std::string::npos) << msg;
-  EXPECT_GE(metrics_counts(c).at("duplicates_different").get<uint64_t>(), 1u);
+  // The counts are refreshed twice a second: the failure can be seen before its count.
+  EXPECT_NO_THROW(wait_until([&] { return metrics_counts(c).at("duplicates_different").get<uint64_t>() >= 1; }, 30,
+                             "the differing duplicate to be counted"))
+      << metrics_counts(c).dump();
   // The failed job's keys are gone: no worker keeps computing it.
   wait_until([&] { return rc.cmd({"KEYS", "tally:[sprf]:" + id + ":*"}).elems.empty(); }, 5, "the job's keys to go");
 }
