@@ -5,13 +5,13 @@
 #include <SQLiteCpp/SQLiteCpp.h>
 
 #include <filesystem>
-#include <fstream>
 #include <map>
 
 #include <fmt/format.h>
 
 #include "server/jobs/sqlite_salvage.hpp"
 #include "server_test_support.hpp"
+#include "tests/support/sqlite_damage.hpp"
 
 namespace tally::test {
 namespace {
@@ -161,23 +161,9 @@ TEST(JobStore, DamagedStoreKeepsTheSalvagedJobsFacts) {
       saved[j.id] = j;
     }
   }
-  int64_t page_size = 0;
-  std::vector<int64_t> leaves;
-  {
-    SQLite::Database d(db.string(), SQLite::OPEN_READONLY);
-    page_size = d.execAndGet("PRAGMA page_size").getInt64();
-    SQLite::Statement q(d, "SELECT pageno FROM dbstat WHERE name = 'jobs' AND pagetype = 'leaf' ORDER BY pageno");
-    while (q.executeStep()) leaves.push_back(q.getColumn(0).getInt64());
-  }
-  ASSERT_GE(leaves.size(), 3u) << "the jobs table should span several pages";
-  {
-    // Overwrite the b-tree header and cell pointers of a leaf page in the middle.
-    std::fstream f(db, std::ios::in | std::ios::out | std::ios::binary);
-    f.seekp((leaves[leaves.size() / 2] - 1) * page_size);
-    const std::string junk(64, '\xA5');
-    f.write(junk.data(), static_cast<std::streamsize>(junk.size()));
-    ASSERT_TRUE(f.good());
-  }
+  const DamagedPage damaged = damage_middle_jobs_leaf(db);
+  ASSERT_GE(damaged.leaves, 3u) << "the jobs table should span several pages";
+  ASSERT_TRUE(damaged.written);
   auto store = open_sqlite_store(dir.path.string());
   ASSERT_TRUE(store->damage()) << "the damaged page went unnoticed";
   const auto rows = store->load_all();
