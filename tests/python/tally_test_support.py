@@ -84,6 +84,15 @@ class Server:
         shutil.rmtree(self.dir, ignore_errors=True)
 
 
+def _shutdown(*socks: socket.socket) -> None:
+    """Shuts both directions of each socket down (a peer that has gone is fine)."""
+    for s in socks:
+        try:
+            s.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+
+
 class _LoopbackProxy:
     """A listener on 127.0.0.1 (an ephemeral port) whose accept thread hands every
     connection to `_serve` on a thread of its own; close() stops and joins them (bounded).
@@ -186,12 +195,9 @@ class CuttingProxy(_LoopbackProxy):
         except OSError:
             pass
         finally:
-            for s in (client, server):
-                try:
-                    s.shutdown(socket.SHUT_RDWR)
-                except OSError:
-                    pass
-                s.close()
+            _shutdown(client, server)
+            client.close()
+            server.close()
 
     def request_heads(self, needle: bytes) -> List[bytes]:
         with self._lock:
@@ -258,11 +264,7 @@ class TlsProxy(_LoopbackProxy):
             except OSError:
                 pass
             finally:
-                for s in (src, dst):
-                    try:
-                        s.shutdown(socket.SHUT_RDWR)
-                    except OSError:
-                        pass
+                _shutdown(src, dst)
 
         back = threading.Thread(target=pump, args=(server, client), daemon=True)
         back.start()
