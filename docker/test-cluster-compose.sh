@@ -16,11 +16,7 @@ here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 repo=$(cd "$here/.." && pwd)
 # shellcheck source=docker/test-lib.sh
 . "$here/test-lib.sh"
-use_shared_containers_conf "$repo"
-export TALLY_IMAGE=${TALLY_IMAGE:-localhost/tally:test}
-port=$(free_port "${TALLY_TEST_PORT:-18190}")
-export TALLY_PORT=$port
-unset TALLY_BIND
+compose_test_env "$repo" 18190
 project=tallycluster$$
 work=$(mktemp -d /tmp/tally-test-cluster-compose.XXXXXX)
 url=https://127.0.0.1:$port

@@ -13,11 +13,7 @@ here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 repo=$(cd "$here/.." && pwd)
 # shellcheck source=docker/test-lib.sh
 . "$here/test-lib.sh"
-use_shared_containers_conf "$repo"
-export TALLY_IMAGE=${TALLY_IMAGE:-localhost/tally:test}
-port=$(free_port "${TALLY_TEST_PORT:-18090}")
-export TALLY_PORT=$port
-unset TALLY_BIND
+compose_test_env "$repo" 18090
 project=tallycompose$$
 work=$(mktemp -d /tmp/tally-test-compose.XXXXXX)
 export DOCKER_HOST=unix://$work/podman.sock

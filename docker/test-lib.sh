@@ -32,6 +32,18 @@ free_port() {
   echo "$port"
 }
 
+# The environment docker/compose.yaml reads in the compose tests: CONTAINERS_CONF
+# (use_shared_containers_conf for the checkout $1), TALLY_IMAGE (default
+# localhost/tally:test) and TALLY_PORT, the first free port from TALLY_TEST_PORT or $2
+# (also set as `port`); TALLY_BIND unset (loopback).
+compose_test_env() {
+  use_shared_containers_conf "$1"
+  export TALLY_IMAGE=${TALLY_IMAGE:-localhost/tally:test}
+  port=$(free_port "${TALLY_TEST_PORT:-$2}")
+  export TALLY_PORT=$port
+  unset TALLY_BIND
+}
+
 # Copies the tally CLI out of image $1 to the file $2 (the host has its libraries).
 copy_cli_from_image() {
   local cid
