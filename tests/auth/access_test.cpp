@@ -241,7 +241,8 @@ TEST(Quotas, RunningAndQueuedJobsPerPrincipal) {
   const std::string bobs = a.submit_as(p.bob, fake_spec(kForever, 1));
   ASSERT_TRUE(wait_until([&] { return a.state(p.bob, bobs) == "running"; }));
   // A slot frees: the queued job runs.
-  EXPECT_EQ(a.as(p.alice, "DELETE", "/v1/jobs/" + first).status, 202);
+  const int cancel = a.as(p.alice, "DELETE", "/v1/jobs/" + first).status;
+  EXPECT_TRUE(cancel == 202 || cancel == 200) << cancel;  // 200: cancelled at once, between passes
   EXPECT_TRUE(wait_until([&] { return a.state(p.alice, second) == "running"; }));
   a.as(p.alice, "DELETE", "/v1/jobs/" + second);
   a.as(p.bob, "DELETE", "/v1/jobs/" + bobs);

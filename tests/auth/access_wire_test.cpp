@@ -326,7 +326,8 @@ TEST(Sighup, AddsAtOnceRevokesAtTheNextRequestAndClosesTheEventStream) {
   EXPECT_EQ(status.load(), 200);
   // Nothing else was dropped: the job runs on, the admin sees it.
   EXPECT_EQ(get_json(as_admin, "/v1/jobs/" + id).at("state"), "running");
-  EXPECT_EQ(as_admin.request("DELETE", "/v1/jobs/" + id).status, 202);
+  const int cancel = as_admin.request("DELETE", "/v1/jobs/" + id).status;
+  EXPECT_TRUE(cancel == 202 || cancel == 200) << cancel;  // 200: cancelled at once, between passes
   // A broken file keeps the previous principals.
   std::ofstream(file) << "{not json";
   server.signal(SIGHUP);

@@ -349,26 +349,38 @@ TEST(TevBridgeEndToEnd, ReconnectsWhenTevRestartsAndResendsTheImage) {
   json spec = example_spec();
   spec["seed"] = 3;
   spec["query"]["max_pass_spp"] = 2;
-  spec["stop"] = {{"time_budget_s", 4.0}};
+  // Runs until the test cancels it, after the restarted tev has been reached: a job
+  // that ended on its own (a time budget) could end before tev quit on a loaded
+  // machine, and then there was nothing to reconnect for.
+  spec["stop"] = {{"max_samples", uint64_t{100000000}}};
   const std::string id = submit(server, spec);
   const fs::path dir = temp_dir("tev-cli");
   Child cli(preview_argv(server, id, port), dir / "preview.log");
 
   // Let some tiles arrive, then "quit tev" and start it again on the same port.
-  const auto t0 = std::chrono::steady_clock::now();
-  while (tev->bytes() < 20000 && std::chrono::steady_clock::now() - t0 < 30s) std::this_thread::sleep_for(10ms);
-  ASSERT_GE(tev->bytes(), 20000u) << cli.log();
+  const auto wait_bytes = [](const FakeTev& t, size_t n) {
+    const auto t0 = std::chrono::steady_clock::now();
+    while (t.bytes() < n && std::chrono::steady_clock::now() - t0 < 60s) std::this_thread::sleep_for(10ms);
+    return t.bytes() >= n;
+  };
+  ASSERT_TRUE(wait_bytes(*tev, 20000)) << cli.log();
   const auto first = tev->connections();
   tev->stop();
   tev.reset();
   std::this_thread::sleep_for(400ms);  // the bridge's sends fail meanwhile: it backs off and retries
   auto restarted = std::make_unique<FakeTev>(port);
+  ASSERT_TRUE(wait_bytes(*restarted, 1)) << cli.log();
+  EXPECT_EQ(status(server, id).at("state"), "running") << "the job ran through the restart";
+  HttpClient c = server.client();
+  const ClientResponse cancel = c.request("DELETE", "/v1/jobs/" + id);
+  ASSERT_EQ(cancel.status / 100, 2) << cancel.body;
 
   const auto rc = cli.wait(120s);
   ASSERT_TRUE(rc.has_value()) << "tally preview did not finish:\n" << cli.log();
   EXPECT_EQ(*rc, 0) << cli.log();
   EXPECT_NE(cli.log().find("1 tev reconnects"), std::string::npos) << cli.log();
-  ASSERT_EQ(status(server, id).at("state"), "succeeded");
+  for (int i = 0; i < 500 && status(server, id).at("state") == "running"; ++i) std::this_thread::sleep_for(20ms);
+  ASSERT_EQ(status(server, id).at("state"), "cancelled");
 
   for (int i = 0; i < 100 && restarted->eofs() == 0; ++i) std::this_thread::sleep_for(20ms);
   const auto conns = restarted->connections();
@@ -376,7 +388,8 @@ TEST(TevBridgeEndToEnd, ReconnectsWhenTevRestartsAndResendsTheImage) {
   ASSERT_FALSE(first.empty());
   // The first tev got a well-formed prefix (a packet may be cut where it quit).
   EXPECT_EQ(static_cast<uint8_t>(first[0].at(4)), 4) << "a CreateImage first";
-  // The restarted tev got the whole image again, from a new CreateImage.
+  // The restarted tev got the whole image again, from a new CreateImage, and every
+  // tile of the final (cancelled) state: the mirror equals the server's EXR.
   const Mirror m = replay(conns[0], "tally-" + id);
   EXPECT_EQ(m.creates, 1);
   expect_matches_exr(m, server, id);
