@@ -11,6 +11,7 @@
 #include <system_error>
 #include <vector>
 
+#include "common/image/image_decode.hpp"
 #include "common/image/image_module_abi.hpp"
 
 namespace tally {
@@ -152,6 +153,50 @@ std::string encode_png(const ImageSnapshot& im) {
   if (a.encode_png_rgb8(im.width, im.height, px.data(), &append_to_string, &out, &append_to_string, &error) != 0) {
     throw std::runtime_error(error);
   }
+  return out;
+}
+
+std::optional<std::string> sniff_image_format(std::string_view b) {
+  auto starts = [&](std::string_view magic) { return b.substr(0, magic.size()) == magic; };
+  if (starts("\x89PNG\r\n\x1a\n")) return "png";
+  if (starts("\xff\xd8\xff")) return "jpeg";
+  if (starts("\x76\x2f\x31\x01")) return "openexr";
+  if (starts("#?RADIANCE") || starts("#?RGBE")) return "hdr";
+  return std::nullopt;
+}
+
+namespace {
+void receive_decoded(void* context, const tally_decoded_image* im) {
+  auto* out = static_cast<DecodedImage*>(context);
+  out->width = im->width;
+  out->height = im->height;
+  out->channels = im->channels;
+  out->bits = im->bits;
+  const size_t n = static_cast<size_t>(im->width) * static_cast<size_t>(im->height) * static_cast<size_t>(im->channels);
+  if (im->bits == 8) {
+    const auto* p = static_cast<const uint8_t*>(im->pixels);
+    out->codes.assign(p, p + n);
+  } else if (im->bits == 16) {
+    const auto* p = static_cast<const uint16_t*>(im->pixels);
+    out->codes.assign(p, p + n);
+  } else {
+    const auto* p = static_cast<const float*>(im->pixels);
+    out->floats.assign(p, p + n);
+  }
+}
+}  // namespace
+
+DecodedImage decode_image(std::string_view bytes, uint64_t max_pixels) {
+  const auto format = sniff_image_format(bytes);
+  if (!format) throw std::runtime_error("not a PNG, JPEG, OpenEXR or Radiance HDR file");
+  const tally_image_api& a = api();
+  DecodedImage out;
+  std::string error;
+  if (a.decode(reinterpret_cast<const unsigned char*>(bytes.data()), bytes.size(), format->c_str(), max_pixels,
+               &receive_decoded, &out, &append_to_string, &error) != 0) {
+    throw std::runtime_error(error);
+  }
+  if (out.width <= 0 || out.height <= 0 || out.channels <= 0) throw std::runtime_error("the image has no pixels");
   return out;
 }
 

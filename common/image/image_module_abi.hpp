@@ -20,6 +20,15 @@ struct tally_image_view {
 // Receives output bytes (or an error message); may be called several times.
 typedef void (*tally_image_sink)(void* context, const char* data, size_t size);
 
+// A decoded image as the file stores it (no colour conversion): `channels` values a
+// pixel, rows from the top, `bits` 8 or 16 (unsigned integers, uint8_t / uint16_t) or 32
+// (float). Valid only during the call of the receiver.
+struct tally_decoded_image {
+  int32_t width, height, channels, bits;
+  const void* pixels;
+};
+typedef void (*tally_image_receiver)(void* context, const tally_decoded_image* image);
+
 // Every function returns 0 on success; otherwise it has written a message to `error`.
 struct tally_image_api {
   uint32_t abi_version;  // kTallyImageAbiVersion
@@ -31,6 +40,11 @@ struct tally_image_api {
   // 8-bit sRGB PNG of the means (already clamped and encoded by the caller: 3 bytes a pixel).
   int (*encode_png_rgb8)(int32_t width, int32_t height, const unsigned char* rgb8, tally_image_sink out,
                          void* out_context, tally_image_sink error, void* error_context);
+  // Decodes an encoded file held in memory (PNG, JPEG, ...; `format` names it: "png",
+  // "jpeg", "openexr", "hdr"). Refuses images of more than `max_pixels` pixels before
+  // decoding their pixels. Calls `receive` once on success.
+  int (*decode)(const unsigned char* bytes, size_t size, const char* format, uint64_t max_pixels,
+                tally_image_receiver receive, void* receive_context, tally_image_sink error, void* error_context);
 };
 
 // The module's one exported symbol.
@@ -39,6 +53,6 @@ const tally_image_api* tally_image_module_api(void);
 }  // extern "C"
 
 namespace tally {
-inline constexpr uint32_t kTallyImageAbiVersion = 1;
+inline constexpr uint32_t kTallyImageAbiVersion = 2;  // 2: decode
 inline constexpr const char* kTallyImageModuleSymbol = "tally_image_module_api";
 }  // namespace tally

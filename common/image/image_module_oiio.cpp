@@ -91,8 +91,47 @@ int encode_png_rgb8(int32_t width, int32_t height, const unsigned char* rgb8, ta
       error, error_context);
 }
 
+int decode(const unsigned char* bytes, size_t size, const char* format, uint64_t max_pixels,
+           tally_image_receiver receive, void* receive_context, tally_image_sink error, void* error_context) {
+  return guarded(
+      [&] {
+        // The format is chosen by the caller (from the bytes' magic): the fake name's
+        // extension picks the reader, so OpenImageIO never guesses from content.
+        const std::string name = std::string("image.") + (std::string(format) == "jpeg" ? "jpg"
+                                                          : std::string(format) == "openexr" ? "exr"
+                                                                                            : format);
+        OIIO::Filesystem::IOMemReader proxy(bytes, size);
+        OIIO::ImageSpec config;
+        config.attribute("oiio:UnassociatedAlpha", 1);  // the stored colours, never premultiplied by alpha
+        OIIO::Filesystem::IOProxy* proxy_ptr = &proxy;  // with a config, the reader takes the proxy from it
+        config.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &proxy_ptr);
+        auto in = OIIO::ImageInput::open(name, &config, &proxy);
+        if (!in) throw std::runtime_error("cannot decode the " + std::string(format) + " image: " + OIIO::geterror());
+        const OIIO::ImageSpec& spec = in->spec();
+        if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth != 1) {
+          throw std::runtime_error("the image has no pixels or is not a 2-D image");
+        }
+        const uint64_t pixels = static_cast<uint64_t>(spec.width) * static_cast<uint64_t>(spec.height);
+        if (pixels > max_pixels) {
+          throw std::runtime_error("the image has " + std::to_string(spec.width) + "x" + std::to_string(spec.height) +
+                                   " pixels, more than the limit of " + std::to_string(max_pixels));
+        }
+        const int bits = spec.format == OIIO::TypeDesc::UINT8 ? 8 : spec.format == OIIO::TypeDesc::UINT16 ? 16 : 32;
+        const OIIO::TypeDesc type = bits == 8 ? OIIO::TypeDesc::UINT8 : bits == 16 ? OIIO::TypeDesc::UINT16
+                                                                                  : OIIO::TypeDesc::FLOAT;
+        std::vector<unsigned char> px(static_cast<size_t>(pixels) * static_cast<size_t>(spec.nchannels) *
+                                      static_cast<size_t>(bits / 8));
+        if (!in->read_image(0, 0, 0, spec.nchannels, type, px.data())) {
+          throw std::runtime_error("cannot decode the " + std::string(format) + " image: " + in->geterror());
+        }
+        const tally_decoded_image out{spec.width, spec.height, spec.nchannels, bits, px.data()};
+        receive(receive_context, &out);
+      },
+      error, error_context);
+}
+
 constexpr tally_image_api kApi{tally::kTallyImageAbiVersion, "OpenImageIO " OIIO_VERSION_STRING, &encode_exr,
-                               &encode_png_rgb8};
+                               &encode_png_rgb8, &decode};
 
 }  // namespace
 

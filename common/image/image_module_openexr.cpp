@@ -9,6 +9,7 @@
 #include <OpenEXR/ImfFrameBuffer.h>
 #include <OpenEXR/ImfHeader.h>
 #include <OpenEXR/ImfIO.h>
+#include <OpenEXR/ImfInputFile.h>
 #include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/ImfStandardAttributes.h>
 #include <OpenEXR/ImfStringAttribute.h>
@@ -170,8 +171,104 @@ int encode_png_rgb8(int32_t width, int32_t height, const unsigned char* rgb8, ta
       error, error_context);
 }
 
+// An OpenEXR input stream over bytes in memory.
+class MemoryInput : public Imf::IStream {
+ public:
+  MemoryInput(const unsigned char* data, size_t size) : Imf::IStream("memory"), data_(data), size_(size) {}
+  bool read(char c[], int n) override {
+    if (n < 0 || pos_ > size_ || static_cast<size_t>(n) > size_ - pos_) throw std::runtime_error("the EXR data ends early");
+    std::memcpy(c, data_ + pos_, static_cast<size_t>(n));
+    pos_ += static_cast<size_t>(n);
+    return pos_ < size_;
+  }
+  uint64_t tellg() override { return pos_; }
+  void seekg(uint64_t pos) override { pos_ = static_cast<size_t>(pos); }
+
+ private:
+  const unsigned char* data_;
+  size_t size_;
+  size_t pos_ = 0;
+};
+
+// OpenEXR (environment maps): R, G, B as 32-bit floats (half and uint channels converted
+// by OpenEXR), 3 channels; a file without R, G and B gives its Y channel (or its first)
+// as 1 channel. The data window is the image.
+void decode_exr(const unsigned char* bytes, size_t size, uint64_t max_pixels, tally_image_receiver receive,
+                void* receive_context) {
+  MemoryInput stream(bytes, size);
+  Imf::InputFile file(stream, 1);
+  const Imath::Box2i dw = file.header().dataWindow();
+  const int64_t w = static_cast<int64_t>(dw.max.x) - dw.min.x + 1, h = static_cast<int64_t>(dw.max.y) - dw.min.y + 1;
+  if (w <= 0 || h <= 0) throw std::runtime_error("the image has no pixels or is not a 2-D image");
+  if (static_cast<uint64_t>(w) * static_cast<uint64_t>(h) > max_pixels) {
+    throw std::runtime_error("the image has " + std::to_string(w) + "x" + std::to_string(h) +
+                             " pixels, more than the limit of " + std::to_string(max_pixels));
+  }
+  const Imf::ChannelList& ch = file.header().channels();
+  const bool rgb = ch.findChannel("R") && ch.findChannel("G") && ch.findChannel("B");
+  const char* grey = rgb ? nullptr : (ch.findChannel("Y") ? "Y" : (ch.begin() != ch.end() ? ch.begin().name() : nullptr));
+  if (!rgb && grey == nullptr) throw std::runtime_error("the image has no channels");
+  const size_t nc = rgb ? 3 : 1;
+  const size_t n = static_cast<size_t>(w) * static_cast<size_t>(h);
+  std::vector<float> px(nc * n, 0.0f);
+  const size_t xs = nc * sizeof(float), ys = xs * static_cast<size_t>(w);
+  const std::ptrdiff_t origin = static_cast<std::ptrdiff_t>(dw.min.x) * static_cast<std::ptrdiff_t>(xs) +
+                                static_cast<std::ptrdiff_t>(dw.min.y) * static_cast<std::ptrdiff_t>(ys);
+  static const char* const names[3] = {"R", "G", "B"};
+  Imf::FrameBuffer fb;
+  for (size_t c = 0; c < nc; ++c) {
+    fb.insert(rgb ? names[c] : grey, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(px.data() + c) - origin, xs, ys));
+  }
+  file.setFrameBuffer(fb);
+  file.readPixels(dw.min.y, dw.max.y);
+  const tally_decoded_image out{static_cast<int32_t>(w), static_cast<int32_t>(h), static_cast<int32_t>(nc), 32, px.data()};
+  receive(receive_context, &out);
+}
+
+// PNG (libpng's simplified API, 8 bits a channel; 16-bit files are reduced to 8 bits by
+// libpng) and OpenEXR (decode_exr). Other formats need the OpenImageIO module.
+int decode(const unsigned char* bytes, size_t size, const char* format, uint64_t max_pixels,
+           tally_image_receiver receive, void* receive_context, tally_image_sink error, void* error_context) {
+  return guarded(
+      [&] {
+        if (std::string(format) == "openexr") {
+          decode_exr(bytes, size, max_pixels, receive, receive_context);
+          return;
+        }
+        if (std::string(format) != "png") {
+          throw std::runtime_error(std::string("this image module (OpenEXR + libpng) decodes PNG and OpenEXR only, not ") +
+                                   format + "; build the OpenImageIO module (-DTALLY_IMAGE_BACKEND=oiio)");
+        }
+        png_image image{};
+        image.version = PNG_IMAGE_VERSION;
+        if (!png_image_begin_read_from_memory(&image, bytes, size)) {
+          throw std::runtime_error(std::string("cannot decode the png image: ") + image.message);
+        }
+        const uint64_t pixels = static_cast<uint64_t>(image.width) * static_cast<uint64_t>(image.height);
+        if (pixels == 0 || pixels > max_pixels) {
+          png_image_free(&image);
+          throw std::runtime_error("the image has " + std::to_string(image.width) + "x" + std::to_string(image.height) +
+                                   " pixels, more than the limit of " + std::to_string(max_pixels));
+        }
+        // RGBA keeps colours as stored (8-bit output is never premultiplied); without an
+        // alpha channel in the request libpng would composite onto black.
+        const bool alpha = (image.format & PNG_FORMAT_FLAG_ALPHA) != 0;
+        image.format = alpha ? PNG_FORMAT_RGBA : PNG_FORMAT_RGB;
+        std::vector<unsigned char> px(PNG_IMAGE_SIZE(image));
+        if (!png_image_finish_read(&image, nullptr, px.data(), 0, nullptr)) {
+          const std::string m = image.message;
+          png_image_free(&image);
+          throw std::runtime_error("cannot decode the png image: " + m);
+        }
+        const tally_decoded_image out{static_cast<int32_t>(image.width), static_cast<int32_t>(image.height),
+                                      alpha ? 4 : 3, 8, px.data()};
+        receive(receive_context, &out);
+      },
+      error, error_context);
+}
+
 constexpr tally_image_api kApi{tally::kTallyImageAbiVersion, "OpenEXR " OPENEXR_VERSION_STRING " + libpng " PNG_LIBPNG_VER_STRING,
-                               &encode_exr, &encode_png_rgb8};
+                               &encode_exr, &encode_png_rgb8, &decode};
 
 }  // namespace
 

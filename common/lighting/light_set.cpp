@@ -1,5 +1,6 @@
 #include "common/lighting/light_set.hpp"
 
+#include "common/lighting/environment_map.hpp"
 #include "common/lighting/scene_bounds.hpp"
 
 #include <algorithm>
@@ -53,7 +54,7 @@ double light_power_radiance(const Rgb& radiance) {
 }
 
 LightSet::LightSet(const Scene& scene) : scene_(scene), light_of_shape_(scene.shapes.size(), -1) {
-  sky_ = scene.sky.has_value() && !is_black(*scene.sky);
+  sky_ = sky_emits(scene);
   std::vector<double> weights;
   for (uint32_t i = 0; i < scene.shapes.size(); ++i) {
     const Shape& s = scene.shapes[i];
@@ -102,7 +103,8 @@ LightSet::LightSet(const Scene& scene) : scene_(scene), light_of_shape_(scene.sh
     const double half_diag = b.empty() ? 0.0 : 0.5 * length(b.hi - b.lo);
     if (half_diag > 0 && std::isfinite(half_diag)) r = half_diag;
     entries_.push_back({static_cast<uint32_t>(area_.size()), 0});
-    weights.push_back(4.0 * kPi * kPi * r * r * light_power_radiance(*scene.sky));
+    const Rgb l = scene.environment ? scene.environment->mean_radiance() : *scene.sky;
+    weights.push_back(4.0 * kPi * kPi * r * r * light_power_radiance(l));
   }
   for (double& w : weights) {
     if (!std::isfinite(w)) w = std::numeric_limits<double>::max() / static_cast<double>(weights.size() + 1);
@@ -131,6 +133,16 @@ LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1,
   const Entry& entry = entries_[pick_->sample(u0)];
   if (entry.light == area_.size()) {  // the sky
     const double select = sky_pick_;
+    if (scene_.environment) {
+      const EnvironmentMap::Sample es = scene_.environment->sample({u1, u2});
+      if (!(es.pdf > 0)) return out;
+      out.wi = es.wi;
+      out.pdf = es.pdf * select;
+      out.dist = kInf;
+      out.le = es.le;
+      out.sky = true;
+      return out;
+    }
     const Frame f = Frame::from_normal(n);
     out.wi = f.to_world(sample_cosine_hemisphere({u1, u2}));
     const double pdf = cosine_hemisphere_pdf(dot(n, out.wi));
@@ -265,6 +277,7 @@ double LightSet::pdf_dir(const Vec3& x, const Vec3& wi, const Hit& hit) const {
 
 double LightSet::pdf_sky(const Vec3& n, const Vec3& wi) const {
   if (!sky_) return 0.0;
+  if (scene_.environment) return scene_.environment->pdf(wi) * sky_pick_;
   return cosine_hemisphere_pdf(dot(n, wi)) * sky_pick_;
 }
 

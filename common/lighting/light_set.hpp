@@ -7,7 +7,8 @@
 //     sampled uniformly by area), pdf converted to solid angle with d^2 / |cos theta_l|;
 //   - spheres seen from outside: uniformly in the cone they subtend (exactly the
 //     visible cap, so no sample is wasted on the far side); from inside: by area;
-//   - the sky: cosine-weighted around the receiver's normal.
+//   - the sky: cosine-weighted around the receiver's normal; an environment map by its
+//     own importance sampler (environment_map.hpp: luminance x sin theta, all directions).
 // Point and directional lights are not sampled: every estimator adds them
 // deterministically (a hemisphere sample can never hit them).
 // Lights of zero area are dropped (they emit no power) and listed in `dropped`.
@@ -87,7 +88,7 @@ class LightSet {
 
 // The weights lights are chosen by (pbrt's Phi): an area light emits pi A L (x2 when
 // two-sided); the sky 4 pi * pi r^2 L with r the radius of the scene's bounding sphere
-// (1 without shapes). L is the luminance of the radiance (floored at 1e-3 of its largest
+// (1 without shapes), L an environment map's mean radiance over the sphere. L is the luminance of the radiance (floored at 1e-3 of its largest
 // channel so that a pure-blue light keeps a fair share).
 double light_power_radiance(const Rgb& radiance);
 

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include "common/lighting/environment_map.hpp"
 #include "common/lighting/pixel_sampler.hpp"
 #include "common/lighting/ray_offset.hpp"
 
@@ -141,9 +142,9 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
     if (!hit) {
       if (plan_.sky && (counts_emission || plan_.full)) {
         c.add(LightingCounter::sky_lookups);
-        if (scene_.sky && counts_emission) {
-          const double w = emission_weight(s.strategy == Strategy::mis ? lights_.pdf_sky(ns, ds.wi) : 0.0);
-          L += beta_next * *scene_.sky * w;
+        if (has_sky(scene_) && counts_emission) {
+          const double w = emission_weight(s.strategy == Strategy::mis && !ds.delta ? lights_.pdf_sky(ns, ds.wi) : 0.0);
+          L += beta_next * sky_radiance(scene_, ds.wi) * w;
         }
       }
       break;
@@ -184,7 +185,7 @@ Rgb PathTracer::camera(const Vec3& o, const Vec3& d, const PathSettings& s, cons
   if (!hit) {
     if (plan_.sky) {
       c.add(LightingCounter::sky_lookups);
-      if (scene_.sky) return *scene_.sky;
+      if (has_sky(scene_)) return sky_radiance(scene_, d);
     }
     return {};
   }

@@ -4,6 +4,8 @@
 
 #include <algorithm>
 
+#include "common/lighting/environment_map.hpp"
+
 namespace tally {
 
 Plan make_plan(const Scene& scene, const PlanQuery& q, bool full) {
@@ -19,7 +21,7 @@ Plan make_plan(const Scene& scene, const PlanQuery& q, bool full) {
     return s == Strategy::light_area || s == Strategy::mis;
   });
   const bool delta_lights = !scene.delta_lights.empty();
-  const bool nonshape_lights = delta_lights || scene.sky.has_value();
+  const bool nonshape_lights = delta_lights || has_sky(scene);
   const bool all_convex = std::all_of(scene.shapes.begin(), scene.shapes.end(), [](const Shape& s) { return s.convex(); });
   const size_t allowed = (q.image ? 1u : 0u) + (nonshape_lights ? 0u : 1u);
   if (!any_nee && !delta_lights) {
@@ -67,8 +69,15 @@ Plan make_plan(const Scene& scene, const PlanQuery& q, bool full) {
                        : "no mirror materials"));
 
   // sky
-  const bool sky = scene.sky.has_value() && !is_black(*scene.sky);
-  add("sky", p.sky, sky, sky ? "the scene has a sky" : "no sky: rays that miss return 0");
+  const bool sky = sky_emits(scene);
+  std::string sky_why = "no sky: rays that miss return 0";
+  if (sky && scene.environment) {
+    sky_why = fmt::format("the scene has an environment map ({}x{}, importance-sampled, MIS with the BSDF)",
+                          scene.environment->width(), scene.environment->height());
+  } else if (sky) {
+    sky_why = "the scene has a sky";
+  }
+  add("sky", p.sky, sky, std::move(sky_why));
 
   // emission
   const bool emitters = std::any_of(scene.shapes.begin(), scene.shapes.end(), [&](const Shape& s) {

@@ -10,6 +10,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -103,6 +104,8 @@ inline double spot_falloff(const DeltaLight& l, const Vec3& w) {
   return t * t;
 }
 
+class EnvironmentMap;  // environment_map.hpp
+
 struct Camera {
   Vec3 position{}, look_at{0, 0, -1}, up{0, 1, 0};
   double fov_deg = 45.0;  // vertical
@@ -114,7 +117,10 @@ struct Scene {
   std::vector<Material> materials;
   std::vector<Shape> shapes;
   std::vector<DeltaLight> delta_lights;
+  // The sky, at most one of: a constant radiance, or an environment map (immutable,
+  // shared read-only by every thread of the job). A constant map arrives as `sky`.
   std::optional<Rgb> sky;
+  std::shared_ptr<const EnvironmentMap> environment;
   Vec3 origin{};  // world position of the local origin (see above)
   size_t triangle_count() const {
     size_t n = 0;

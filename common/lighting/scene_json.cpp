@@ -1,6 +1,8 @@
 #include "common/lighting/scene_json.hpp"
 
+#include "common/image/image_decode.hpp"
 #include "common/lighting/asset_resolver.hpp"
+#include "common/lighting/environment_map.hpp"
 #include "common/sampling/safe_math.hpp"
 
 #include <fmt/format.h>
@@ -451,6 +453,68 @@ std::filesystem::path resolve_asset(const std::string& asset_dir, const std::str
   return full;
 }
 
+namespace {
+
+// The largest environment map read (4096 x 2048): about 70 bytes a texel once its
+// sampling tables are built, ~0.6 GB at this size.
+constexpr uint64_t kMaxEnvironmentTexels = uint64_t{1} << 23;
+
+// {"type": "sky", "radiance": [r, g, b]}, or an environment map:
+// {"type": "sky", "map": "<file or sha256:>", "intensity": s = 1, "rotation_deg": a = 0}
+// (environment_map.hpp for the direction convention). A map whose texels are all equal
+// becomes the constant sky of that radiance, bit for bit the same light.
+void parse_sky(SpecReader& l, Scene& scene, const JobLimits& limits) {
+  if (!l.has("map")) {
+    for (const char* key : {"intensity", "rotation_deg"}) {
+      if (l.has(key)) throw SpecError(l.pointer_of(key), "applies to an environment map only (give \"map\")");
+    }
+    scene.sky = read_rgb(l, "radiance", 1e12);
+    return;
+  }
+  if (l.has("radiance")) {
+    throw SpecError(l.pointer_of("radiance"),
+                    "give either \"radiance\" (a constant sky) or \"map\" (an environment map), not both");
+  }
+  const std::string map_ptr = l.pointer_of("map");
+  const std::string name = l.string("map", 4096);
+  const double intensity = l.number_or("intensity", 1.0, 0.0, 1e12);
+  const double rotation = l.number_or("rotation_deg", 0.0, -360.0, 360.0);
+  const std::string bytes = read_scene_file(name, limits, map_ptr);
+  auto refuse = [&](const std::string& why) { return SpecError(map_ptr, fmt::format("environment map \"{}\": {}", name, why)); };
+  const std::optional<std::string> format = sniff_image_format(bytes);
+  if (!format || (*format != "openexr" && *format != "hdr")) {
+    throw refuse(fmt::format("not an OpenEXR or Radiance .hdr image{} (an environment map holds linear HDR radiance)",
+                             format ? ", a " + *format + " file" : ""));
+  }
+  DecodedImage im;
+  try {
+    im = decode_image(bytes, kMaxEnvironmentTexels);
+  } catch (const std::runtime_error& e) {
+    throw refuse(e.what());
+  }
+  // R, G, B from the first three channels (alpha and others ignored); 1-2 channels: grey.
+  const size_t n = static_cast<size_t>(im.width) * static_cast<size_t>(im.height);
+  const size_t nc = static_cast<size_t>(im.channels);
+  if (im.bits != 32 || nc == 0 || im.floats.size() != n * nc) throw refuse("the image module returned no float pixels");
+  std::vector<float> rgb(3 * n);
+  for (size_t i = 0; i < n; ++i) {
+    for (size_t c = 0; c < 3; ++c) rgb[3 * i + c] = im.floats[nc * i + (nc >= 3 ? c : 0)];
+  }
+  std::shared_ptr<const EnvironmentMap> env;
+  try {
+    env = std::make_shared<const EnvironmentMap>(im.width, im.height, rgb, intensity, rotation);
+  } catch (const std::invalid_argument& e) {
+    throw SpecError(map_ptr, fmt::format("environment map \"{}\": {}", name, e.what()));
+  }
+  if (const std::optional<Rgb> c = env->constant()) {
+    scene.sky = *c;
+  } else {
+    scene.environment = std::move(env);
+  }
+}
+
+}  // namespace
+
 Scene parse_scene(SpecReader& r, const JobLimits& limits) {
   Scene scene;
   if (r.has("camera")) {
@@ -510,8 +574,8 @@ Scene parse_scene(SpecReader& r, const JobLimits& limits) {
       SpecReader l((*lj)[i], json_pointer_append(lp, i));
       const std::string type = l.enumeration("type", {"point", "spot", "directional", "sky"});
       if (type == "sky") {
-        if (scene.sky) throw SpecError(l.pointer(), "only one sky is allowed");
-        scene.sky = read_rgb(l, "radiance", 1e12);
+        if (scene.sky || scene.environment) throw SpecError(l.pointer(), "only one sky is allowed");
+        parse_sky(l, scene, limits);
       } else {
         scene.delta_lights.push_back(parse_delta_light(l, type));
       }

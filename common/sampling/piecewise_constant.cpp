@@ -129,6 +129,12 @@ double PiecewiseConstant2D::pdf(Vec2 p) const {
   return values_[v * nu_ + row.cell_of(p.x)] / integral();
 }
 
+std::array<std::size_t, 2> PiecewiseConstant2D::cell_of(Vec2 p) const {
+  const std::size_t v = marginal_.cell_of(std::clamp(p.y, marginal_.min(), marginal_.max()));
+  const PiecewiseConstant1D& row = conditional_[v];
+  return {row.cell_of(std::clamp(p.x, row.min(), row.max())), v};
+}
+
 Vec2 PiecewiseConstant2D::invert(Vec2 p) const {
   const double uv = marginal_.invert(p.y);
   const std::size_t v = marginal_.cell_of(std::clamp(p.y, marginal_.min(), marginal_.max()));

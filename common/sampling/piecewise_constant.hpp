@@ -3,6 +3,7 @@
 // tabulated function (an environment map, a user histogram) proportionally to its value.
 // 2-D uses a marginal over rows and one conditional per row. Both are invertible, which
 // keeps them usable with stratified and QMC points and in round-trip tests.
+#include <array>
 #include <cstddef>
 #include <span>
 #include <vector>
@@ -63,6 +64,9 @@ class PiecewiseConstant2D {
   double pdf(Vec2 p) const;
   Vec2 invert(Vec2 p) const;
   double integral() const { return marginal_.integral(); }
+  // The cell {iu, iv} of the grid that pdf() reads for p (p clamped into the box): lets a
+  // caller look up its own per-cell data exactly where the density is taken.
+  std::array<std::size_t, 2> cell_of(Vec2 p) const;
 
  private:
   std::size_t nu_, nv_;

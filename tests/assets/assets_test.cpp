@@ -13,9 +13,11 @@
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <sstream>
 #include <thread>
 
+#include "common/image/image_io.hpp"
 #include "server/auth/token.hpp"
 #include "server_process.hpp"
 
@@ -241,6 +243,63 @@ TEST(Assets, UploadedObjRendersBitIdenticalToTheSameFileFromAssetDir) {
   ASSERT_EQ(ta.status, 200);
   EXPECT_EQ(ta.body, tb.body);
   EXPECT_FALSE(ta.body.empty());
+}
+
+// An equirectangular map as EXR bytes (the image module's encoder: R, G, B come first, the
+// extra channels are ignored by the map reader).
+std::string env_map_exr(int w, int h, float nan_at = -1) {
+  ImageSnapshot im;
+  im.width = im.full_width = w;
+  im.height = im.full_height = h;
+  const size_t n = static_cast<size_t>(w) * static_cast<size_t>(h);
+  im.rgb.resize(3 * n);
+  for (size_t i = 0; i < 3 * n; ++i) im.rgb[i] = 0.1f + 0.01f * static_cast<float>(i % 17);
+  im.rgb[3 * (n / 3)] = 50.0f;  // a hot texel
+  if (nan_at >= 0) im.rgb[static_cast<size_t>(nan_at)] = std::numeric_limits<float>::quiet_NaN();
+  im.stderr_rgb.assign(3 * n, 0.0f);
+  im.samples.assign(n, 1.0f);
+  return encode_exr(im, json::object());
+}
+
+json env_image_spec(const std::string& map) {
+  json spec = obj_image_spec("unused");
+  spec["scene"]["shapes"].erase(1);  // the floor only, lit by the map
+  spec["scene"]["lights"] = json::array({{{"type", "sky"}, {"map", map}, {"intensity", 2}, {"rotation_deg", 30}}});
+  return spec;
+}
+
+TEST(Assets, UploadedEnvironmentMapLightsAJobBitIdenticalToTheSameFileFromAssetDir) {
+  TempDir tmp;
+  const std::string exr = env_map_exr(32, 16);
+  fs::create_directories(tmp.path / "dir");
+  std::ofstream(tmp.path / "dir" / "sky.exr", std::ios::binary) << exr;
+  ServerProcess server(tmp.path / "data", {"--asset-dir", (tmp.path / "dir").string()});
+  HttpClient c = server.client();
+  const std::string hex = sha256_hex(exr);
+  ASSERT_EQ(put(c, hex, exr).status, 201);
+  const std::string by_path = submit(c, env_image_spec("sky.exr"));
+  const std::string by_hash = submit(c, env_image_spec("sha256:" + hex));
+  const json a = wait_state(c, by_path, "succeeded");
+  const json b = wait_state(c, by_hash, "succeeded");
+  EXPECT_EQ(a.at("bits"), b.at("bits"));
+  const ClientResponse ta = c.request("GET", "/v1/jobs/" + by_path + "/tiles/0");
+  const ClientResponse tb = c.request("GET", "/v1/jobs/" + by_hash + "/tiles/0");
+  ASSERT_EQ(ta.status, 200);
+  EXPECT_EQ(ta.body, tb.body);
+  // validate answers with the plan, which names the map as the reason the sky is on.
+  const ClientResponse v =
+      c.request("POST", "/v1/jobs/validate", env_image_spec("sha256:" + hex).dump(), {{"Content-Type", "application/json"}});
+  ASSERT_EQ(v.status, 200) << v.body;
+  EXPECT_NE(v.body.find("environment map (32x16"), std::string::npos) << v.body;
+  // A map with a NaN texel, uploaded: 422 naming the field and the texel.
+  const std::string bad = env_map_exr(32, 16, 3 * (2 * 32 + 5) + 1);
+  const std::string bad_hex = sha256_hex(bad);
+  ASSERT_EQ(put(c, bad_hex, bad).status, 201);
+  const ClientResponse r =
+      c.request("POST", "/v1/jobs", env_image_spec("sha256:" + bad_hex).dump(), {{"Content-Type", "application/json"}});
+  EXPECT_EQ(r.status, 422) << r.body;
+  EXPECT_EQ(json::parse(r.body).at("pointer"), "/scene/lights/0/map");
+  EXPECT_NE(problem_of(r).find("texel (column 5, row 2) channel G is nan"), std::string::npos) << r.body;
 }
 
 TEST(Assets, RestartKeepsAssetsAndRetentionRemovesOnlyUnreferenced) {

@@ -265,12 +265,20 @@ TEST(Cluster, KilledAndStalledWorkersStillBitIdentical) {
   b.resume();
   const json s = wait_state(c, id, "succeeded", 120);
   EXPECT_EQ(s.at("bits"), expected);
-  std::this_thread::sleep_for(1200ms);  // the counts are refreshed twice a second
+  // The stalled worker's late result arrives: compared with the first (its pass not yet
+  // merged) or found stale (merged and deleted already; which one depends on timing).
+  // The counts are refreshed twice a second.
+  wait_until([&] {
+    const json r = metrics_counts(c);
+    return r.at("duplicates_equal").get<uint64_t>() + r.at("stale").get<uint64_t>() >= 1;
+  }, 60, "the stalled worker's late result");
+  std::this_thread::sleep_for(1200ms);
   const json r = metrics_counts(c);
   EXPECT_EQ(r.at("first"), r.at("blocks_merged")) << r.dump();  // no block merged (or stored) twice
-  EXPECT_GE(r.at("duplicates_equal").get<uint64_t>(), 1u) << r.dump() << b.log();  // the late result, compared
   EXPECT_EQ(r.at("duplicates_different"), 0);
-  EXPECT_NE(b.log().find("compared, identical"), std::string::npos) << b.log();
+  if (r.at("duplicates_equal").get<uint64_t>() > 0) {
+    EXPECT_NE(b.log().find("compared, identical"), std::string::npos) << b.log();
+  }
 }
 
 TEST(Cluster, CoordinatorKilledMidPassResumesBitIdentical) {

@@ -14,8 +14,6 @@
 namespace tally {
 namespace {
 
-using test::chi_square_p;
-
 Material metal(double f0, double roughness) {
   Material m;
   m.type = MaterialType::metallic_roughness;
@@ -113,6 +111,8 @@ TEST(Ggx, SampledAlbedoMatchesUniformEstimate) {
     }
   }
 }
+
+using test::chi_square_p;
 
 TEST(Ggx, ChiSquareSamplingAgainstPdf) {
   // Directions binned in (cos theta, phi) cells of the hemisphere (+ one cell for "no

@@ -2,6 +2,7 @@
 // sampling routines' direction distributions against the pdf that MIS uses.
 #include <gtest/gtest.h>
 
+
 #include "common/lighting/accel.hpp"
 #include "common/lighting/light_set.hpp"
 #include "common/lighting/scene_json.hpp"

@@ -180,6 +180,23 @@ TEST(PiecewiseConstant2D, PdfAndRoundTrip) {
   }
 }
 
+TEST(PiecewiseConstant2D, CellOfIsTheCellThePdfReads) {
+  // cell_of(p) names the table entry pdf(p) is taken from (the environment map looks its
+  // texels up with it), for sampled points and, clamped, for points outside the box.
+  const std::vector<double> v = values_2d();
+  const PiecewiseConstant2D dist(v, kNu, kNv, kBox);
+  for (std::uint64_t i = 0; i < 20000; ++i) {
+    const PiecewiseConstant2D::Sample s = dist.sample(u2(9, i));
+    const auto [iu, iv] = dist.cell_of(s.point);
+    ASSERT_LT(iu, kNu);
+    ASSERT_LT(iv, kNv);
+    EXPECT_EQ(s.pdf, v[iv * kNu + iu] / dist.integral()) << i;
+  }
+  EXPECT_EQ(dist.cell_of({kBox.hi.x, kBox.hi.y}), (std::array<std::size_t, 2>{kNu - 1, kNv - 1}));
+  EXPECT_EQ(dist.cell_of({-5.0, -5.0}), (std::array<std::size_t, 2>{0, 0}));
+  EXPECT_EQ(dist.cell_of({1.0 + 2.0 / 7 * 3.5, -1.0 + 1.5 / 5 * 4.5}), (std::array<std::size_t, 2>{3, 4}));
+}
+
 TEST(PiecewiseConstant2D, RejectsInvalidInput) {
   const std::vector<double> zeros(6, 0.0);
   const std::vector<double> ones(6, 1.0);

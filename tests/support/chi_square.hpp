@@ -1,10 +1,10 @@
 #pragma once
-// Pearson's chi-square test of binned sample counts against expected counts (the
-// lighting and GGX sampling tests): cells whose expected count is below 5 are pooled
-// into one cell. Returns the p-value; callers compare it with their Šidák-corrected
-// alpha. (tests/sampling/chi_square_support.hpp is the fuller harness of the sampling
-// routines, with Mitsuba's pooling order and its own suite-wide correction.)
+// Pearson's chi-square goodness-of-fit p-value, shared by the sampling tests (light
+// directions, GGX, the environment map). Cells whose expected count is below 5 are
+// pooled into one cell; dof = (cells after pooling) - 1.
 #include <boost/math/distributions/chi_squared.hpp>
+
+#include <cmath>
 #include <vector>
 
 namespace tally::test {
@@ -27,5 +27,9 @@ inline double chi_square_p(const std::vector<double>& observed, const std::vecto
   }
   return boost::math::cdf(boost::math::complement(boost::math::chi_squared(dof), chi2));
 }
+
+// The per-test level that keeps the family-wise false-failure rate at `alpha` over
+// `tests` independent tests (Šidák): 1 - (1 - alpha)^(1 / tests).
+inline double sidak_level(double alpha, int tests) { return 1.0 - std::pow(1.0 - alpha, 1.0 / tests); }
 
 }  // namespace tally::test
