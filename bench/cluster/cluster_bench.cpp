@@ -20,6 +20,8 @@
 #include <condition_variable>
 #include <fcntl.h>
 #include <fstream>
+#include <iterator>
+#include <sstream>
 #include <mutex>
 #include <thread>
 
@@ -59,6 +61,26 @@ double job_wall(HttpClient& c, const json& spec, json* bits) {
   return s.at("timing").at("wall_seconds").get<double>();
 }
 
+// CPU seconds (user + system) a process has used so far, from /proc/<pid>/stat.
+double cpu_seconds(pid_t pid) {
+  std::ifstream in(fmt::format("/proc/{}/stat", pid));
+  std::string stat((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const size_t close = stat.rfind(')');
+  if (close == std::string::npos) return 0.0;
+  std::istringstream fields(stat.substr(close + 2));
+  std::string f;
+  double ticks = 0;
+  for (int i = 3; i <= 15 && fields >> f; ++i) {
+    if (i == 14 || i == 15) ticks += std::stod(f);  // utime, stime
+  }
+  return ticks / static_cast<double>(::sysconf(_SC_CLK_TCK));
+}
+double cpu_seconds(const std::vector<pid_t>& pids) {
+  double s = 0;
+  for (pid_t p : pids) s += cpu_seconds(p);
+  return s;
+}
+
 double load1() {
   double l[1] = {0};
   return ::getloadavg(l, 1) == 1 ? l[0] : -1.0;
@@ -67,22 +89,46 @@ double load1() {
 // `rounds` alternations A B / B A ...: each pair's ratio B/A is measured seconds apart,
 // so a change of the machine's load hits both sides of a pair alike. Prints the median
 // pair ratio with its spread (min, quartiles, max) and the load average around it.
-void overhead(const std::string& what, const json& spec, HttpClient& in_process, HttpClient& cluster, int rounds) {
-  std::vector<double> a, b, ratio;
+//
+// CPU: the CPU seconds of the processes each side needs (in process: the server; cluster:
+// server + worker + redis-server) per job, which the machine's load hardly changes. At
+// equal, saturated cores the wall ratio tends to the CPU ratio.
+void overhead(const std::string& what, const json& spec, HttpClient& in_process, HttpClient& cluster, int rounds,
+              const std::vector<pid_t>& pids_a, const std::vector<pid_t>& pids_b) {
+  std::vector<double> a, b, ratio, cpu_a, cpu_b, cpu_ratio;
+  std::vector<std::vector<double>> cpu_parts(pids_b.size());
   json bits_a, bits_b;
   bool equal = true;
   job_wall(in_process, spec, nullptr);  // warm-up (page cache, scene build)
   job_wall(cluster, spec, nullptr);
   const double load_before = load1();
   for (int r = 0; r < rounds; ++r) {
-    double ta = 0, tb = 0;
+    double ta = 0, tb = 0, ca = 0, cb = 0;
+    auto side_a = [&] {
+      const double c0 = cpu_seconds(pids_a);
+      ta = job_wall(in_process, spec, &bits_a);
+      ca = cpu_seconds(pids_a) - c0;
+    };
+    auto side_b = [&] {
+      std::vector<double> c0;
+      for (pid_t p : pids_b) c0.push_back(cpu_seconds(p));
+      tb = job_wall(cluster, spec, &bits_b);
+      for (size_t i = 0; i < pids_b.size(); ++i) {
+        const double c = cpu_seconds(pids_b[i]) - c0[i];
+        cpu_parts[i].push_back(c);
+        cb += c;
+      }
+    };
     if (r % 2 == 0) {
-      ta = job_wall(in_process, spec, &bits_a);
-      tb = job_wall(cluster, spec, &bits_b);
+      side_a();
+      side_b();
     } else {
-      tb = job_wall(cluster, spec, &bits_b);
-      ta = job_wall(in_process, spec, &bits_a);
+      side_b();
+      side_a();
     }
+    cpu_a.push_back(ca);
+    cpu_b.push_back(cb);
+    cpu_ratio.push_back(cb / ca);
     equal = equal && bits_a == bits_b;
     a.push_back(ta);
     b.push_back(tb);
@@ -98,6 +144,14 @@ void overhead(const std::string& what, const json& spec, HttpClient& in_process,
              "   bits {}   load {:.1f} -> {:.1f}\n",
              "", rounds, median(ratio), sorted.front(), q(0.25), q(0.75), sorted.back(), equal ? "equal" : "DIFFER",
              load_before, load1());
+  std::sort(cpu_ratio.begin(), cpu_ratio.end());
+  std::string parts;
+  for (const auto& v : cpu_parts) parts += fmt::format("{}{:.3f}", parts.empty() ? "" : " + ", median(v));
+  fmt::print("{:<34} CPU seconds per job (medians): in-process {:.3f}, cluster {:.3f} (server + worker + redis: {}); "
+             "ratio median {:.3f} [q1 {:.3f}, q3 {:.3f}]\n",
+             "", median(cpu_a), median(cpu_b), parts, median(cpu_ratio),
+             cpu_ratio[static_cast<size_t>(0.25 * static_cast<double>(cpu_ratio.size() - 1) + 0.5)],
+             cpu_ratio[static_cast<size_t>(0.75 * static_cast<double>(cpu_ratio.size() - 1) + 0.5)]);
 }
 
 // Drives a RedisExecutor with passes of `blocks_per_pass` one-sample blocks.
@@ -158,7 +212,8 @@ void ceiling(const std::string& url, size_t max_entry_blocks, size_t passes, siz
 
 int main(int argc, char** argv) {
   const int rounds = argc > 1 ? std::atoi(argv[1]) : 9;
-  const std::string only = argc > 2 ? argv[2] : "";  // "reclaim": part 3 alone
+  // "reclaim": part 3 alone; "lighting" / "integration": that overhead alone.
+  const std::string only = argc > 2 ? argv[2] : "";
   TempDir tmp;
   const fs::path sock = tmp.path / "r.sock";
   const pid_t redis = spawn_logged({"redis-server", "--port", "0", "--unixsocket", sock.string(), "--save", "", "--appendonly",
@@ -169,24 +224,28 @@ int main(int argc, char** argv) {
   int rc = 0;
   std::vector<pid_t> pids;
   try {
-    if (only.empty()) {
+    if (only.empty() || only == "lighting" || only == "integration") {
     // 1. Overhead at equal cores.
     ServerProcess in_process(tmp.path / "a", {"--checkpoint-interval", "0.5"});
     ServerProcess cluster(tmp.path / "b", {"--redis", url, "--checkpoint-interval", "0.5"});
     pids.push_back(worker(url, "bench", 2, tmp.path));
     std::this_thread::sleep_for(1500ms);
     HttpClient ca = in_process.client(), cb = cluster.client();
-    overhead("integration (unit disk, 4e8 samples)", disk_spec(400'000'000, 1), ca, cb, rounds);
+    const std::vector<pid_t> pids_a = {in_process.pid()}, pids_b = {cluster.pid(), pids.back(), redis};
+    if (only.empty() || only == "integration") {
+      overhead("integration (unit disk, 4e8 samples)", disk_spec(400'000'000, 1), ca, cb, rounds, pids_a, pids_b);
+    }
     std::ifstream in(std::string(TALLY_SOURCE_DIR) + "/examples/lecture_lighting_image.json");
     json image = json::parse(in);
     image["stop"] = {{"max_samples", 256}};
     image["query"].erase("adaptive");
-    overhead("lighting image (128x96, 256 spp)", image, ca, cb, rounds);
+    if (only != "integration") overhead("lighting image (128x96, 256 spp)", image, ca, cb, rounds, pids_a, pids_b);
     in_process.terminate();
     cluster.terminate();
     reap(pids.back());
     pids.pop_back();
-
+    }
+    if (only.empty()) {
     // 2. Coordinator ceiling (its own Redis database; one worker process, 2 threads).
     const std::string url1 = url + "?db=1";
     pids.push_back(worker(url1, "ceiling", 2, tmp.path));
@@ -194,6 +253,11 @@ int main(int argc, char** argv) {
     ceiling(url1, 4096, 10, 20000);
     reap(pids.back());
     pids.pop_back();
+    }
+    if (only == "lighting" || only == "integration") {
+      for (pid_t p : pids) reap(p);
+      reap(redis);
+      return 0;
     }
 
     // 3. Reclaim latency after kill -9, lease 1 s.

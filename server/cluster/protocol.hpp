@@ -54,13 +54,17 @@ inline std::string asset_key(std::string_view sha) { return "tally:asset:" + std
 //
 // Stores an entry's results: each slot's first result wins (HSETNX), the entry is
 // acked in the same atomic step; a duplicate is compared byte for byte while the pass
-// is open, by SHA1 digest once it is merged. Returns {first, duplicate equal,
-// duplicate different, stale}; a difference marks the job (non-determinism). Stale:
-// the job was cancelled, belongs to another run, or its pass is gone without a digest.
+// is open, by SHA-1 digest once it is merged. The worker sends each result's digest
+// (result_digest, the hex of what redis.sha1hex would compute) so Redis does not hash
+// every result: the first result's digest is kept, a late duplicate's is compared with
+// it. Returns {first, duplicate equal, duplicate different, stale}; a difference marks
+// the job (non-determinism). Stale: the job was cancelled, belongs to another run, or its
+// pass is gone without a digest.
 // KEYS: results, stream, job, digests, counters, notify
-// ARGV: first slot, entry id, run, block count of the pass, job id, compute seconds, results...
+// ARGV: first slot, entry id, run, block count of the pass, job id, compute seconds,
+//       k results, then their k digests
 inline constexpr std::string_view kStoreScript = R"lua(
-local k = #ARGV - 6
+local k = (#ARGV - 6) / 2
 local run = redis.call('HGET', KEYS[3], 'run')
 if run ~= ARGV[3] or redis.call('HGET', KEYS[3], 'cancelled') == '1' then
   redis.call('HINCRBY', KEYS[5], 'stale', k)
@@ -76,8 +80,9 @@ local mismatch = nil
 for i = 1, k do
   local slot = tostring(base + i - 1)
   local res = ARGV[6 + i]
+  local digest = ARGV[6 + k + i]
   if open and redis.call('HSETNX', KEYS[1], slot, res) == 1 then
-    redis.call('HSET', KEYS[4], slot, redis.sha1hex(res))
+    redis.call('HSET', KEYS[4], slot, digest)
     first = first + 1
   elseif open and redis.call('HEXISTS', KEYS[1], slot) == 1 then
     if redis.call('HGET', KEYS[1], slot) == res then eq = eq + 1 else diff = diff + 1; mismatch = slot end
@@ -85,7 +90,7 @@ for i = 1, k do
     local d = redis.call('HGET', KEYS[4], slot)
     if not d then
       stale = stale + 1
-    elseif d == redis.sha1hex(res) then
+    elseif d == digest then
       eq = eq + 1
     else
       diff = diff + 1

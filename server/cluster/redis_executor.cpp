@@ -20,6 +20,9 @@ double unix_seconds() {
   return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
+// Milliseconds since `t`, for the pass-boundary latency lines (debug level).
+double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+
 // Live workers: a heartbeat within this many leases (at least 10 s).
 double worker_timeout_s(std::chrono::milliseconds lease) {
   return std::max(10.0, 3.0 * static_cast<double>(lease.count()) / 1000.0);
@@ -195,6 +198,7 @@ void RedisExecutor::loop() {
 }
 
 void RedisExecutor::step() {
+  clean_finished();
   // Cancels first: their keys go, so no worker starts another of their blocks.
   std::vector<std::string> to_cancel, to_publish;
   {
@@ -222,6 +226,7 @@ void RedisExecutor::step() {
   // Wait briefly for a completed pass (the store script pushes the job id).
   std::vector<std::string> notified;
   const RValue r = conn_->cmd({"BLPOP", kNotify, "0.05"});
+  notified_at_ = Clock::now();
   if (r.is_array() && r.elems.size() == 2) {
     notified.push_back(r.elems[1].str);
     for (int i = 0; i < 1000; ++i) {
@@ -237,6 +242,7 @@ void RedisExecutor::step() {
   } else if (!notified.empty()) {
     poll(notified);
   }
+  if (notified.empty()) prefetch();
   if (now - last_refresh_ >= std::chrono::milliseconds(500)) {
     last_refresh_ = now;
     refresh();
@@ -324,6 +330,7 @@ void RedisExecutor::publish(Job& job) {
   {
     std::lock_guard lock(mu_);
     job.entry_blocks = std::max<size_t>(1, largest);
+    job.entry_count = entries.size();
   }
   // The whole pass in one round trip (the pass boundary is the coordinator's only
   // serial latency: workers idle until this lands).
@@ -430,6 +437,85 @@ void RedisExecutor::poll(const std::vector<std::string>& ids) {
   }
 }
 
+std::string RedisExecutor::read_results(Job& job, bool prefetch, size_t& bytes) {
+  const PassWork& pass = job.pass;
+  const size_t n = pass.blocks.size();
+  if (job.got.size() != n) {
+    job.got.assign(n, std::nullopt);
+    job.got_count = 0;
+  }
+  const std::string r = pass_key('r', job.ej.id, job.run, pass.pass);
+  std::vector<std::string> slots;
+  if (prefetch) {
+    const RValue keys = conn_->cmd({"HKEYS", r});
+    for (const RValue& k : keys.elems) {
+      size_t slot = 0;
+      try {
+        slot = static_cast<size_t>(k.as_int());
+      } catch (const std::exception&) {
+        return "a result field is not a slot number";
+      }
+      if (slot >= n) return fmt::format("result slot {} is out of range (pass of {} blocks)", slot, n);
+      if (!job.got[slot]) slots.push_back(std::to_string(slot));
+    }
+  } else {
+    for (size_t i = 0; i < n; ++i) {
+      if (!job.got[i]) slots.push_back(std::to_string(i));
+    }
+  }
+  if (slots.empty()) return {};
+  std::vector<std::string_view> argv = {"HMGET", r};
+  for (const auto& sl : slots) argv.push_back(sl);
+  const RValue v = conn_->cmd(argv);
+  if (v.type == RValue::Type::error) throw RedisReplyError("HMGET: " + v.str);
+  for (size_t i = 0; i < slots.size() && i < v.elems.size(); ++i) {
+    if (v.elems[i].is_nil()) continue;
+    const size_t slot = static_cast<size_t>(std::stoull(slots[i]));
+    BlockResult res;
+    try {
+      res = decode_result(v.elems[i].str);
+    } catch (const WireError& e) {
+      return fmt::format("the result of block slot {} cannot be decoded: {}", slot, e.what());
+    }
+    if (res.block_index != pass.blocks[slot].index) {
+      return fmt::format("the result in slot {} belongs to block {}, expected {}", slot, res.block_index,
+                         pass.blocks[slot].index);
+    }
+    bytes += v.elems[i].str.size();
+    job.got[slot] = std::move(res);
+    ++job.got_count;
+  }
+  return {};
+}
+
+void RedisExecutor::prefetch() {
+  // Only jobs whose results are large (images: a tally per pixel per block): reading and
+  // decoding them at the pass boundary would keep every worker waiting. Small results
+  // (integration) are read at the end in one round trip, as cheap as it gets.
+  std::vector<std::string> ids;
+  {
+    std::lock_guard lock(mu_);
+    for (const auto& [id, j] : jobs_) {
+      if (j->published && !j->cancel_requested && j->result_bytes >= 16384) ids.push_back(id);
+    }
+  }
+  for (const auto& id : ids) {
+    Job* job;
+    {
+      std::lock_guard lock(mu_);
+      auto it = jobs_.find(id);
+      if (it == jobs_.end()) continue;
+      job = it->second.get();
+    }
+    size_t bytes = 0;
+    const std::string error = read_results(*job, true, bytes);
+    if (!error.empty()) {
+      log::job(log::Level::error, id, "{}", error);
+      leave(id, true, error);
+    }
+  }
+}
+
 void RedisExecutor::merge(const std::string& id) {
   Job* job;
   {
@@ -441,45 +527,25 @@ void RedisExecutor::merge(const std::string& id) {
   const PassWork& pass = job->pass;
   const size_t n = pass.blocks.size();
   const std::string r = pass_key('r', id, job->run, pass.pass);
-  conn_->append({"HGETALL", r});
-  conn_->append({"HMGET", job_key(id), "compute_s", "computed"});
-  const RValue all = conn_->get_reply();
-  const RValue m = conn_->get_reply();
-  if (all.type == RValue::Type::error) throw RedisReplyError("HGETALL: " + all.str);
-  std::vector<BlockResult> results(n);
-  std::vector<bool> seen(n, false);
-  std::string error;
-  for (size_t i = 0; i + 1 < all.elems.size(); i += 2) {
-    size_t slot = 0;
-    try {
-      slot = static_cast<size_t>(all.elems[i].as_int());
-    } catch (const std::exception&) {
-      error = "a result field is not a slot number";
-      break;
-    }
-    if (slot >= n) {
-      error = fmt::format("result slot {} is out of range (pass of {} blocks)", slot, n);
-      break;
-    }
-    try {
-      results[slot] = decode_result(all.elems[i + 1].str);
-    } catch (const WireError& e) {
-      error = fmt::format("the result of block slot {} cannot be decoded: {}", slot, e.what());
-      break;
-    }
-    if (results[slot].block_index != pass.blocks[slot].index) {
-      error = fmt::format("the result in slot {} belongs to block {}, expected {}", slot, results[slot].block_index,
-                          pass.blocks[slot].index);
-      break;
-    }
-    seen[slot] = true;
-  }
-  if (error.empty() && std::find(seen.begin(), seen.end(), false) != seen.end()) return;  // not complete yet
+  const auto t_read = Clock::now();
+  const size_t had = job->got.size() == n ? job->got_count : 0;
+  size_t result_bytes = 0;
+  const std::string error = read_results(*job, false, result_bytes);
   if (!error.empty()) {
     log::job(log::Level::error, id, "{}", error);
     leave(id, true, error);
     return;
   }
+  if (job->got_count < n) return;  // not complete yet
+  const double read_ms = ms_since(t_read);
+  const RValue m = conn_->cmd({"HMGET", job_key(id), "compute_s", "computed"});
+  const auto t_decode = Clock::now();
+  std::vector<BlockResult> results(n);
+  for (size_t i = 0; i < n; ++i) results[i] = std::move(*job->got[i]);
+  job->got.clear();
+  job->got_count = 0;
+  const double decode_ms = ms_since(t_decode);
+  if (result_bytes > 0 && n > had) job->result_bytes = static_cast<double>(result_bytes) / static_cast<double>(n - had);
   const double wall = std::chrono::duration<double>(Clock::now() - job->pass_start).count();
   {
     try {
@@ -513,7 +579,10 @@ void RedisExecutor::merge(const std::string& id) {
     counters_.merged += n;
     samples_done_ += samples;
   }
+  const auto t_merge = Clock::now();
+  const uint64_t pass_no = pass.pass;
   PassWork next = cb_.pass_done(id, pass, std::move(results), wall);
+  const double merge_ms = ms_since(t_merge);
   bool leave_now = false;
   {
     std::lock_guard lock(mu_);
@@ -529,11 +598,35 @@ void RedisExecutor::merge(const std::string& id) {
     }
   }
   if (leave_now) {
-    delete_job_keys(*job);
-    std::lock_guard lock(mu_);
-    jobs_.erase(id);
+    // The job is done: it leaves at once, whatever happens to Redis now. Its keys go
+    // next; if Redis is unreachable they are deleted after the reconnect, never
+    // republished (a finished job's last pass computed again would be merged into a
+    // job that has ended).
+    {
+      std::lock_guard lock(mu_);
+      auto it = jobs_.find(id);
+      finished_.push_back(std::move(it->second));
+      jobs_.erase(it);
+    }
+    clean_finished();
   } else if (!job->cancel_requested) {
+    const auto t_publish = Clock::now();
     publish(*job);
+    // One line per pass boundary: where the coordinator's serial time goes.
+    log::job(log::Level::debug, id,
+             "pass {} ({} blocks, {} read before the end, {} result bytes read at the end): noticed {:.3f} ms after "
+             "BLPOP returned, read + decode {:.3f} ms, collect {:.3f} ms, merge {:.3f} ms, publish {:.3f} ms ({} "
+             "entries), boundary {:.3f} ms; at unix {:.6f}",
+             pass_no, n, had, result_bytes, std::chrono::duration<double, std::milli>(t_read - notified_at_).count(), read_ms,
+             decode_ms, merge_ms, ms_since(t_publish), job->entry_count,
+             std::chrono::duration<double, std::milli>(Clock::now() - notified_at_).count(), unix_seconds());
+  }
+}
+
+void RedisExecutor::clean_finished() {
+  while (!finished_.empty()) {
+    delete_job_keys(*finished_.front());
+    finished_.pop_front();
   }
 }
 

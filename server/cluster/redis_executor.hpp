@@ -87,6 +87,12 @@ class RedisExecutor final : public Executor {
     ExecutorStats::JobBlocks blocks;
     double block_seconds = 0;  // workers' measured compute time per block
     size_t entry_blocks = 1;   // blocks per stream entry in the current pass
+    size_t entry_count = 0;    // stream entries of the current pass
+    // The current pass's results read and decoded so far (slot order). Large results
+    // (images) are read while the pass runs, so the pass boundary reads only the last.
+    std::vector<std::optional<BlockResult>> got;
+    size_t got_count = 0;
+    double result_bytes = 0;   // mean bytes of a result in the last merged pass
   };
 
   void loop();
@@ -97,8 +103,17 @@ class RedisExecutor final : public Executor {
   // Checks the jobs' result hashes; merges complete passes. `ids` empty: all jobs.
   void poll(const std::vector<std::string>& ids);
   void merge(const std::string& id);
+  // Reads results of the job's current pass not read yet into Job::got, decoded and
+  // checked. `prefetch`: only the slots Redis lists now (while the pass runs); else
+  // every missing slot. Adds the bytes read to `bytes`. Returns an error that fails the
+  // job (a result that cannot be decoded or belongs to another block), else "".
+  std::string read_results(Job& job, bool prefetch, size_t& bytes);
+  void prefetch();
   void leave(const std::string& id, bool failed, const std::string& error);
   void delete_job_keys(Job& job);
+  // Deletes the keys of jobs that left the executor; one Redis could not reach stays
+  // queued and is retried first thing in the next step (after a reconnect).
+  void clean_finished();
   void refresh();
 
   RedisExecutorConfig cfg_;
@@ -108,10 +123,12 @@ class RedisExecutor final : public Executor {
   bool first_connect_ = true;
   uint64_t generation_ = 0;
   std::chrono::steady_clock::time_point last_poll_{}, last_refresh_{};
+  std::chrono::steady_clock::time_point notified_at_{};  // the last BLPOP's return (latency lines)
 
   mutable std::mutex mu_;
   std::condition_variable cv_;
   std::map<std::string, std::unique_ptr<Job>> jobs_;
+  std::deque<std::unique_ptr<Job>> finished_;  // coordinator thread only: keys still to delete
   std::optional<std::string> not_ready_;
   std::vector<WorkerInfo> workers_;
   ClusterCounters counters_;

@@ -2,7 +2,11 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <bit>
+#include <cstring>
+
+#include <openssl/evp.h>
 
 #include "common/engine/byte_codec.hpp"
 
@@ -11,8 +15,8 @@ namespace tally::cluster {
 namespace {
 
 // 2: BlockResult::aux (adaptive kernels); 3: as many counters as the kernel declares
-// (Kernel::counter_names), no longer a fixed list.
-constexpr unsigned char kResultVersion = 3;
+// (Kernel::counter_names), no longer a fixed list; 4: compact tallies (below).
+constexpr unsigned char kResultVersion = 4;
 
 using Writer = ByteWriter;
 
@@ -21,6 +25,92 @@ class Reader : public ByteReader<WireError> {
  public:
   explicit Reader(std::string_view in) : ByteReader<WireError>(in, "result") {}
 };
+
+constexpr uint64_t kBigN = 63;
+
+// Image jobs send one tally per pixel channel per block: most of them have n of 0, 1 or 2
+// and an M2 of exactly +0 (a single sample), so a result is mostly zero bytes. A tally is
+// one head byte (bit 0: mean follows, bit 1: M2 follows, bits 2-7: n, 63 = 63 + a LEB128
+// varint), then the doubles whose bits are not all zero, as raw little-endian bits: the
+// decoded tally is bit-identical (a +0.0 left out decodes as +0.0; -0.0 has a bit set and
+// travels). Written and read with plain pointers: this is the bulk of an image result.
+constexpr size_t kMaxTallyBytes = 1 + 10 + 8 + 8;
+
+char* put_le(char* p, uint64_t v) {
+  if constexpr (std::endian::native == std::endian::little) {
+    std::memcpy(p, &v, 8);
+  } else {
+    for (int i = 0; i < 8; ++i) p[i] = static_cast<char>((v >> (8 * i)) & 0xff);
+  }
+  return p + 8;
+}
+uint64_t get_le(const char* p) {
+  uint64_t v = 0;
+  if constexpr (std::endian::native == std::endian::little) {
+    std::memcpy(&v, p, 8);
+  } else {
+    for (int i = 0; i < 8; ++i) v |= static_cast<uint64_t>(static_cast<unsigned char>(p[i])) << (8 * i);
+  }
+  return v;
+}
+
+void put_tallies(std::string& out, const std::vector<Tally>& tallies) {
+  const size_t start = out.size();
+  out.resize(start + tallies.size() * kMaxTallyBytes);
+  char* p = out.data() + start;
+  for (const Tally& t : tallies) {
+    const uint64_t mean = std::bit_cast<uint64_t>(t.mean), m2 = std::bit_cast<uint64_t>(t.m2);
+    const uint64_t small = std::min<uint64_t>(t.n, kBigN);
+    *p++ = static_cast<char>((small << 2) | (m2 != 0 ? 2u : 0u) | (mean != 0 ? 1u : 0u));
+    if (small == kBigN) {
+      uint64_t v = t.n - kBigN;
+      for (; v >= 0x80; v >>= 7) *p++ = static_cast<char>((v & 0x7f) | 0x80);
+      *p++ = static_cast<char>(v);
+    }
+    if (mean != 0) p = put_le(p, mean);
+    if (m2 != 0) p = put_le(p, m2);
+  }
+  out.resize(static_cast<size_t>(p - out.data()));
+}
+
+// Reads `tallies.size()` compact tallies from the front of `in`; returns the bytes used.
+size_t get_tallies(std::string_view in, std::vector<Tally>& tallies) {
+  const char* p = in.data();
+  const char* const end = p + in.size();
+  auto truncated = [&] {
+    return WireError(fmt::format("result is truncated in tally data at byte {}", p - in.data()));
+  };
+  for (Tally& t : tallies) {
+    if (p == end) throw truncated();
+    const auto head = static_cast<unsigned char>(*p++);
+    t.n = head >> 2;
+    if (t.n == kBigN) {
+      uint64_t more = 0;
+      for (int shift = 0;; shift += 7) {
+        if (p == end) throw truncated();
+        const auto b = static_cast<unsigned char>(*p++);
+        if (shift == 63 && b > 1) throw WireError("result: a tally's count overflows 64 bits");
+        more |= static_cast<uint64_t>(b & 0x7f) << shift;
+        if ((b & 0x80) == 0) break;
+      }
+      if (more > UINT64_MAX - kBigN) throw WireError("result: a tally's count overflows 64 bits");
+      t.n = kBigN + more;
+    }
+    const size_t doubles = (head & 1u) + ((head >> 1) & 1u);
+    if (static_cast<size_t>(end - p) < 8 * doubles) throw truncated();
+    t.mean = 0.0;
+    t.m2 = 0.0;
+    if (head & 1u) {
+      t.mean = std::bit_cast<double>(get_le(p));
+      p += 8;
+    }
+    if (head & 2u) {
+      t.m2 = std::bit_cast<double>(get_le(p));
+      p += 8;
+    }
+  }
+  return static_cast<size_t>(p - in.data());
+}
 
 }  // namespace
 
@@ -54,12 +144,14 @@ std::vector<Block> decode_blocks(std::string_view bytes) {
 }
 
 std::string encode_result(const BlockResult& res) {
+  Writer head;
+  head.u8(kResultVersion);
+  head.u64(res.block_index);
+  head.u64(res.first_channel);
+  head.u64(res.tallies.size());
+  std::string out = head.take();
+  put_tallies(out, res.tallies);
   Writer w;
-  w.u8(kResultVersion);
-  w.u64(res.block_index);
-  w.u64(res.first_channel);
-  w.u64(res.tallies.size());
-  for (const Tally& t : res.tallies) w.tally(t);
   w.u64(res.counters.values.size());
   for (uint64_t v : res.counters.values) w.u64(v);
   w.tail(res.tail);  // heap order: assign() rebuilds the same layout
@@ -68,19 +160,23 @@ std::string encode_result(const BlockResult& res) {
   if (res.fault) w.fault(*res.fault);
   w.u64(res.aux.size());
   for (double v : res.aux) w.f64(v);
-  return w.take();
+  out += w.str();
+  return out;
 }
 
 BlockResult decode_result(std::string_view bytes) {
-  Reader r(bytes);
-  if (const unsigned v = r.u8(); v != kResultVersion) throw WireError(fmt::format("result version {} is not {}", v, kResultVersion));
+  Reader head(bytes);
+  if (const unsigned v = head.u8(); v != kResultVersion) {
+    throw WireError(fmt::format("result version {} is not {}", v, kResultVersion));
+  }
   BlockResult res;
-  res.block_index = r.u64();
-  const uint64_t fc = r.u64();
+  res.block_index = head.u64();
+  const uint64_t fc = head.u64();
   if (fc > UINT32_MAX) throw WireError("first_channel out of range");
   res.first_channel = static_cast<uint32_t>(fc);
-  res.tallies.resize(r.count(24));
-  for (Tally& t : res.tallies) t = r.tally();
+  res.tallies.resize(head.count(1));
+  const size_t at = head.pos();
+  Reader r(bytes.substr(at + get_tallies(bytes.substr(at), res.tallies)));
   const uint64_t nc = r.count(8);
   if (nc > Counters::kMaxCounters) throw WireError(fmt::format("{} counters (at most {})", nc, Counters::kMaxCounters));
   res.counters.values.resize(nc);
@@ -92,6 +188,25 @@ BlockResult decode_result(std::string_view bytes) {
   for (double& v : res.aux) v = r.f64();
   if (!r.done()) throw WireError("trailing bytes after a result");
   return res;
+}
+
+}  // namespace tally::cluster
+
+namespace tally::cluster {
+
+std::string result_digest(std::string_view encoded) {
+  unsigned char md[EVP_MAX_MD_SIZE];
+  unsigned int len = 0;
+  if (EVP_Digest(encoded.data(), encoded.size(), md, &len, EVP_sha1(), nullptr) != 1) {
+    throw std::runtime_error("SHA-1 of a result failed (OpenSSL)");
+  }
+  static constexpr char kHex[] = "0123456789abcdef";
+  std::string out(2 * len, '0');
+  for (unsigned i = 0; i < len; ++i) {
+    out[2 * i] = kHex[md[i] >> 4];
+    out[2 * i + 1] = kHex[md[i] & 15];
+  }
+  return out;
 }
 
 }  // namespace tally::cluster

@@ -25,4 +25,8 @@ std::vector<Block> decode_blocks(std::string_view bytes);
 std::string encode_result(const BlockResult& r);
 BlockResult decode_result(std::string_view bytes);
 
+// Lower-case hex SHA-1 of an encoded result (what redis.sha1hex would return): a worker
+// sends it beside the result, so Redis keeps digests without hashing every result.
+std::string result_digest(std::string_view encoded);
+
 }  // namespace tally::cluster

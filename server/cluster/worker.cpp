@@ -219,6 +219,7 @@ class Worker {
           const RValue r = conn->cmd({"XREAD", "COUNT", "100", "BLOCK", std::to_string(wait.count()), "STREAMS", kWake, wake_id});
           if (r.is_array() && !r.elems.empty() && r.elems[0].elems.size() == 2 && !r.elems[0].elems[1].elems.empty()) {
             wake_id = r.elems[0].elems[1].elems.back().elems[0].str;
+            if (cfg_.verbose) log(fmt::format("thread {} woken at unix {:.6f}", t, unix_seconds()));
           }
         }
       } catch (const RedisIoError& e) {
@@ -326,6 +327,8 @@ class Worker {
                const std::string& stream, const RValue& entry, bool redelivered, const std::string& store_sha,
                const std::string& fail_sha) {
     RedisConn& conn = *conn_owner;
+    const auto t_got = Clock::now();
+    const double unix_got = unix_seconds();
     const std::string& entry_id = entry.elems[0].str;
     std::string block_bytes, slot;
     const auto& fv = entry.elems[1].elems;
@@ -361,6 +364,7 @@ class Worker {
     std::string error;
     uint64_t block_index = 0;
     const auto t0 = Clock::now();
+    const double prep_ms = std::chrono::duration<double, std::milli>(t0 - t_got).count();
     try {
       const std::vector<Block> blocks = decode_blocks(block_bytes);
       if (!c.error.empty()) throw std::runtime_error(c.error);
@@ -390,11 +394,19 @@ class Worker {
     const std::string n = std::to_string(meta->n);
     const std::string secs_s = fmt::format("{:.9f}", secs);
     std::vector<std::string_view> args = {slot, entry_id, sk->run, n, sk->id, secs_s};
+    std::vector<std::string> digests;
+    digests.reserve(results.size());
+    for (const auto& r : results) digests.push_back(result_digest(r));
     for (const auto& r : results) args.push_back(r);
+    for (const auto& d : digests) args.push_back(d);
+    size_t bytes = 0;
+    for (const auto& r : results) bytes += r.size();
+    const auto t_store = Clock::now();
     const RValue r = eval_retrying(conn_owner, store_sha, kStoreScript,
                                    {pass_key('r', sk->id, sk->run, sk->pass), stream, jk,
                                     pass_key('d', sk->id, sk->run, sk->pass), kCounters, kNotify},
                                    args);
+    const double store_ms = std::chrono::duration<double, std::milli>(Clock::now() - t_store).count();
     blocks_done_.fetch_add(results.size());
     if (r.elems.size() == 4) {
       if (r.elems[1].integer > 0) {
@@ -406,8 +418,10 @@ class Worker {
                         sk->id, sk->pass));
       }
       if (cfg_.verbose) {
-        log(fmt::format("entry {} of job {} pass {}: first {} stale {}", slot, sk->id, sk->pass, r.elems[0].integer,
-                        r.elems[3].integer));
+        log(fmt::format("entry {} of job {} pass {}: first {} stale {}; {} blocks, {} result bytes; got at unix {:.6f}, "
+                        "prepare {:.3f} ms, compute {:.3f} ms, store {:.3f} ms",
+                        slot, sk->id, sk->pass, r.elems[0].integer, r.elems[3].integer, results.size(), bytes, unix_got,
+                        prep_ms, secs * 1e3, store_ms));
       }
     }
   }

@@ -6,6 +6,7 @@
 #include <limits>
 
 #include "common/engine/block_abandon.hpp"
+#include "common/log/log.hpp"
 
 namespace tally {
 
@@ -213,7 +214,13 @@ void InProcessExecutor::worker_loop() {
     std::vector<BlockResult> results_done = std::move(a->results);
     const std::string id = a->id;
     lock.unlock();
+    const auto t_merge = std::chrono::steady_clock::now();
+    const uint64_t pass_no = pass_done.pass;
+    const size_t pass_blocks = pass_done.blocks.size();
     PassWork next = cb_.pass_done(id, pass_done, std::move(results_done), wall);
+    // The in-process side of a pass boundary, to compare with the cluster's (debug level).
+    log::job(log::Level::debug, id, "pass {} ({} blocks): merge {:.3f} ms", pass_no, pass_blocks,
+             std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_merge).count());
     lock.lock();
     auto it = active_.find(id);
     if (it == active_.end()) continue;  // stop() cleared it

@@ -45,6 +45,40 @@ TEST(ClusterWire, ResultRoundTripIsBitExact) {
   EXPECT_EQ(encode_result(d), encode_result(r));
 }
 
+TEST(ClusterWire, CompactTalliesAreBitExactAndSmall) {
+  // Counts across the head byte's limit (63) and up to 2^64 - 1, zero and non-zero
+  // doubles of every kind: each decodes to the same bits.
+  BlockResult r;
+  const double nan = std::bit_cast<double>(0x7ff8000000000123ULL);
+  for (uint64_t n : std::initializer_list<uint64_t>{0, 1, 2, 62, 63, 64, 63 + 127, 63 + 128, 1ULL << 40, UINT64_MAX - 1, UINT64_MAX}) {
+    for (double mean : {0.0, -0.0, 1.0 / 3.0, nan, 1e-310}) {
+      for (double m2 : {0.0, -0.0, 2.5, std::numeric_limits<double>::infinity()}) r.tallies.push_back({n, mean, m2});
+    }
+  }
+  const BlockResult d = decode_result(encode_result(r));
+  ASSERT_EQ(d.tallies.size(), r.tallies.size());
+  for (size_t i = 0; i < r.tallies.size(); ++i) {
+    EXPECT_EQ(d.tallies[i].n, r.tallies[i].n) << i;
+    EXPECT_EQ(std::bit_cast<uint64_t>(d.tallies[i].mean), std::bit_cast<uint64_t>(r.tallies[i].mean)) << i;
+    EXPECT_EQ(std::bit_cast<uint64_t>(d.tallies[i].m2), std::bit_cast<uint64_t>(r.tallies[i].m2)) << i;
+  }
+  // A pixel seen once in a block (n 1, M2 exactly +0) costs 9 bytes instead of 24, an
+  // unseen one 1 byte, one seen twice 17.
+  BlockResult image;
+  image.tallies.assign(1000, Tally{1, 0.25, 0.0});
+  const size_t base = encode_result(BlockResult{}).size();
+  EXPECT_EQ(encode_result(image).size(), base + 1000 * 9);
+  image.tallies.assign(1000, Tally{});
+  EXPECT_EQ(encode_result(image).size(), base + 1000);
+  image.tallies.assign(1000, Tally{2, 0.25, 0.5});
+  EXPECT_EQ(encode_result(image).size(), base + 1000 * 17);
+}
+
+TEST(ClusterWire, ResultDigestIsTheSha1Hex) {
+  EXPECT_EQ(result_digest("abc"), "a9993e364706816aba3e25717850c26c9cd0d89d");  // FIPS 180 test vector
+  EXPECT_EQ(result_digest(""), "da39a3ee5e6b4b0d3255bfef95601890afd80709");
+}
+
 TEST(ClusterWire, CorruptInputIsRejected) {
   BlockResult r;
   r.tallies = {{1, 2.0, 0.0}};
@@ -53,6 +87,14 @@ TEST(ClusterWire, CorruptInputIsRejected) {
     EXPECT_THROW(decode_result(std::string_view(bytes).substr(0, cut)), WireError) << cut;
   }
   EXPECT_THROW(decode_result(bytes + "x"), WireError);
+  // A count that overflows 64 bits in the varint, or in 63 + varint.
+  BlockResult big;
+  big.tallies = {{UINT64_MAX, 0.0, 0.0}};
+  std::string over = encode_result(big);
+  const size_t head = over.size() - 8 /*counters*/ - 16 /*tail*/ - 16 /*weights*/ - 1 /*fault*/ - 8 /*aux*/ - 11;
+  ASSERT_EQ(static_cast<unsigned char>(over[head]), 63u << 2);
+  over[head + 10] = 2;  // the varint's last byte: bit 64 set
+  EXPECT_THROW(decode_result(over), WireError);
   std::string bad = bytes;
   bad[0] = 9;  // version
   EXPECT_THROW(decode_result(bad), WireError);

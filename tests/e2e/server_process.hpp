@@ -40,6 +40,7 @@ class ServerProcess {
   // Sends `sig` (e.g. SIGHUP) to the running server.
   void signal(int sig);
   bool running() const { return pid_ > 0; }
+  pid_t pid() const { return pid_; }
   uint16_t port() const { return port_; }
   HttpClient client(double timeout_s = 30) const;
   // A client for this server with credentials; `tls`: https with the given CA file.
