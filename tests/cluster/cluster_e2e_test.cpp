@@ -762,33 +762,28 @@ TEST(Cluster, ImageResultsReadDuringThePassStayBitIdenticalThroughARedisRestart)
     expected_pixels = exr_pixels(c, id, tmp.path);
     ref.terminate();
   }
-  RedisServer redis(tmp.path);
-  std::vector<std::string> flags = cluster_flags(redis);
-  flags.insert(flags.end(), {"--log-level", "debug"});
-  ServerProcess server(tmp.path / "data", flags);
   // Blocks of >= 40 ms (a sleep, no CPU): every pass lasts several of the coordinator's
   // 50 ms rounds, so results are there to be read before the pass ends.
-  WorkerProcess w1(redis.url(), "w1", tmp.path, 1, {}, faulty("sleep_ms=40"));
-  WorkerProcess w2(redis.url(), "w2", tmp.path, 1, {}, faulty("sleep_ms=40"));
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  TestCluster cl(tmp.path, {{"w1", 1, {}, faulty("sleep_ms=40")}, {"w2", 1, {}, faulty("sleep_ms=40")}},
+                 {.server_flags = {"--log-level", "debug"}});
+  HttpClient& c = cl.c;
   const std::string id = submit(c, image);
   wait_until([&] { return get_json(c, "/v1/jobs/" + id).value("passes", 0) >= 2; }, 120, "two passes merged");
-  redis.stop();
+  cl.redis.stop();
   std::this_thread::sleep_for(500ms);
-  redis.start();  // empty
+  cl.redis.start();  // empty
   json s;
   try {
     s = wait_state(c, id, "succeeded", 180);
   } catch (const std::exception& e) {
-    FAIL() << e.what() << "\n" << server.log();
+    FAIL() << e.what() << "\n" << cl.server.log();
   }
   EXPECT_EQ(s.at("bits"), expected_bits);
   EXPECT_EQ(exr_pixels(c, id, tmp.path), expected_pixels);
   EXPECT_GE(metrics_counts(c).at("passes_republished").get<uint64_t>(), 1u);
   // The coordinator's pass-boundary lines say how many results of each pass it had read
   // before the pass ended: at least one pass was read early.
-  const std::string log = server.log();
+  const std::string log = cl.server.log();
   size_t early = 0;
   for (size_t at = log.find("read before the end"); at != std::string::npos; at = log.find("read before the end", at + 1)) {
     const size_t comma = log.rfind(", ", at);
