@@ -6,6 +6,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iostream>
 #include <sstream>
 #include <thread>
@@ -113,6 +114,32 @@ void add_server_option(CLI::App* cmd, RemoteOptions& o) {
   add_security_options(cmd, o.security);
 }
 
+// A subcommand about one job: its id, then the options `add_options` adds (may be
+// empty), then the server options; when chosen, `run(client, id)` under run_guarded.
+void add_job_command(CLI::App& app, int& exit_code, const char* name, const char* help,
+                     const std::function<void(CLI::App*)>& add_options,
+                     std::function<int(HttpClient&, const std::string&)> run) {
+  auto opt = std::make_shared<RemoteOptions>();
+  auto id = std::make_shared<std::string>();
+  CLI::App* cmd = app.add_subcommand(name, help);
+  cmd->add_option("id", *id, "job id")->required();
+  if (add_options) add_options(cmd);
+  add_server_option(cmd, *opt);
+  cmd->callback([=, &exit_code, run = std::move(run)] {
+    run_guarded(exit_code, [&] {
+      HttpClient c = make_client(*opt);
+      return run(c, *id);
+    });
+  });
+}
+
+// "queued", "running" or a final state.
+std::string job_state(HttpClient& c, const std::string& id) {
+  return get_json(c, "/v1/jobs/" + id).value("state", "");
+}
+
+bool is_active(const std::string& state) { return state == "queued" || state == "running"; }
+
 }  // namespace
 
 int exit_code_for_status(const json& s) {
@@ -218,57 +245,42 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
     });
   }
   // watch
-  {
-    auto opt = std::make_shared<RemoteOptions>();
-    auto id = std::make_shared<std::string>();
-    CLI::App* cmd = app.add_subcommand("watch", "Follow a job's progress until it ends");
-    cmd->add_option("id", *id, "job id")->required();
-    add_server_option(cmd, *opt);
-    cmd->callback([=, &exit_code] {
-      run_guarded(exit_code, [&] {
-        HttpClient c = make_client(*opt);
-        return watch_job(c, *id);
-      });
-    });
-  }
+  add_job_command(app, exit_code, "watch", "Follow a job's progress until it ends", {},
+                  [](HttpClient& c, const std::string& id) { return watch_job(c, id); });
   // get
   {
-    auto opt = std::make_shared<RemoteOptions>();
-    auto id = std::make_shared<std::string>();
     auto as_json = std::make_shared<bool>(false);
     auto image = std::make_shared<std::string>();
-    CLI::App* cmd = app.add_subcommand("get", "Show a job's status and result");
-    cmd->add_option("id", *id, "job id")->required();
-    cmd->add_flag("--json", *as_json, "print the full status document");
-    cmd->add_option("--image", *image, "save the job's image (.exr or .png)");
-    add_server_option(cmd, *opt);
-    cmd->callback([=, &exit_code] {
-      run_guarded(exit_code, [&] {
-        HttpClient c = make_client(*opt);
-        const ClientResponse r = c.request("GET", "/v1/jobs/" + *id);
-        if (r.status != 200) fail_response(r);
-        const json s = json::parse(r.body);
-        if (*as_json) {
-          fmt::print("{}\n", s.dump(2));
-        } else {
-          print_status(s);
-        }
-        if (!image->empty()) {
-          const bool png = image->size() >= 4 && image->substr(image->size() - 4) == ".png";
-          const ClientResponse img = c.request("GET", "/v1/jobs/" + *id + (png ? "/image.png" : "/image.exr"));
-          if (img.status != 200) fail_response(img);
-          std::ofstream out(*image, std::ios::binary);
-          out.write(img.body.data(), static_cast<std::streamsize>(img.body.size()));
-          if (!out) {
-            fmt::print(stderr, "tally: cannot write {}\n", *image);
-            return exit_code::usage;
+    add_job_command(
+        app, exit_code, "get", "Show a job's status and result",
+        [=](CLI::App* cmd) {
+          cmd->add_flag("--json", *as_json, "print the full status document");
+          cmd->add_option("--image", *image, "save the job's image (.exr or .png)");
+        },
+        [=](HttpClient& c, const std::string& id) {
+          const ClientResponse r = c.request("GET", "/v1/jobs/" + id);
+          if (r.status != 200) fail_response(r);
+          const json s = json::parse(r.body);
+          if (*as_json) {
+            fmt::print("{}\n", s.dump(2));
+          } else {
+            print_status(s);
           }
-          fmt::print(stderr, "wrote {} ({} bytes)\n", *image, img.body.size());
-        }
-        const int code = exit_code_for_status(s);
-        return code < 0 ? exit_code::ok : code;
-      });
-    });
+          if (!image->empty()) {
+            const bool png = image->size() >= 4 && image->substr(image->size() - 4) == ".png";
+            const ClientResponse img = c.request("GET", "/v1/jobs/" + id + (png ? "/image.png" : "/image.exr"));
+            if (img.status != 200) fail_response(img);
+            std::ofstream out(*image, std::ios::binary);
+            out.write(img.body.data(), static_cast<std::streamsize>(img.body.size()));
+            if (!out) {
+              fmt::print(stderr, "tally: cannot write {}\n", *image);
+              return exit_code::usage;
+            }
+            fmt::print(stderr, "wrote {} ({} bytes)\n", *image, img.body.size());
+          }
+          const int code = exit_code_for_status(s);
+          return code < 0 ? exit_code::ok : code;
+        });
   }
   // list
   {
@@ -300,92 +312,68 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
     });
   }
   // cancel
-  {
-    auto opt = std::make_shared<RemoteOptions>();
-    auto id = std::make_shared<std::string>();
-    CLI::App* cmd = app.add_subcommand("cancel", "Cancel a queued or running job");
-    cmd->add_option("id", *id, "job id")->required();
-    add_server_option(cmd, *opt);
-    cmd->callback([=, &exit_code] {
-      run_guarded(exit_code, [&] {
-        HttpClient c = make_client(*opt);
-        // DELETE of a finished job deletes it: cancel never sends it to one.
-        const json st = get_json(c, "/v1/jobs/" + *id);
-        const std::string state = st.value("state", "");
-        if (state != "queued" && state != "running") {
-          fmt::print(stderr, "tally: job {} has already finished ({}); `tally delete {}` deletes it\n", *id, state,
-                     *id);
-          return exit_code::usage;
-        }
-        const ClientResponse r = c.request("DELETE", "/v1/jobs/" + *id);
-        if (r.status == 204) {  // it finished in between, and was deleted
-          fmt::print("{} deleted (it had just finished)\n", *id);
-          return exit_code::ok;
-        }
-        if (r.status != 200 && r.status != 202) fail_response(r);
-        fmt::print("{} {}\n", *id, r.status == 200 ? "cancelled" : "cancelling (stops at the next chunk)");
-        return exit_code::ok;
-      });
-    });
-  }
+  add_job_command(app, exit_code, "cancel", "Cancel a queued or running job", {},
+                  [](HttpClient& c, const std::string& id) {
+                    // DELETE of a finished job deletes it: cancel never sends it to one.
+                    const std::string state = job_state(c, id);
+                    if (!is_active(state)) {
+                      fmt::print(stderr, "tally: job {} has already finished ({}); `tally delete {}` deletes it\n", id,
+                                 state, id);
+                      return exit_code::usage;
+                    }
+                    const ClientResponse r = c.request("DELETE", "/v1/jobs/" + id);
+                    if (r.status == 204) {  // it finished in between, and was deleted
+                      fmt::print("{} deleted (it had just finished)\n", id);
+                      return exit_code::ok;
+                    }
+                    if (r.status != 200 && r.status != 202) fail_response(r);
+                    fmt::print("{} {}\n", id, r.status == 200 ? "cancelled" : "cancelling (stops at the next chunk)");
+                    return exit_code::ok;
+                  });
   // delete
-  {
-    auto opt = std::make_shared<RemoteOptions>();
-    auto id = std::make_shared<std::string>();
-    CLI::App* cmd = app.add_subcommand("delete", "Delete a finished job and its stored state");
-    cmd->add_option("id", *id, "job id")->required();
-    add_server_option(cmd, *opt);
-    cmd->callback([=, &exit_code] {
-      run_guarded(exit_code, [&] {
-        HttpClient c = make_client(*opt);
-        const json st = get_json(c, "/v1/jobs/" + *id);
-        const std::string state = st.value("state", "");
-        if (state == "queued" || state == "running") {
-          fmt::print(stderr, "tally: job {} is still {}; `tally cancel {}` first\n", *id, state, *id);
-          return exit_code::usage;
-        }
-        const ClientResponse r = c.request("DELETE", "/v1/jobs/" + *id);
-        if (r.status != 204) fail_response(r);
-        fmt::print("{} deleted\n", *id);
-        return exit_code::ok;
-      });
-    });
-  }
+  add_job_command(app, exit_code, "delete", "Delete a finished job and its stored state", {},
+                  [](HttpClient& c, const std::string& id) {
+                    const std::string state = job_state(c, id);
+                    if (is_active(state)) {
+                      fmt::print(stderr, "tally: job {} is still {}; `tally cancel {}` first\n", id, state, id);
+                      return exit_code::usage;
+                    }
+                    const ClientResponse r = c.request("DELETE", "/v1/jobs/" + id);
+                    if (r.status != 204) fail_response(r);
+                    fmt::print("{} deleted\n", id);
+                    return exit_code::ok;
+                  });
   // extend
   {
-    auto opt = std::make_shared<RemoteOptions>();
-    auto id = std::make_shared<std::string>();
     auto max_samples = std::make_shared<uint64_t>(0);
     auto abs_error = std::make_shared<double>(0);
     auto rel_error = std::make_shared<double>(0);
     auto budget = std::make_shared<double>(0);
     auto watch = std::make_shared<bool>(false);
-    CLI::App* cmd = app.add_subcommand("extend", "Reopen a finished job with more samples or a tighter target");
-    cmd->add_option("id", *id, "job id")->required();
-    auto* g = cmd->add_option_group("target", "the new stopping targets (at least one)");
-    g->add_option("--max-samples", *max_samples, "total samples")->check(CLI::PositiveNumber);
-    g->add_option("--abs-error", *abs_error, "target half-width of the interval")->check(CLI::PositiveNumber);
-    g->add_option("--rel-error", *rel_error, "target half-width / |mean|")->check(CLI::PositiveNumber);
-    g->add_option("--time-budget", *budget, "total compute seconds")->check(CLI::PositiveNumber);
-    g->require_option(1, 0);
-    cmd->add_flag("--watch,-w", *watch, "follow the job until it ends");
-    add_server_option(cmd, *opt);
-    cmd->callback([=, &exit_code] {
-      run_guarded(exit_code, [&] {
-        HttpClient c = make_client(*opt);
-        json body = json::object();
-        if (*max_samples > 0) body["max_samples"] = *max_samples;
-        if (*abs_error > 0) body["abs_error"] = *abs_error;
-        if (*rel_error > 0) body["rel_error"] = *rel_error;
-        if (*budget > 0) body["time_budget_s"] = *budget;
-        const ClientResponse r = c.request("POST", "/v1/jobs/" + *id + "/extend", body.dump(),
-                                           {{"Content-Type", "application/json"}});
-        if (r.status != 202) fail_response(r);
-        fmt::print("{} extended\n", *id);
-        std::fflush(stdout);
-        return *watch ? watch_job(c, *id) : exit_code::ok;
-      });
-    });
+    add_job_command(
+        app, exit_code, "extend", "Reopen a finished job with more samples or a tighter target",
+        [=](CLI::App* cmd) {
+          auto* g = cmd->add_option_group("target", "the new stopping targets (at least one)");
+          g->add_option("--max-samples", *max_samples, "total samples")->check(CLI::PositiveNumber);
+          g->add_option("--abs-error", *abs_error, "target half-width of the interval")->check(CLI::PositiveNumber);
+          g->add_option("--rel-error", *rel_error, "target half-width / |mean|")->check(CLI::PositiveNumber);
+          g->add_option("--time-budget", *budget, "total compute seconds")->check(CLI::PositiveNumber);
+          g->require_option(1, 0);
+          cmd->add_flag("--watch,-w", *watch, "follow the job until it ends");
+        },
+        [=](HttpClient& c, const std::string& id) {
+          json body = json::object();
+          if (*max_samples > 0) body["max_samples"] = *max_samples;
+          if (*abs_error > 0) body["abs_error"] = *abs_error;
+          if (*rel_error > 0) body["rel_error"] = *rel_error;
+          if (*budget > 0) body["time_budget_s"] = *budget;
+          const ClientResponse r = c.request("POST", "/v1/jobs/" + id + "/extend", body.dump(),
+                                             {{"Content-Type", "application/json"}});
+          if (r.status != 202) fail_response(r);
+          fmt::print("{} extended\n", id);
+          std::fflush(stdout);
+          return *watch ? watch_job(c, id) : exit_code::ok;
+        });
   }
 }
 

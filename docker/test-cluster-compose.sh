@@ -14,30 +14,12 @@ set -euo pipefail
 
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 repo=$(cd "$here/.." && pwd)
-# ../shared beside the main checkout, or ../../shared beside a worktree in wt/.
-for d in "$repo/../shared/containers" "$repo/../../shared/containers"; do
-  if [ -z "${CONTAINERS_CONF:-}" ] && [ -f "$d/containers.conf" ]; then
-    CONTAINERS_CONF=$(cd "$d" && pwd)/containers.conf
-    export CONTAINERS_CONF
-  fi
-done
-export TALLY_IMAGE=${TALLY_IMAGE:-localhost/tally:test}
-port=${TALLY_TEST_PORT:-18190}
-for _ in $(seq 1 100); do
-  (exec 3<>"/dev/tcp/127.0.0.1/$port") 2>/dev/null || break
-  port=$((port + 1))
-done
-export TALLY_PORT=$port
-unset TALLY_BIND
+# shellcheck source=docker/test-lib.sh
+. "$here/test-lib.sh"
+compose_test_env "$repo" 18190
 project=tallycluster$$
 work=$(mktemp -d /tmp/tally-test-cluster-compose.XXXXXX)
 url=https://127.0.0.1:$port
-passed=0
-failed=0
-log() { printf '[%s] %s\n' "$(date +%H:%M:%S)" "$*"; }
-pass() { passed=$((passed + 1)); log "PASS $*"; }
-fail() { failed=$((failed + 1)); log "FAIL $*"; }
-die() { log "FATAL $*"; exit 1; }
 # Container DNS (service names such as "redis") needs the CNI dnsname plugin
 # (golang-github-containernetworking-plugin-dnsname, in scripts/install-deps.sh containers).
 # podman-compose 1.0.3 (Debian 12) parses `up --scale` but ignores it; it honours
@@ -69,22 +51,13 @@ trap 'exit 130' INT TERM
 podman image exists "$TALLY_IMAGE" || die "$TALLY_IMAGE is missing: run docker/test-image.sh (or podman build) first"
 log "image $TALLY_IMAGE: $(podman image inspect --format '{{.Size}}' "$TALLY_IMAGE" | awk '{printf "%.0f MB", $1/1e6}')"
 
-cid=$(podman create --no-healthcheck "$TALLY_IMAGE")
-podman cp "$cid:/usr/local/bin/tally" "$work/tally" >/dev/null
-podman rm -v "$cid" >/dev/null
+copy_cli_from_image "$TALLY_IMAGE" "$work/tally"
 cli=$work/tally
 
 # Secrets readable by the containers' uid 10001 (a throwaway directory). The principal
 # is an admin so that /v1/workers (which names every tenant's jobs) may be read.
 secrets=$work/secrets
-mkdir -p "$secrets"
-token=tly_$(openssl rand -base64 32 | tr '+/' '-_' | tr -d '=\n')
-hash=$(printf '%s' "$token" | sha256sum | cut -d' ' -f1)
-printf '{"principals": [{"name": "cluster-test", "role": "admin", "token_sha256": "%s"}]}\n' "$hash" >"$secrets/auth.json"
-openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -days 1 -subj /CN=localhost \
-  -addext subjectAltName=DNS:localhost,IP:127.0.0.1 -keyout "$secrets/key.pem" -out "$secrets/cert.pem" 2>/dev/null
-chmod 755 "$secrets" && chmod 644 "$secrets"/*
-export TALLY_SECRETS=$secrets TALLY_TOKEN=$token TALLY_CA_FILE=$secrets/cert.pem
+make_secrets "$secrets" cluster-test admin
 api() { curl -fsS -m 5 --cacert "$secrets/cert.pem" -H "Authorization: Bearer $token" "$url$1"; }
 
 # (The worker's health check as a string: 1.0.3 pops "CMD-SHELL" off the list form while

@@ -11,28 +11,13 @@ set -euo pipefail
 
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 repo=$(cd "$here/.." && pwd)
-if [ -z "${CONTAINERS_CONF:-}" ] && [ -f "$repo/../shared/containers/containers.conf" ]; then
-  CONTAINERS_CONF=$(cd "$repo/../shared/containers" && pwd)/containers.conf
-  export CONTAINERS_CONF
-fi
-export TALLY_IMAGE=${TALLY_IMAGE:-localhost/tally:test}
-port=${TALLY_TEST_PORT:-18090}
-for _ in $(seq 1 100); do
-  (exec 3<>"/dev/tcp/127.0.0.1/$port") 2>/dev/null || break
-  port=$((port + 1))
-done
-export TALLY_PORT=$port
-unset TALLY_BIND
+# shellcheck source=docker/test-lib.sh
+. "$here/test-lib.sh"
+compose_test_env "$repo" 18090
 project=tallycompose$$
 work=$(mktemp -d /tmp/tally-test-compose.XXXXXX)
 export DOCKER_HOST=unix://$work/podman.sock
 url=https://127.0.0.1:$port
-passed=0
-failed=0
-log() { printf '[%s] %s\n' "$(date +%H:%M:%S)" "$*"; }
-pass() { passed=$((passed + 1)); log "PASS $*"; }
-fail() { failed=$((failed + 1)); log "FAIL $*"; }
-die() { log "FATAL $*"; exit 1; }
 compose() { timeout 120 docker-compose -p "$project" -f "$repo/docker/compose.yaml" "$@" 2>>"$work/compose.err"; }
 
 service_pid=
@@ -54,21 +39,12 @@ service_pid=$!
 for _ in $(seq 1 100); do [ -S "$work/podman.sock" ] && break; sleep 0.1; done
 [ -S "$work/podman.sock" ] || die "podman API socket did not appear"
 
-cid=$(podman create --no-healthcheck "$TALLY_IMAGE")
-podman cp "$cid:/usr/local/bin/tally" "$work/tally" >/dev/null
-podman rm -v "$cid" >/dev/null
+copy_cli_from_image "$TALLY_IMAGE" "$work/tally"
 cli=${TALLY_CLI:-$work/tally}
 
 # Secrets, readable by the container's uid 10001 (a throwaway directory).
 secrets=$work/secrets
-mkdir -p "$secrets"
-token=tly_$(openssl rand -base64 32 | tr '+/' '-_' | tr -d '=\n')
-hash=$(printf '%s' "$token" | sha256sum | cut -d' ' -f1)
-printf '{"principals": [{"name": "compose-test", "role": "user", "token_sha256": "%s"}]}\n' "$hash" >"$secrets/auth.json"
-openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -days 1 -subj /CN=localhost \
-  -addext subjectAltName=DNS:localhost,IP:127.0.0.1 -keyout "$secrets/key.pem" -out "$secrets/cert.pem" 2>/dev/null
-chmod 755 "$secrets" && chmod 644 "$secrets"/*
-export TALLY_SECRETS=$secrets TALLY_TOKEN=$token TALLY_CA_FILE=$secrets/cert.pem
+make_secrets "$secrets" compose-test user
 
 wait_ready() {
   for _ in $(seq 1 120); do

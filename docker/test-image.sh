@@ -30,10 +30,9 @@ while [ $# -gt 0 ]; do
   shift
 done
 
-if [ -z "${CONTAINERS_CONF:-}" ] && [ -f "$repo/../shared/containers/containers.conf" ]; then
-  CONTAINERS_CONF=$(cd "$repo/../shared/containers" && pwd)/containers.conf
-  export CONTAINERS_CONF
-fi
+# shellcheck source=docker/test-lib.sh
+. "$here/test-lib.sh"
+use_shared_containers_conf "$repo"
 image=${TALLY_IMAGE:-localhost/tally:test}
 base_image=localhost/debian-min:bookworm
 jobs=${JOBS:-2}
@@ -42,13 +41,7 @@ name1=tally-test-$run_id-a
 name2=tally-test-$run_id-b
 volume=tally-test-data-$run_id
 work=$(mktemp -d /tmp/tally-test-image.XXXXXX)
-passed=0
-failed=0
 
-log() { printf '[%s] %s\n' "$(date +%H:%M:%S)" "$*"; }
-pass() { passed=$((passed + 1)); log "PASS $*"; }
-fail() { failed=$((failed + 1)); log "FAIL $*"; }
-die() { log "FATAL $*"; exit 1; }
 now() { date +%s.%N; }
 elapsed() { python3 -c "import sys; print(f'{float(sys.argv[2]) - float(sys.argv[1]):.2f}')" "$1" "$2"; }
 
@@ -133,9 +126,7 @@ fi
 cli=${TALLY_CLI:-}
 if [ -z "$cli" ]; then
   # The CLI that was built with this image, copied out (the host has the libraries).
-  cid=$(podman create --no-healthcheck "$image")
-  podman cp "$cid:/usr/local/bin/tally" "$work/tally" >/dev/null
-  podman rm -v "$cid" >/dev/null
+  copy_cli_from_image "$image" "$work/tally"
   cli=$work/tally
 fi
 "$cli" --help >/dev/null || die "host CLI $cli does not run"
@@ -143,11 +134,7 @@ fi
 log "host CLI: $cli"
 
 # --- run ---------------------------------------------------------------------------
-port=${TALLY_TEST_PORT:-18080}
-for _ in $(seq 1 100); do
-  (exec 3<>"/dev/tcp/127.0.0.1/$port") 2>/dev/null || break
-  port=$((port + 1))
-done
+port=$(free_port "${TALLY_TEST_PORT:-18080}")
 url=http://127.0.0.1:$port
 podman volume create "$volume" >/dev/null
 

@@ -11,8 +11,11 @@
 #include <vector>
 
 #include "common/image/image_module_abi.hpp"
+#include "common/image/image_module_guard.hpp"
 
 namespace {
+
+using tally::guarded;
 
 namespace OIIO = OIIO_NAMESPACE;
 
@@ -44,23 +47,6 @@ std::vector<unsigned char> write_to_memory(const char* fake_name, const OIIO::Im
   if (!out->close()) throw std::runtime_error("OpenImageIO close: " + out->geterror());
   out.reset();
   return buffer;
-}
-
-// Runs `f`, turning any exception into a message for the caller: nothing unwinds
-// across the C boundary.
-template <class F>
-int guarded(F&& f, tally_image_sink error, void* error_context) {
-  try {
-    f();
-    return 0;
-  } catch (const std::exception& e) {
-    const std::string m = e.what();
-    error(error_context, m.data(), m.size());
-  } catch (...) {
-    const std::string m = "unknown exception in the image module";
-    error(error_context, m.data(), m.size());
-  }
-  return 1;
 }
 
 int encode_exr(const tally_image_view* im, const char* metadata_json, tally_image_sink out, void* out_context,

@@ -26,8 +26,11 @@
 #include <vector>
 
 #include "common/image/image_module_abi.hpp"
+#include "common/image/image_module_guard.hpp"
 
 namespace {
+
+using tally::guarded;
 
 // An OpenEXR output stream into memory (OutputFile seeks back to write the offset table).
 class MemoryStream : public Imf::OStream {
@@ -56,21 +59,6 @@ std::string cap_date() {
   char buf[32];
   std::strftime(buf, sizeof buf, "%Y:%m:%d %H:%M:%S", &tm);
   return buf;
-}
-
-template <class F>
-int guarded(F&& f, tally_image_sink error, void* error_context) {
-  try {
-    f();
-    return 0;
-  } catch (const std::exception& e) {
-    const std::string m = e.what();
-    error(error_context, m.data(), m.size());
-  } catch (...) {
-    const std::string m = "unknown exception in the image module";
-    error(error_context, m.data(), m.size());
-  }
-  return 1;
 }
 
 int encode_exr(const tally_image_view* im, const char* metadata_json, tally_image_sink out, void* out_context,

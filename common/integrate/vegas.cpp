@@ -199,22 +199,32 @@ void refine_axis(double* edges, uint32_t nb, std::vector<double> d, double alpha
   std::copy(out.begin(), out.end(), edges);
 }
 
-// Axis k of samples [first, first + n): a uniform u picks bin j = floor(u nb) and the
-// offset u nb - j inside it; x = lo + w * (edge_j + offset * width_j); the density
-// factor 1 / (nb * width_j) goes into the Jacobian as nb * width_j.
+// Uniform number k of sample `index` of the stream `key`, in (0, 1).
+inline double axis_uniform(uint64_t key, uint64_t index, uint32_t k) {
+  const uint64_t base = SampleRng::sample_base(key, index);
+  const auto bits = static_cast<int64_t>(SampleRng::bits_at(base, k) >> 11);
+  return (static_cast<double>(bits) + 0.5) * 0x1.0p-53;
+}
+
+// The grid map of one sample at t = y nb (y in [0, 1)): bin j = floor(t) and the offset
+// t - j inside it; x = lo + w * (edge_j + offset * width_j); the density factor
+// 1 / (nb * width_j) goes into the Jacobian as nb * width_j.
+inline void grid_map(const double* e, const double* wd, uint32_t nb, double fnb, double t, double lo, double w,
+                     double& x, double& jac, uint32_t& bk) {
+  uint32_t j = static_cast<uint32_t>(t);
+  if (j >= nb) j = nb - 1;
+  const double frac = t - static_cast<double>(j);
+  x = lo + w * (e[j] + frac * wd[j]);
+  jac *= fnb * wd[j];
+  bk = j;
+}
+
+// Axis k of samples [first, first + n): a uniform u is mapped through the grid at u nb.
 void map_axis(const double* e, const double* wd, uint32_t nb, uint64_t key, uint64_t first, size_t n, uint32_t k,
               double lo, double w, double* x, double* jac, uint32_t* bk) {
   const double fnb = static_cast<double>(nb);
   for (size_t i = 0; i < n; ++i) {
-    const uint64_t base = SampleRng::sample_base(key, first + i);
-    const auto bits = static_cast<int64_t>(SampleRng::bits_at(base, k) >> 11);
-    const double t = (static_cast<double>(bits) + 0.5) * 0x1.0p-53 * fnb;
-    uint32_t j = static_cast<uint32_t>(t);
-    if (j >= nb) j = nb - 1;
-    const double frac = t - static_cast<double>(j);
-    x[i] = lo + w * (e[j] + frac * wd[j]);
-    jac[i] *= fnb * wd[j];
-    bk[i] = j;
+    grid_map(e, wd, nb, fnb, axis_uniform(key, first + i, k) * fnb, lo, w, x[i], jac[i], bk[i]);
   }
 }
 
@@ -226,17 +236,9 @@ void map_axis_strat(const double* e, const double* wd, uint32_t nb, uint64_t key
   const double fnb = static_cast<double>(nb);
   const double fns = static_cast<double>(ns);
   for (size_t i = 0; i < n; ++i) {
-    const uint64_t base = SampleRng::sample_base(key, first + i);
-    const auto bits = static_cast<int64_t>(SampleRng::bits_at(base, k) >> 11);
-    const double u = (static_cast<double>(bits) + 0.5) * 0x1.0p-53;
     const double stratum = static_cast<double>((hc[i] / stride) % ns);
-    const double t = (stratum + u) / fns * fnb;
-    uint32_t j = static_cast<uint32_t>(t);
-    if (j >= nb) j = nb - 1;
-    const double frac = t - static_cast<double>(j);
-    x[i] = lo + w * (e[j] + frac * wd[j]);
-    jac[i] *= fnb * wd[j];
-    bk[i] = j;
+    const double t = (stratum + axis_uniform(key, first + i, k)) / fns * fnb;
+    grid_map(e, wd, nb, fnb, t, lo, w, x[i], jac[i], bk[i]);
   }
 }
 

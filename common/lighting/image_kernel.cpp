@@ -99,11 +99,7 @@ ReplicatedEstimate ImageKernel::pixel_estimate(const JobState& state, size_t ch,
 }
 
 void ImageKernel::run_block(const Block& block, BlockResult& out) const {
-  if (sampler_.kind == SamplerKind::independent) {
-    run_pixels<SampleRng>(block, out);
-  } else {
-    run_pixels<SobolSample>(block, out);
-  }
+  with_sample_type(sampler_.kind, [&]<class Sample>(std::type_identity<Sample>) { run_pixels<Sample>(block, out); });
 }
 
 template <class Sample>
@@ -112,25 +108,17 @@ void ImageKernel::run_pixels(const Block& block, BlockResult& out) const {
   out.first_channel = static_cast<uint32_t>(tile_first_[block.partition]);
   out.tallies.assign(3 * static_cast<size_t>(k_) * static_cast<size_t>(r.w) * static_cast<size_t>(r.h), Tally{});
   const PathTracer& tracer = *scene_->tracer;
-  std::vector<std::vector<double>> v(3 * static_cast<size_t>(k_));  // [replicate * 3 + rgb]
-  for (auto& a : v) a.reserve(block.sample_count / k_ + 1);
-  std::vector<uint64_t> rep_keys(k_);
+  ReplicateRgbSamples v(k_, block.sample_count);
+  ReplicateStreams streams(k_);
   const double inv_w = 1.0 / width_, inv_h = 1.0 / height_;
   for (int y = r.y; y < r.y + r.h; ++y) {
     for (int x = r.x; x < r.x + r.w; ++x) {
       if (block_abandoned()) return;  // its result is dropped (block_abandon.hpp)
       const uint64_t key = stream_key(seed_, static_cast<uint64_t>(y) * static_cast<uint64_t>(width_) + static_cast<uint64_t>(x));
-      for (uint32_t q = 0; q < k_; ++q) rep_keys[q] = SobolSample::replicate_key(key, q);
-      for (auto& a : v) a.clear();
+      streams.start(key);
+      v.clear();
       for (uint64_t i = block.first_sample; i < block.first_sample + block.sample_count; ++i) {
-        const uint32_t rep = static_cast<uint32_t>(i % k_);
-        const Sample rng = [&] {
-          if constexpr (std::is_same_v<Sample, SampleRng>) {
-            return SampleRng(key, i);
-          } else {
-            return SobolSample(rep_keys[rep], i / k_);
-          }
-        }();
+        const Sample rng = streams.sample<Sample>(i);
         const double sx = (2.0 * (x + rng.uniform(0)) * inv_w - 1.0) * tan_half_ * aspect_;
         const double sy = (1.0 - 2.0 * (y + rng.uniform(1)) * inv_h) * tan_half_;
         const Vec3 d = normalize(cam_fwd_ + cam_right_ * sx + cam_up_ * sy);
@@ -140,13 +128,11 @@ void ImageKernel::run_pixels(const Block& block, BlockResult& out) const {
           out.counters.add(LightingCounter::nonfinite);
           continue;
         }
-        v[3 * rep].push_back(L.x);
-        v[3 * rep + 1].push_back(L.y);
-        v[3 * rep + 2].push_back(L.z);
+        v.add(streams.replicate(i), L.x, L.y, L.z);
       }
       const size_t base =
           3 * static_cast<size_t>(k_) * (static_cast<size_t>(y - r.y) * static_cast<size_t>(r.w) + static_cast<size_t>(x - r.x));
-      for (size_t c = 0; c < v.size(); ++c) out.tallies[base + c] = Tally::from_batch(v[c].data(), v[c].size());
+      v.tally_into(&out.tallies[base]);
     }
   }
   if (auto err = take_embree_error()) {

@@ -15,6 +15,8 @@
 // Everything is a pure function of (seed, pixel, sample index): any thread count,
 // worker count or resume gives the same bits.
 #include <cstdint>
+#include <type_traits>
+#include <vector>
 
 #include "common/rng/counter_rng.hpp"
 #include "common/sampling/sobol_burley.hpp"
@@ -57,5 +59,42 @@ class SobolSample {
   mutable uint32_t cached_pair_ = ~0u;  // a per-sample object, never shared between threads
   mutable SobolBurleyPoint point_;
 };
+
+// The sample streams of one pixel or point: sample i belongs to replicate i mod K and
+// draws SampleRng(key, i) (independent) or point i div K of replicate (i mod K)'s
+// Sobol sequence. One per block run; start() it for each pixel or point.
+class ReplicateStreams {
+ public:
+  explicit ReplicateStreams(uint32_t replicates) : keys_(replicates) {}
+  void start(uint64_t stream_key_value) {
+    key_ = stream_key_value;
+    for (uint32_t q = 0; q < k(); ++q) keys_[q] = SobolSample::replicate_key(key_, q);
+  }
+  uint32_t replicate(uint64_t i) const noexcept { return static_cast<uint32_t>(i % k()); }
+  template <class Sample>
+  Sample sample(uint64_t i) const noexcept {
+    if constexpr (std::is_same_v<Sample, SampleRng>) {
+      return SampleRng(key_, i);
+    } else {
+      return SobolSample(keys_[replicate(i)], i / k());
+    }
+  }
+
+ private:
+  uint32_t k() const noexcept { return static_cast<uint32_t>(keys_.size()); }
+  uint64_t key_ = 0;
+  std::vector<uint64_t> keys_;
+};
+
+// Calls f(std::type_identity<SampleRng>{}) or f(std::type_identity<SobolSample>{}):
+// a kernel's sample loop is compiled once per sampler.
+template <class F>
+void with_sample_type(SamplerKind kind, F&& f) {
+  if (kind == SamplerKind::independent) {
+    f(std::type_identity<SampleRng>{});
+  } else {
+    f(std::type_identity<SobolSample>{});
+  }
+}
 
 }  // namespace tally

@@ -84,11 +84,7 @@ double PointKernel::seconds_per_sample(size_t e) const {
 }
 
 void PointKernel::run_block(const Block& block, BlockResult& out) const {
-  if (sampler_.kind == SamplerKind::independent) {
-    run_samples<SampleRng>(block, out);
-  } else {
-    run_samples<SobolSample>(block, out);
-  }
+  with_sample_type(sampler_.kind, [&]<class Sample>(std::type_identity<Sample>) { run_samples<Sample>(block, out); });
 }
 
 template <class Sample>
@@ -96,37 +92,27 @@ void PointKernel::run_samples(const Block& block, BlockResult& out) const {
   out.first_channel = 0;
   out.tallies.assign(channel_count(), Tally{});
   const PathTracer& tracer = *scene_->tracer;
-  std::vector<std::vector<double>> v(3 * static_cast<size_t>(k_));  // [replicate * 3 + rgb]
-  for (auto& a : v) a.reserve(block.sample_count / k_ + 1);
-  std::vector<uint64_t> rep_keys(k_);
+  ReplicateRgbSamples v(k_, block.sample_count);
+  ReplicateStreams streams(k_);
   for (size_t k = 0; k < points_.size(); ++k) {
-    const uint64_t key = stream_key(seed_, k);
-    for (uint32_t q = 0; q < k_; ++q) rep_keys[q] = SobolSample::replicate_key(key, q);
+    streams.start(stream_key(seed_, k));
     const QueryPoint& q = points_[k];
     for (size_t e = 0; e < strategies_.size(); ++e) {
       if (block_abandoned()) return;  // its result is dropped (block_abandon.hpp)
       const PathSettings settings{strategies_[e], max_depth_, rr_};
-      for (auto& a : v) a.clear();
+      v.clear();
       const auto t0 = std::chrono::steady_clock::now();
       for (uint64_t i = block.first_sample; i < block.first_sample + block.sample_count; ++i) {
-        const uint32_t rep = static_cast<uint32_t>(i % k_);
+        const uint32_t rep = streams.replicate(i);
         // The same numbers for every estimator.
-        const Sample rng = [&] {
-          if constexpr (std::is_same_v<Sample, SampleRng>) {
-            return SampleRng(key, i);
-          } else {
-            return SobolSample(rep_keys[rep], i / k_);
-          }
-        }();
+        const Sample rng = streams.sample<Sample>(i);
         const Rgb L = q.emission + tracer.reflected(q.vertex, settings, rng, 0, out.counters);
         out.counters.add(LightingCounter::evaluations);
         if (!std::isfinite(L.x) || !std::isfinite(L.y) || !std::isfinite(L.z)) {
           out.counters.add(LightingCounter::nonfinite);  // excluded, never merged
           continue;
         }
-        v[3 * rep].push_back(L.x);
-        v[3 * rep + 1].push_back(L.y);
-        v[3 * rep + 2].push_back(L.z);
+        v.add(rep, L.x, L.y, L.z);
         // The tail tracker counts channel 0's samples: replicate 0 of estimator 0, point 0.
         if (e == 0 && k == 0 && rep == 0) out.tail.offer(std::fabs(L.x));
       }
@@ -134,12 +120,7 @@ void PointKernel::run_samples(const Block& block, BlockResult& out) const {
       nanos_[e].fetch_add(static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(t1 - t0).count()),
                           std::memory_order_relaxed);
       samples_[e].fetch_add(block.sample_count, std::memory_order_relaxed);
-      for (uint32_t rep = 0; rep < k_; ++rep) {
-        for (int c = 0; c < 3; ++c) {
-          const auto& a = v[3 * rep + static_cast<size_t>(c)];
-          out.tallies[channel(e, k, c, rep)] = Tally::from_batch(a.data(), a.size());
-        }
-      }
+      v.tally_into(&out.tallies[channel(e, k, 0)]);  // replicate r's rgb c is channel(e, k, c, r)
     }
   }
   if (auto err = take_embree_error()) {

@@ -14,6 +14,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <limits>
+#include <vector>
 
 #include "common/stats/confidence.hpp"
 #include "common/stats/tally.hpp"
@@ -72,5 +73,30 @@ inline ReplicatedEstimate combine_replicates(const Tally* tallies, size_t stride
   }
   return e;
 }
+
+// One block's samples of one RGB pixel or point, kept by replicate until they are
+// tallied: replicate r's component c goes to channel 3 r + c (the layout that
+// combine_replicates reads with stride 3).
+class ReplicateRgbSamples {
+ public:
+  ReplicateRgbSamples(uint32_t replicates, uint64_t samples) : v_(3 * static_cast<size_t>(replicates)) {
+    for (auto& a : v_) a.reserve(samples / replicates + 1);
+  }
+  void clear() noexcept {
+    for (auto& a : v_) a.clear();
+  }
+  void add(uint32_t replicate, double r, double g, double b) {
+    v_[3 * static_cast<size_t>(replicate)].push_back(r);
+    v_[3 * static_cast<size_t>(replicate) + 1].push_back(g);
+    v_[3 * static_cast<size_t>(replicate) + 2].push_back(b);
+  }
+  // Channel c's tally of its samples in order (Tally::from_batch), into out[c] for c < 3 K.
+  void tally_into(Tally* out) const noexcept {
+    for (size_t c = 0; c < v_.size(); ++c) out[c] = Tally::from_batch(v_[c].data(), v_[c].size());
+  }
+
+ private:
+  std::vector<std::vector<double>> v_;  // [replicate * 3 + rgb]
+};
 
 }  // namespace tally

@@ -1,5 +1,7 @@
 #include "server/api/metrics.hpp"
 
+#include "server/api/prometheus.hpp"
+
 #include <fmt/format.h>
 
 #include <fstream>
@@ -43,66 +45,48 @@ void Metrics::observe(const std::string& route, std::string_view raw_method, int
 
 std::string Metrics::render(const ManagerStats& jobs) const {
   std::string o;
-  o += "# HELP tally_jobs Jobs by state.\n# TYPE tally_jobs gauge\n";
+  prom_header(o, "tally_jobs", "gauge", "Jobs by state.");
   for (const auto& [state, n] : jobs.jobs_by_state) o += fmt::format("tally_jobs{{state=\"{}\"}} {}\n", state, n);
-  o += "# HELP tally_queue_depth Jobs waiting for a running slot.\n# TYPE tally_queue_depth gauge\n";
-  o += fmt::format("tally_queue_depth {}\n", jobs.queue_depth);
-  o += "# HELP tally_samples_per_second Sum of the running jobs' throughput.\n# TYPE tally_samples_per_second gauge\n";
-  o += fmt::format("tally_samples_per_second {}\n", jobs.samples_per_second);
-  o += "# HELP tally_samples_total Samples computed by the workers since start.\n# TYPE tally_samples_total counter\n";
-  o += fmt::format("tally_samples_total {}\n", jobs.samples_total);
-  o += "# HELP tally_workers Worker threads.\n# TYPE tally_workers gauge\n";
-  o += fmt::format("tally_workers {}\n", jobs.workers);
-  o += "# HELP tally_workers_busy Workers running a chunk right now.\n# TYPE tally_workers_busy gauge\n";
-  o += fmt::format("tally_workers_busy {}\n", jobs.busy_workers);
-  o += "# HELP tally_store_failures_total Failed saves to the job store (each is retried).\n"
-       "# TYPE tally_store_failures_total counter\n";
-  o += fmt::format("tally_store_failures_total {}\n", jobs.store_failures);
-  o += "# HELP tally_store_ok 1 while the job store takes writes, 0 while its last save failed.\n"
-       "# TYPE tally_store_ok gauge\n";
-  o += fmt::format("tally_store_ok {}\n", jobs.store_ok ? 1 : 0);
-  o += "# HELP tally_memory_budget_bytes Memory for jobs' state (--memory-budget; 0: none).\n"
-       "# TYPE tally_memory_budget_bytes gauge\n";
-  o += fmt::format("tally_memory_budget_bytes {}\n", jobs.memory_budget);
-  o += "# HELP tally_memory_used_bytes State of the jobs holding it in memory (running, resumed, extended).\n"
-       "# TYPE tally_memory_used_bytes gauge\n";
-  o += fmt::format("tally_memory_used_bytes {}\n", jobs.memory_used);
-  o += "# HELP tally_finished_state_cache_bytes Finished jobs' states read back for images and kept (LRU).\n"
-       "# TYPE tally_finished_state_cache_bytes gauge\n";
-  o += fmt::format("tally_finished_state_cache_bytes {}\n", jobs.finished_cache_bytes);
-  o += "# HELP tally_finished_state_loads_total Finished jobs' states read back from the store.\n"
-       "# TYPE tally_finished_state_loads_total counter\n";
-  o += fmt::format("tally_finished_state_loads_total {}\n", jobs.state_loads);
-  o += "# HELP tally_jobs_deleted_total Finished jobs deleted (DELETE or retention) since start.\n"
-       "# TYPE tally_jobs_deleted_total counter\n";
-  o += fmt::format("tally_jobs_deleted_total {}\n", jobs.jobs_removed);
+  prom_metric(o, "tally_queue_depth", "gauge", "Jobs waiting for a running slot.", jobs.queue_depth);
+  prom_metric(o, "tally_samples_per_second", "gauge", "Sum of the running jobs' throughput.", jobs.samples_per_second);
+  prom_metric(o, "tally_samples_total", "counter", "Samples computed by the workers since start.", jobs.samples_total);
+  prom_metric(o, "tally_workers", "gauge", "Worker threads.", jobs.workers);
+  prom_metric(o, "tally_workers_busy", "gauge", "Workers running a chunk right now.", jobs.busy_workers);
+  prom_metric(o, "tally_store_failures_total", "counter", "Failed saves to the job store (each is retried).",
+              jobs.store_failures);
+  prom_metric(o, "tally_store_ok", "gauge", "1 while the job store takes writes, 0 while its last save failed.",
+              jobs.store_ok ? 1 : 0);
+  prom_metric(o, "tally_memory_budget_bytes", "gauge", "Memory for jobs' state (--memory-budget; 0: none).",
+              jobs.memory_budget);
+  prom_metric(o, "tally_memory_used_bytes", "gauge",
+              "State of the jobs holding it in memory (running, resumed, extended).", jobs.memory_used);
+  prom_metric(o, "tally_finished_state_cache_bytes", "gauge",
+              "Finished jobs' states read back for images and kept (LRU).", jobs.finished_cache_bytes);
+  prom_metric(o, "tally_finished_state_loads_total", "counter", "Finished jobs' states read back from the store.",
+              jobs.state_loads);
+  prom_metric(o, "tally_jobs_deleted_total", "counter", "Finished jobs deleted (DELETE or retention) since start.",
+              jobs.jobs_removed);
   if (const auto rss = resident_bytes()) {
-    o += "# HELP tally_process_resident_bytes Resident memory of the server process (VmRSS).\n"
-         "# TYPE tally_process_resident_bytes gauge\n";
-    o += fmt::format("tally_process_resident_bytes {}\n", *rss);
+    prom_metric(o, "tally_process_resident_bytes", "gauge", "Resident memory of the server process (VmRSS).", *rss);
   }
-  o += "# HELP tally_http_connections Open connections.\n# TYPE tally_http_connections gauge\n";
-  o += fmt::format("tally_http_connections {}\n", connections.load());
-  o += "# HELP tally_http_event_streams Open event streams.\n# TYPE tally_http_event_streams gauge\n";
-  o += fmt::format("tally_http_event_streams {}\n", streams.load());
-  o += "# HELP tally_http_rejected_connections_total Connections refused at the limit.\n"
-       "# TYPE tally_http_rejected_connections_total counter\n";
-  o += fmt::format("tally_http_rejected_connections_total {}\n", rejected_connections.load());
-  o += "# HELP tally_http_timeouts_total Connections closed by a read/idle/write timeout.\n"
-       "# TYPE tally_http_timeouts_total counter\n";
-  o += fmt::format("tally_http_timeouts_total {}\n", timeouts.load());
-  o += "# HELP tally_http_accept_errors_total Failed accepts (out of descriptors or memory), each followed by a "
-       "100 ms back-off.\n# TYPE tally_http_accept_errors_total counter\n";
-  o += fmt::format("tally_http_accept_errors_total {}\n", accept_errors.load());
+  prom_metric(o, "tally_http_connections", "gauge", "Open connections.", connections.load());
+  prom_metric(o, "tally_http_event_streams", "gauge", "Open event streams.", streams.load());
+  prom_metric(o, "tally_http_rejected_connections_total", "counter", "Connections refused at the limit.",
+              rejected_connections.load());
+  prom_metric(o, "tally_http_timeouts_total", "counter", "Connections closed by a read/idle/write timeout.",
+              timeouts.load());
+  prom_metric(o, "tally_http_accept_errors_total", "counter",
+              "Failed accepts (out of descriptors or memory), each followed by a 100 ms back-off.",
+              accept_errors.load());
 
   std::lock_guard lock(mu_);
-  o += "# HELP tally_http_requests_total Requests by route, method and status.\n# TYPE tally_http_requests_total counter\n";
+  prom_header(o, "tally_http_requests_total", "counter", "Requests by route, method and status.");
   for (const auto& [k, n] : requests_) {
     o += fmt::format("tally_http_requests_total{{route=\"{}\",method=\"{}\",status=\"{}\"}} {}\n", std::get<0>(k),
                      std::get<1>(k), std::get<2>(k), n);
   }
-  o += "# HELP tally_http_request_duration_seconds Time to produce the response (headers, for streams).\n"
-       "# TYPE tally_http_request_duration_seconds histogram\n";
+  prom_header(o, "tally_http_request_duration_seconds", "histogram",
+              "Time to produce the response (headers, for streams).");
   for (const auto& [k, h] : latency_) {
     const std::string labels = fmt::format("route=\"{}\",method=\"{}\"", k.first, k.second);
     for (size_t i = 0; i < kBuckets.size(); ++i) {

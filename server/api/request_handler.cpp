@@ -7,6 +7,7 @@
 #include "common/protocol/spec_reader.hpp"
 #include "server/api/json_depth.hpp"
 #include "server/api/problem.hpp"
+#include "server/api/prometheus.hpp"
 #include "server/api/route_support.hpp"
 #include "server/api/static_files.hpp"
 #include "server/auth/token.hpp"
@@ -45,12 +46,11 @@ void RequestHandler::add_routes() {
     HttpResponse r;
     r.set_header("Content-Type", "text/plain; version=0.0.4; charset=utf-8");
     r.body = metrics_.render(manager_.stats());
-    r.body += fmt::format(
-        "# HELP tally_access_control 1 when bearer tokens are required (--auth-file)\n"
-        "# TYPE tally_access_control gauge\ntally_access_control {}\n"
-        "# HELP tally_insecure_no_auth 1 when listening off loopback without access control (--insecure-no-auth)\n"
-        "# TYPE tally_insecure_no_auth gauge\ntally_insecure_no_auth {}\n",
-        config_.access.access ? 1 : 0, config_.access.insecure_no_auth ? 1 : 0);
+    prom_metric(r.body, "tally_access_control", "gauge", "1 when bearer tokens are required (--auth-file)",
+                config_.access.access ? 1 : 0);
+    prom_metric(r.body, "tally_insecure_no_auth", "gauge",
+                "1 when listening off loopback without access control (--insecure-no-auth)",
+                config_.access.insecure_no_auth ? 1 : 0);
     if (config_.extra_metrics) r.body += config_.extra_metrics();
     return r;
   });

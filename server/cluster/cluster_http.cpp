@@ -5,6 +5,8 @@
 #include <chrono>
 #include <ctime>
 
+#include "server/api/prometheus.hpp"
+
 namespace tally::cluster {
 
 using nlohmann::json;
@@ -52,28 +54,23 @@ std::string cluster_metrics(const RedisExecutor& ex) {
   const auto workers = ex.workers();
   unsigned threads = 0;
   for (const auto& w : workers) threads += w.threads;
-  o += "# HELP tally_cluster_workers Live tally-worker processes.\n# TYPE tally_cluster_workers gauge\n";
-  o += fmt::format("tally_cluster_workers {}\n", workers.size());
-  o += "# HELP tally_cluster_worker_threads Compute threads of the live workers.\n# TYPE tally_cluster_worker_threads gauge\n";
-  o += fmt::format("tally_cluster_worker_threads {}\n", threads);
-  o += "# HELP tally_cluster_worker_blocks_done Blocks computed, per worker.\n# TYPE tally_cluster_worker_blocks_done counter\n";
+  prom_metric(o, "tally_cluster_workers", "gauge", "Live tally-worker processes.", workers.size());
+  prom_metric(o, "tally_cluster_worker_threads", "gauge", "Compute threads of the live workers.", threads);
+  prom_header(o, "tally_cluster_worker_blocks_done", "counter", "Blocks computed, per worker.");
   for (const auto& w : workers) {
     o += fmt::format("tally_cluster_worker_blocks_done{{worker=\"{}\"}} {}\n", w.name, w.blocks_done);
   }
-  o += "# HELP tally_cluster_redis_up 1 when the coordinator reaches Redis.\n# TYPE tally_cluster_redis_up gauge\n";
-  o += fmt::format("tally_cluster_redis_up {}\n", ex.not_ready_reason() ? 0 : 1);
+  prom_metric(o, "tally_cluster_redis_up", "gauge", "1 when the coordinator reaches Redis.",
+              ex.not_ready_reason() ? 0 : 1);
   const ClusterCounters c = ex.counters();
-  o += "# HELP tally_cluster_results_total Block results stored in Redis, by outcome.\n"
-       "# TYPE tally_cluster_results_total counter\n";
+  prom_header(o, "tally_cluster_results_total", "counter", "Block results stored in Redis, by outcome.");
   o += fmt::format("tally_cluster_results_total{{outcome=\"first\"}} {}\n", c.first);
   o += fmt::format("tally_cluster_results_total{{outcome=\"duplicate_equal\"}} {}\n", c.dup_equal);
   o += fmt::format("tally_cluster_results_total{{outcome=\"duplicate_different\"}} {}\n", c.dup_differ);
   o += fmt::format("tally_cluster_results_total{{outcome=\"stale\"}} {}\n", c.stale);
   o += fmt::format("tally_cluster_results_total{{outcome=\"failed\"}} {}\n", c.failures);
-  o += "# HELP tally_cluster_blocks_merged_total Blocks merged by this coordinator.\n"
-       "# TYPE tally_cluster_blocks_merged_total counter\n";
-  o += fmt::format("tally_cluster_blocks_merged_total {}\n", c.merged);
-  o += "# HELP tally_cluster_job_blocks Blocks of a running job's current pass.\n# TYPE tally_cluster_job_blocks gauge\n";
+  prom_metric(o, "tally_cluster_blocks_merged_total", "counter", "Blocks merged by this coordinator.", c.merged);
+  prom_header(o, "tally_cluster_job_blocks", "gauge", "Blocks of a running job's current pass.");
   for (const auto& [id, b] : ex.stats().blocks_by_job) {
     o += fmt::format("tally_cluster_job_blocks{{job=\"{}\",state=\"pending\"}} {}\n", id, b.pending);
     o += fmt::format("tally_cluster_job_blocks{{job=\"{}\",state=\"in_flight\"}} {}\n", id, b.in_flight);

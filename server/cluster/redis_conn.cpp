@@ -76,20 +76,29 @@ std::string RedisUrl::display() const {
   return fmt::format("redis://{}{}:{}/{}", user.empty() ? "" : user + "@", host, port, db);
 }
 
+namespace {
+
+// The credentials of a URL: "user:password", or "password" alone for the default user
+// (redis://secret@host).
+void set_credentials(RedisUrl& u, std::string_view cred) {
+  if (auto colon = cred.find(':'); colon != std::string_view::npos) {
+    u.user = std::string(cred.substr(0, colon));
+    u.password = std::string(cred.substr(colon + 1));
+  } else {
+    u.password = std::string(cred);
+  }
+}
+
+}  // namespace
+
 RedisUrl parse_redis_url(std::string_view url) {
   RedisUrl u;
   if (url.starts_with("unix://")) {
     std::string_view rest = url.substr(7);
     // unix://[[user]:password@]/path: credentials before the absolute path.
     if (auto at = rest.find("@/"); at != std::string_view::npos) {
-      std::string_view cred = rest.substr(0, at);
+      set_credentials(u, rest.substr(0, at));
       rest = rest.substr(at + 1);
-      if (auto colon = cred.find(':'); colon != std::string_view::npos) {
-        u.user = std::string(cred.substr(0, colon));
-        u.password = std::string(cred.substr(colon + 1));
-      } else {
-        u.password = std::string(cred);
-      }
     }
     if (auto q = rest.find("?db="); q != std::string_view::npos) {
       u.db = parse_int(rest.substr(q + 4), "db");
@@ -108,14 +117,8 @@ RedisUrl parse_redis_url(std::string_view url) {
   }
   std::string_view rest = url.substr(8);
   if (auto at = rest.rfind('@'); at != std::string_view::npos) {
-    std::string_view cred = rest.substr(0, at);
+    set_credentials(u, rest.substr(0, at));
     rest = rest.substr(at + 1);
-    if (auto colon = cred.find(':'); colon != std::string_view::npos) {
-      u.user = std::string(cred.substr(0, colon));
-      u.password = std::string(cred.substr(colon + 1));
-    } else {
-      u.password = std::string(cred);  // redis://secret@host: a password for the default user
-    }
   }
   if (auto slash = rest.find('/'); slash != std::string_view::npos) {
     std::string_view db = rest.substr(slash + 1);

@@ -86,7 +86,12 @@ void InProcessExecutor::add(ExecutorJob job, PassWork first_pass) {
   {
     std::lock_guard lock(mu_);
     if (stopping_) return;
+    // The job's previous run may still be here, its last pass being committed on a
+    // worker (pass_done has finished the job, and an extend re-added it at once): that
+    // run is over, it leaves now; the committing worker sees it was replaced.
+    if (auto old = active_.find(job.id); old != active_.end()) erase_locked(old);
     auto a = std::make_unique<Active>();
+    a->run = ++runs_;
     a->id = job.id;
     a->owner = job.owner;
     a->kernel = std::move(job.kernel);
@@ -213,6 +218,7 @@ void InProcessExecutor::worker_loop() {
     PassWork pass_done = std::move(a->pass);
     std::vector<BlockResult> results_done = std::move(a->results);
     const std::string id = a->id;
+    const uint64_t run = a->run;
     lock.unlock();
     const auto t_merge = std::chrono::steady_clock::now();
     const uint64_t pass_no = pass_done.pass;
@@ -223,7 +229,9 @@ void InProcessExecutor::worker_loop() {
              std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_merge).count());
     lock.lock();
     auto it = active_.find(id);
-    if (it == active_.end()) continue;  // stop() cleared it
+    // Gone: stop() cleared it. Another run: the job was re-added (extend) while this,
+    // its last pass, was being committed; the new run is not this worker's to end.
+    if (it == active_.end() || it->second->run != run) continue;
     Active& job = *it->second;
     job.committing = false;
     if (job.cancel_requested && !next.empty()) {

@@ -46,6 +46,7 @@ class InProcessExecutor final : public Executor {
 
  private:
   struct Active {
+    uint64_t run = 0;  // this executor's serial number of the add(): tells a re-added job's new run from the old
     std::string id;
     std::string owner;
     std::shared_ptr<const Kernel> kernel;
@@ -84,6 +85,7 @@ class InProcessExecutor final : public Executor {
   std::condition_variable cv_;
   std::map<std::string, std::unique_ptr<Active>> active_;
   std::map<std::string, Owner> owners_;               // owners with a job in active_
+  uint64_t runs_ = 0;                                  // add() calls so far (Active::run)
   std::map<std::string, double> cpu_seconds_by_owner_;  // measured chunk run time since start
   void erase_locked(std::map<std::string, std::unique_ptr<Active>>::iterator it);
   std::string last_picked_;

@@ -8,6 +8,7 @@
 
 #include "common/log/log.hpp"
 #include "server/jobs/job_store.hpp"
+#include "server/jobs/sqlite_job_row.hpp"
 #include "server/jobs/sqlite_salvage.hpp"
 
 namespace tally {
@@ -63,14 +64,9 @@ class SqliteJobStore final : public JobStore {
   // Databases written before finished jobs kept their state on disk have no facts
   // column: their finished jobs' facts are rebuilt once from the checkpoint.
   void migrate() {
-    bool has_owner = false, has_facts = false;
-    SQLite::Statement q(db_, "PRAGMA table_info(jobs)");
-    while (q.executeStep()) {
-      has_owner = has_owner || q.getColumn(1).getString() == "owner";
-      has_facts = has_facts || q.getColumn(1).getString() == "facts";
-    }
-    if (!has_owner) db_.exec("ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT ''");
-    if (!has_facts) db_.exec("ALTER TABLE jobs ADD COLUMN facts TEXT NOT NULL DEFAULT ''");
+    const JobTableColumns have = job_table_columns(db_);
+    if (!have.owner) db_.exec("ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT ''");
+    if (!have.facts) db_.exec("ALTER TABLE jobs ADD COLUMN facts TEXT NOT NULL DEFAULT ''");
   }
 
   void save(const StoredJob& j) override {
@@ -109,32 +105,15 @@ class SqliteJobStore final : public JobStore {
   std::vector<StoredJob> load_all() override {
     std::lock_guard lock(mu_);
     std::vector<StoredJob> out;
-    SQLite::Statement q(db_,
-                        "SELECT id, seq, spec, priority, state, stop_rule, error, result,"
-                        " CASE WHEN state IN ('queued', 'running') THEN checkpoint END,"
-                        " created_at, started_at, finished_at, owner, facts,"
-                        " length(spec) + length(result) + length(facts) + COALESCE(length(checkpoint), 0)"
-                        " FROM jobs ORDER BY seq");
+    SQLite::Statement q(db_, fmt::format("SELECT {},"
+                                         " CASE WHEN state IN ('queued', 'running') THEN checkpoint END,"
+                                         " length(spec) + length(result) + length(facts) + COALESCE(length(checkpoint), 0)"
+                                         " FROM jobs ORDER BY seq",
+                                         job_row_columns()));
     while (q.executeStep()) {
-      StoredJob j;
-      j.id = q.getColumn(0).getString();
-      j.seq = q.getColumn(1).getInt64();
-      j.spec = q.getColumn(2).getString();
-      j.priority = q.getColumn(3).getInt();
-      j.state = q.getColumn(4).getString();
-      j.stop_rule = q.getColumn(5).getString();
-      j.error = q.getColumn(6).getString();
-      j.result = q.getColumn(7).getString();
-      const SQLite::Column cp = q.getColumn(8);
-      if (!cp.isNull()) {
-        j.checkpoint = std::string(static_cast<const char*>(cp.getBlob()), static_cast<size_t>(cp.getBytes()));
-      }
-      j.created_at = q.getColumn(9).getDouble();
-      j.started_at = q.getColumn(10).getDouble();
-      j.finished_at = q.getColumn(11).getDouble();
-      j.owner = q.getColumn(12).getString();
-      j.facts = q.getColumn(13).getString();
-      j.stored_bytes = static_cast<uint64_t>(q.getColumn(14).getInt64());
+      StoredJob j = read_job_row(q);
+      j.checkpoint = read_blob(q.getColumn(kJobRowColumnCount));
+      j.stored_bytes = static_cast<uint64_t>(q.getColumn(kJobRowColumnCount + 1).getInt64());
       out.push_back(std::move(j));
     }
     return out;
@@ -145,9 +124,7 @@ class SqliteJobStore final : public JobStore {
     SQLite::Statement q(db_, "SELECT checkpoint FROM jobs WHERE id = ?");
     q.bind(1, id);
     if (!q.executeStep()) return std::nullopt;
-    const SQLite::Column cp = q.getColumn(0);
-    if (cp.isNull()) return std::nullopt;
-    return std::string(static_cast<const char*>(cp.getBlob()), static_cast<size_t>(cp.getBytes()));
+    return read_blob(q.getColumn(0));
   }
 
   bool remove(const std::string& id) override {

@@ -11,32 +11,13 @@
 #include <set>
 
 #include "common/log/log.hpp"
+#include "server/jobs/sqlite_job_row.hpp"
 
 namespace tally {
 
 namespace fs = std::filesystem;
 
 namespace {
-
-constexpr const char* kColumns =
-    "id, seq, spec, priority, state, stop_rule, error, result, created_at, started_at, finished_at, owner";
-
-StoredJob read_row(SQLite::Statement& q) {
-  StoredJob j;
-  j.id = q.getColumn(0).getString();
-  j.seq = q.getColumn(1).getInt64();
-  j.spec = q.getColumn(2).getString();
-  j.priority = q.getColumn(3).getInt();
-  j.state = q.getColumn(4).getString();
-  j.stop_rule = q.getColumn(5).getString();
-  j.error = q.getColumn(6).getString();
-  j.result = q.getColumn(7).getString();
-  j.created_at = q.getColumn(8).getDouble();
-  j.started_at = q.getColumn(9).getDouble();
-  j.finished_at = q.getColumn(10).getDouble();
-  j.owner = q.getColumn(11).getString();
-  return j;
-}
 
 std::string utc_stamp() {
   const std::time_t t = std::time(nullptr);
@@ -127,18 +108,23 @@ SalvageResult quarantine_and_salvage(const std::string& db_path) {
 
   // Every rowid up to the largest seen, one at a time: the ones in a damaged page
   // fail alone. A row whose checkpoint is unreadable is kept without it.
-  SQLite::Statement whole(*db, fmt::format("SELECT {}, checkpoint FROM jobs NOT INDEXED WHERE rowid = ?", kColumns));
-  SQLite::Statement light(*db, fmt::format("SELECT {} FROM jobs NOT INDEXED WHERE rowid = ?", kColumns));
+  // A file whose migration never ran lacks the later columns: they read as ''.
+  JobTableColumns have;
+  try {
+    have = job_table_columns(*db);
+  } catch (const SQLite::Exception& e) {
+    log::warn("the damaged job database's columns cannot be listed ({}); reading every column", e.what());
+  }
+  const std::string columns = job_row_columns(have);
+  SQLite::Statement whole(*db, fmt::format("SELECT {}, checkpoint FROM jobs NOT INDEXED WHERE rowid = ?", columns));
+  SQLite::Statement light(*db, fmt::format("SELECT {} FROM jobs NOT INDEXED WHERE rowid = ?", columns));
   for (int64_t rowid = 1; rowid <= max_rowid; ++rowid) {
     try {
       whole.tryReset();
       whole.bind(1, rowid);
       if (!whole.executeStep()) continue;  // no such row: never existed or deleted
-      StoredJob j = read_row(whole);
-      const SQLite::Column cp = whole.getColumn(12);
-      if (!cp.isNull()) {
-        j.checkpoint = std::string(static_cast<const char*>(cp.getBlob()), static_cast<size_t>(cp.getBytes()));
-      }
+      StoredJob j = read_job_row(whole);
+      j.checkpoint = read_blob(whole.getColumn(kJobRowColumnCount));
       r.jobs.push_back(std::move(j));
       continue;
     } catch (const SQLite::Exception&) {
@@ -148,7 +134,7 @@ SalvageResult quarantine_and_salvage(const std::string& db_path) {
       light.tryReset();
       light.bind(1, rowid);
       if (light.executeStep()) {
-        StoredJob j = read_row(light);
+        StoredJob j = read_job_row(light);
         r.partial.push_back(j.id);
         r.jobs.push_back(std::move(j));
         continue;

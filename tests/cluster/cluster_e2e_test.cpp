@@ -72,6 +72,48 @@ void wait_until(Pred pred, double timeout_s, const std::string& what) {
 
 size_t live_workers(HttpClient& c) { return get_json(c, "/v1/workers").at("workers").size(); }
 
+// One worker of a TestCluster (WorkerProcess's arguments after the URL).
+struct WorkerSpec {
+  std::string name;
+  unsigned threads = 1;
+  std::vector<std::string> extra = {};
+  WorkerOptions options = {};
+};
+
+struct ClusterOptions {
+  double lease_s = 30;
+  std::vector<std::string> server_flags = {};  // after cluster_flags()
+};
+
+// The usual cluster of a test, in `dir`: a private Redis, tally-server --redis on it
+// and the workers, every one of them listed in /v1/workers before the test goes on
+// (bounded wait). Torn down in reverse: workers, client, server, Redis.
+struct TestCluster {
+  TestCluster(const fs::path& dir, const std::vector<WorkerSpec>& specs, ClusterOptions o = {})
+      : redis(dir), server(dir / "data", server_flags(redis, std::move(o))), c(server.client()) {
+    for (const WorkerSpec& w : specs) {
+      workers.push_back(std::make_unique<WorkerProcess>(redis.url(), w.name, dir, w.threads, w.extra, w.options));
+    }
+    if (!workers.empty()) {
+      wait_until([&] { return live_workers(c) == workers.size(); }, 20,
+                 fmt::format("{} workers in /v1/workers", workers.size()));
+    }
+  }
+  WorkerProcess& worker(size_t i) { return *workers.at(i); }
+
+  RedisServer redis;
+  ServerProcess server;
+  HttpClient c;
+  std::vector<std::unique_ptr<WorkerProcess>> workers;
+
+ private:
+  static std::vector<std::string> server_flags(const RedisServer& redis, ClusterOptions o) {
+    std::vector<std::string> flags = cluster_flags(redis, o.lease_s);
+    flags.insert(flags.end(), o.server_flags.begin(), o.server_flags.end());
+    return flags;
+  }
+};
+
 json lighting_image_spec(int spp) {
   std::ifstream in(std::string(TALLY_SOURCE_DIR) + "/examples/lecture_lighting_image.json");
   json spec = json::parse(in);
@@ -116,12 +158,8 @@ TEST(Cluster, ThreeWorkersMatchInProcessBitsAndPixels) {
     ref.terminate();
   }
 
-  RedisServer redis(tmp.path);
-  ServerProcess server(tmp.path / "data", cluster_flags(redis));
-  std::vector<std::unique_ptr<WorkerProcess>> workers;
-  for (int i = 0; i < 3; ++i) workers.push_back(std::make_unique<WorkerProcess>(redis.url(), fmt::format("w{}", i), tmp.path));
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 3; }, 20, "three workers in /v1/workers");
+  TestCluster cl(tmp.path, {{"w0"}, {"w1"}, {"w2"}});
+  HttpClient& c = cl.c;
   const std::string a = submit(c, integ);
   const std::string b = submit(c, image);
   const json sa = wait_state(c, a, "succeeded", 120);
@@ -154,7 +192,7 @@ TEST(Cluster, ThreeWorkersMatchInProcessBitsAndPixels) {
   EXPECT_EQ(c.request("GET", "/readyz").status, 200);
 
   // Per-pass streams and results are deleted once merged: nothing of the jobs is left.
-  auto rc = redis.connect();
+  auto rc = cl.redis.connect();
   EXPECT_EQ(rc.cmd({"KEYS", "tally:[sprfd]:*"}).elems.size(), 0u);
   EXPECT_EQ(rc.cmd({"KEYS", "tally:job:*"}).elems.size(), 0u);
   EXPECT_EQ(rc.cmd({"SCARD", "tally:active"}).as_int(), 0);
@@ -184,12 +222,8 @@ TEST(Cluster, VegasPlusAndCubatureJobsMatchInProcessBits) {
                       {"estimator", {{"type", "vegas"}, {"stratify", true}}}, {"stop", {{"max_samples", 4096 * 63}}}};
   const json cubature = {{"kind", "integrate"}, {"integrand", genz}, {"estimator", {{"type", "cubature"}}},
                          {"stop", {{"rel_error", 1e-6}, {"max_samples", 100000}}}};
-  RedisServer redis(tmp.path);
-  ServerProcess server(tmp.path / "data", cluster_flags(redis));
-  std::vector<std::unique_ptr<WorkerProcess>> workers;
-  for (int i = 0; i < 2; ++i) workers.push_back(std::make_unique<WorkerProcess>(redis.url(), fmt::format("w{}", i), tmp.path));
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers in /v1/workers");
+  TestCluster cl(tmp.path, {{"w0"}, {"w1"}});
+  HttpClient& c = cl.c;
   for (const json& spec : {vegas, cubature}) {
     const std::string id = submit(c, spec);
     const json s = wait_state(c, id, "succeeded", 120);
@@ -205,15 +239,13 @@ TEST(Cluster, KilledAndStalledWorkersStillBitIdentical) {
   TempDir tmp;
   const json spec = disk_spec(400'000'000, 11);
   const json expected = local_bits(spec);
-  RedisServer redis(tmp.path);
-  ServerProcess server(tmp.path / "data", cluster_flags(redis, 1.0));
-  WorkerProcess a(redis.url(), "a", tmp.path), b(redis.url(), "b", tmp.path), d(redis.url(), "d", tmp.path);
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 3; }, 20, "three workers");
+  TestCluster cl(tmp.path, {{"a"}, {"b"}, {"d"}}, {.lease_s = 1.0});
+  HttpClient& c = cl.c;
+  WorkerProcess &a = cl.worker(0), &b = cl.worker(1);
   const std::string id = submit(c, spec);
   wait_until([&] { return get_json(c, "/v1/jobs/" + id).at("samples").get<uint64_t>() > 20'000'000; }, 60,
              "the job to be under way");
-  auto rc = redis.connect();
+  auto rc = cl.redis.connect();
   // kill -9 a worker while it holds a block.
   wait_until([&] { return holds_entry(rc, "a"); }, 20, "worker a to hold a block");
   a.kill9();
@@ -255,20 +287,17 @@ TEST(Cluster, CoordinatorKilledMidPassResumesBitIdentical) {
   TempDir tmp;
   const json spec = disk_spec(200'000'000, 5);
   const json expected = local_bits(spec);
-  RedisServer redis(tmp.path);
-  ServerProcess server(tmp.path / "data", cluster_flags(redis));
-  WorkerProcess w1(redis.url(), "w1", tmp.path), w2(redis.url(), "w2", tmp.path);
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  TestCluster cl(tmp.path, {{"w1"}, {"w2"}});
+  HttpClient& c = cl.c;
   const std::string id = submit(c, spec);
-  auto rc = redis.connect();
+  auto rc = cl.redis.connect();
   wait_until([&] { return get_json(c, "/v1/jobs/" + id).at("samples").get<uint64_t>() > 50'000'000 &&
                           rc.cmd({"SCARD", "tally:active"}).as_int() > 0; },
              60, "the job mid-pass");
-  server.kill9();
+  cl.server.kill9();
   std::this_thread::sleep_for(300ms);
-  server.start();
-  HttpClient c2 = server.client();
+  cl.server.start();
+  HttpClient c2 = cl.server.client();
   const json s = wait_state(c2, id, "succeeded", 120);
   EXPECT_EQ(s.at("bits"), expected);
 }
@@ -277,15 +306,12 @@ TEST(Cluster, RedisRestartMidJobRepublishesAndUnreachableRedisPauses) {
   TempDir tmp;
   const json spec = disk_spec(200'000'000, 9);
   const json expected = local_bits(spec);
-  RedisServer redis(tmp.path);
-  ServerProcess server(tmp.path / "data", cluster_flags(redis));
-  WorkerProcess w1(redis.url(), "w1", tmp.path), w2(redis.url(), "w2", tmp.path);
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  TestCluster cl(tmp.path, {{"w1"}, {"w2"}});
+  HttpClient& c = cl.c;
   const std::string id = submit(c, spec);
   wait_until([&] { return get_json(c, "/v1/jobs/" + id).at("samples").get<uint64_t>() > 50'000'000; }, 60,
              "the job under way");
-  redis.stop();
+  cl.redis.stop();
   // Unreachable: /readyz says why, the job is paused (not failed) and says so.
   wait_until([&] { return c.request("GET", "/readyz").status == 503; }, 10, "/readyz to fail");
   EXPECT_NE(c.request("GET", "/readyz").body.find("redis unreachable"), std::string::npos);
@@ -294,7 +320,7 @@ TEST(Cluster, RedisRestartMidJobRepublishesAndUnreachableRedisPauses) {
              5, "the job's status to say it is paused");
   EXPECT_EQ(get_json(c, "/v1/jobs/" + id).at("state"), "running");
   std::this_thread::sleep_for(1s);
-  redis.start();  // empty: no streams, no groups, no results
+  cl.redis.start();  // empty: no streams, no groups, no results
   wait_until([&] { return c.request("GET", "/readyz").status == 200; }, 20, "/readyz to recover");
   const json s = wait_state(c, id, "succeeded", 120);
   EXPECT_EQ(s.at("bits"), expected);
@@ -303,11 +329,8 @@ TEST(Cluster, RedisRestartMidJobRepublishesAndUnreachableRedisPauses) {
 
 TEST(Cluster, CancelAndExtendAcrossTheCluster) {
   TempDir tmp;
-  RedisServer redis(tmp.path);
-  ServerProcess server(tmp.path / "data", cluster_flags(redis));
-  WorkerProcess w1(redis.url(), "w1", tmp.path), w2(redis.url(), "w2", tmp.path);
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  TestCluster cl(tmp.path, {{"w1"}, {"w2"}});
+  HttpClient& c = cl.c;
 
   // Cancel: the job stops within about one block and nothing of it stays in Redis.
   const std::string big = submit(c, disk_spec(50'000'000'000ULL, 3));
@@ -315,7 +338,7 @@ TEST(Cluster, CancelAndExtendAcrossTheCluster) {
   const int cancel_big = c.request("DELETE", "/v1/jobs/" + big).status;
   ASSERT_TRUE(cancel_big == 202 || cancel_big == 200) << cancel_big;  // 200: nothing was in flight
   const json cancelled = wait_state(c, big, "cancelled", 10);
-  auto rc = redis.connect();
+  auto rc = cl.redis.connect();
   wait_until([&] { return rc.cmd({"KEYS", "tally:[sprf]:" + big + ":*"}).elems.empty(); }, 5, "the job's keys to go");
   const uint64_t samples = cancelled.at("samples").get<uint64_t>();
   std::this_thread::sleep_for(500ms);
@@ -337,9 +360,8 @@ TEST(Cluster, NoWorkerMeansTheJobWaitsAndLateWorkersTakePart) {
   TempDir tmp;
   const json spec = disk_spec(300'000'000, 13);
   const json expected = local_bits(spec);
-  RedisServer redis(tmp.path);
-  ServerProcess server(tmp.path / "data", cluster_flags(redis));
-  HttpClient c = server.client();
+  TestCluster cl(tmp.path, {});
+  HttpClient& c = cl.c;
   const std::string id = submit(c, spec);
   std::this_thread::sleep_for(1500ms);
   const json waiting = get_json(c, "/v1/jobs/" + id);
@@ -348,10 +370,10 @@ TEST(Cluster, NoWorkerMeansTheJobWaitsAndLateWorkersTakePart) {
   EXPECT_NE(waiting.value("waiting_reason", "").find("waiting for a tally-worker"), std::string::npos) << waiting.dump();
   EXPECT_GT(waiting.at("blocks").at("pending").get<uint64_t>(), 0u) << waiting.dump();
 
-  WorkerProcess first(redis.url(), "first", tmp.path);
+  WorkerProcess first(cl.redis.url(), "first", tmp.path);
   wait_until([&] { return get_json(c, "/v1/jobs/" + id).at("samples").get<uint64_t>() > 20'000'000; }, 60,
              "progress with one worker");
-  WorkerProcess late(redis.url(), "late", tmp.path);  // joins a job in flight
+  WorkerProcess late(cl.redis.url(), "late", tmp.path);  // joins a job in flight
   wait_until([&] { return live_workers(c) == 2; }, 20, "the late worker to register");
   ASSERT_EQ(get_json(c, "/v1/jobs/" + id).at("state"), "running") << "the job ended before the late worker joined";
   const json s = wait_state(c, id, "succeeded", 120);
@@ -369,16 +391,11 @@ TEST(Cluster, NoWorkerMeansTheJobWaitsAndLateWorkersTakePart) {
 
 TEST(Cluster, BlockFailingOnEveryWorkerFailsTheJobAfterNDeliveries) {
   TempDir tmp;
-  RedisServer redis(tmp.path);
-  std::vector<std::string> flags = cluster_flags(redis);
-  flags.insert(flags.end(), {"--max-deliveries", "4"});
-  ServerProcess server(tmp.path / "data", flags);
   // These workers refuse what the server accepts (more than 2 dimensions): every
   // delivery of every block fails on every worker with the worker's error.
-  WorkerProcess w1(redis.url(), "strict1", tmp.path, 1, {"--max-dimensions", "2"});
-  WorkerProcess w2(redis.url(), "strict2", tmp.path, 1, {"--max-dimensions", "2"});
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  TestCluster cl(tmp.path, {{"strict1", 1, {"--max-dimensions", "2"}}, {"strict2", 1, {"--max-dimensions", "2"}}},
+                 {.server_flags = {"--max-deliveries", "4"}});
+  HttpClient& c = cl.c;
   json spec = {{"kind", "integrate"},
                {"integrand", {{"expression", "x0*x1*x2"}}},
                {"domain", {{"type", "box"}, {"lower", {0, 0, 0}}, {"upper", {1, 1, 1}}}},
@@ -409,18 +426,14 @@ TEST(Cluster, ObjAssetsReachWorkersWithoutASharedDirectory) {
   limits.asset_dir = assets.string();
   const json expected = local_bits(spec, 0, limits);
 
-  RedisServer redis(tmp.path);
-  std::vector<std::string> flags = cluster_flags(redis);
-  flags.insert(flags.end(), {"--asset-dir", assets.string()});
-  ServerProcess server(tmp.path / "data", flags);
   // The workers have no --asset-dir and their own cache: the file can only come through Redis.
-  WorkerProcess w1(redis.url(), "w1", tmp.path, 1, {"--cache-dir", (tmp.path / "cache1").string()});
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 1; }, 20, "a worker");
+  TestCluster cl(tmp.path, {{"w1", 1, {"--cache-dir", (tmp.path / "cache1").string()}}},
+                 {.server_flags = {"--asset-dir", assets.string()}});
+  HttpClient& c = cl.c;
   const std::string id = submit(c, spec);
   const json s = wait_state(c, id, "succeeded", 60);
   EXPECT_EQ(s.at("bits"), expected);
-  auto rc = redis.connect();
+  auto rc = cl.redis.connect();
   const std::string sha = cluster::sha256_hex(obj);
   EXPECT_EQ(rc.cmd({"GET", "tally:asset:" + sha}).str, obj);  // content-addressed
   EXPECT_TRUE(fs::exists(tmp.path / "cache1" / "blobs" / sha));
@@ -515,14 +528,12 @@ TEST(Cluster, HeartbeatKeepsALongBlocksLease) {
   // Three passes (1, 2 and 4 blocks); the first block sleeps 3.5 s, 3.5 leases of 1 s.
   const json spec = disk_spec(7 * 4096, 21);
   const json expected = local_bits(spec);
-  RedisServer redis(tmp.path);
-  ServerProcess server(tmp.path / "data", cluster_flags(redis, 1.0));
   // Both run the same faults: whichever takes the long block sleeps, the other is idle
   // and would reclaim it (XAUTOCLAIM) the moment its lease lapsed.
-  WorkerProcess a(redis.url(), "a", tmp.path, 1, {}, faulty("sleep_at=0:3500"));
-  WorkerProcess b(redis.url(), "b", tmp.path, 1, {}, faulty("sleep_at=0:3500"));
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  TestCluster cl(tmp.path, {{"a", 1, {}, faulty("sleep_at=0:3500")}, {"b", 1, {}, faulty("sleep_at=0:3500")}},
+                 {.lease_s = 1.0});
+  HttpClient& c = cl.c;
+  WorkerProcess &a = cl.worker(0), &b = cl.worker(1);
   const std::string id = submit(c, spec);
   const json s = wait_state(c, id, "succeeded", 60);
   EXPECT_EQ(s.at("bits"), expected);
@@ -539,15 +550,11 @@ TEST(Cluster, HeartbeatKeepsALongBlocksLease) {
 
 TEST(Cluster, DifferingDuplicateFailsTheJobLoudly) {
   TempDir tmp;
-  RedisServer redis(tmp.path);
-  ServerProcess server(tmp.path / "data", cluster_flags(redis));
   // Slow blocks (150 ms each) keep a pass open long enough to inject into it.
-  WorkerProcess a(redis.url(), "a", tmp.path, 1, {}, faulty("sleep_ms=150"));
-  WorkerProcess b(redis.url(), "b", tmp.path, 1, {}, faulty("sleep_ms=150"));
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  TestCluster cl(tmp.path, {{"a", 1, {}, faulty("sleep_ms=150")}, {"b", 1, {}, faulty("sleep_ms=150")}});
+  HttpClient& c = cl.c;
   const std::string id = submit(c, disk_spec(4096ull * 1023, 17));
-  auto rc = redis.connect();
+  auto rc = cl.redis.connect();
   // A result already stored in an open pass with at least 8 blocks.
   std::string rkey, slot, stored;
   wait_until([&] {
@@ -593,19 +600,12 @@ TEST(Cluster, DifferingDuplicateFailsTheJobLoudly) {
 
 TEST(Cluster, CrashLoopFailsTheJobAfterNDeliveries) {
   TempDir tmp;
-  RedisServer redis(tmp.path);
-  std::vector<std::string> flags = cluster_flags(redis, 1.0);
-  flags.insert(flags.end(), {"--max-deliveries", "2"});
-  ServerProcess server(tmp.path / "data", flags);
   // The first block kills whichever worker computes it (abort), on every delivery; a
   // supervisor (this loop, like Kubernetes or compose) restarts dead workers.
-  std::vector<std::unique_ptr<WorkerProcess>> ws;
-  for (const char* name : {"c1", "c2"}) {
-    ws.push_back(std::make_unique<WorkerProcess>(redis.url(), name, tmp.path, 1, std::vector<std::string>{},
-                                                 faulty("abort_at=0")));
-  }
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  TestCluster cl(tmp.path, {{"c1", 1, {}, faulty("abort_at=0")}, {"c2", 1, {}, faulty("abort_at=0")}},
+                 {.lease_s = 1.0, .server_flags = {"--max-deliveries", "2"}});
+  HttpClient& c = cl.c;
+  auto& ws = cl.workers;
   const std::string id = submit(c, disk_spec(1'000'000, 19));
   int crashes = 0;
   json s;
@@ -639,14 +639,10 @@ TEST(Cluster, CrashLoopFailsTheJobAfterNDeliveries) {
 
 TEST(Cluster, KernelThrowingFailsTheJobAfterNDeliveriesWithItsError) {
   TempDir tmp;
-  RedisServer redis(tmp.path);
-  std::vector<std::string> flags = cluster_flags(redis);
-  flags.insert(flags.end(), {"--max-deliveries", "3"});
-  ServerProcess server(tmp.path / "data", flags);
-  WorkerProcess a(redis.url(), "t1", tmp.path, 1, {}, faulty("throw_at=0"));
-  WorkerProcess b(redis.url(), "t2", tmp.path, 1, {}, faulty("throw_at=0"));
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  TestCluster cl(tmp.path, {{"t1", 1, {}, faulty("throw_at=0")}, {"t2", 1, {}, faulty("throw_at=0")}},
+                 {.server_flags = {"--max-deliveries", "3"}});
+  HttpClient& c = cl.c;
+  WorkerProcess &a = cl.worker(0), &b = cl.worker(1);
   const std::string id = submit(c, disk_spec(1'000'000, 23));
   const json s = wait_state(c, id, "failed", 30);
   const std::string msg = s.value("error_message", "");
@@ -664,13 +660,11 @@ TEST(Cluster, DroppedConnectionsReconnectWithoutARedisRestartBitIdentical) {
   TempDir tmp;
   const json spec = disk_spec(160'000'000, 29);
   const json expected = local_bits(spec);
-  RedisServer redis(tmp.path);
-  ServerProcess server(tmp.path / "data", cluster_flags(redis));  // 30 s lease: no reclaim in this test
-  WorkerProcess w1(redis.url(), "w1", tmp.path, 1), w2(redis.url(), "w2", tmp.path, 1);
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  TestCluster cl(tmp.path, {{"w1"}, {"w2"}});  // 30 s lease: no reclaim in this test
+  HttpClient& c = cl.c;
+  WorkerProcess &w1 = cl.worker(0), &w2 = cl.worker(1);
   const std::string id = submit(c, spec);
-  auto rc = redis.connect();
+  auto rc = cl.redis.connect();
   const std::string before = rc.cmd({"INFO", "server"}).str;
   for (uint64_t at : {20'000'000ull, 60'000'000ull, 100'000'000ull}) {
     wait_until([&] { return get_json(c, "/v1/jobs/" + id).at("samples").get<uint64_t>() >= at; }, 60, "progress");
@@ -683,7 +677,7 @@ TEST(Cluster, DroppedConnectionsReconnectWithoutARedisRestartBitIdentical) {
   const json s = wait_state(c, id, "succeeded", 90);
   EXPECT_EQ(s.at("bits"), expected);
   // Reconnected to the same Redis (no restart), so nothing was republished as lost.
-  EXPECT_EQ(rc.run_id(), [&] { auto r2 = redis.connect(); return r2.run_id(); }());
+  EXPECT_EQ(rc.run_id(), [&] { auto r2 = cl.redis.connect(); return r2.run_id(); }());
   const std::string logs = w1.log() + w2.log();
   // A worker reconnects either in its read loop ("connected to redis again") or while
   // storing a computed result ("reconnecting to store them", then the store succeeds:
@@ -742,16 +736,12 @@ TEST(Cluster, AuthAndAclAgainstARealRedis) {
 
 TEST(Cluster, CancelStopsWithinAboutOneBlockPerThread) {
   TempDir tmp;
-  RedisServer redis(tmp.path);
-  ServerProcess server(tmp.path / "data", cluster_flags(redis));
   // 2 workers x 2 threads, 250 ms blocks (one block per entry once measured).
   constexpr unsigned kThreads = 4;
-  WorkerProcess a(redis.url(), "a", tmp.path, 2, {}, faulty("sleep_ms=250"));
-  WorkerProcess b(redis.url(), "b", tmp.path, 2, {}, faulty("sleep_ms=250"));
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  TestCluster cl(tmp.path, {{"a", 2, {}, faulty("sleep_ms=250")}, {"b", 2, {}, faulty("sleep_ms=250")}});
+  HttpClient& c = cl.c;
   const std::string id = submit(c, disk_spec(4096ull * 4095, 37));
-  auto rc = redis.connect();
+  auto rc = cl.redis.connect();
   // Mid-pass with every thread busy: passes of 1, 2, 4, 8 blocks are done, then 16.
   wait_until([&] { return get_json(c, "/v1/jobs/" + id).at("samples").get<uint64_t>() >= 15 * 4096; }, 60,
              "four passes");
@@ -805,18 +795,15 @@ TEST(Cluster, UploadedAssetsReachWorkersByHash) {
   limits.asset_dir = assets.string();
   const json expected = local_bits(spec, 0, limits);
 
-  RedisServer redis(tmp.path);
-  ServerProcess server(tmp.path / "data", cluster_flags(redis));  // no --asset-dir
-  WorkerProcess w1(redis.url(), "w1", tmp.path, 1, {"--cache-dir", (tmp.path / "cache1").string()});
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 1; }, 20, "a worker");
+  TestCluster cl(tmp.path, {{"w1", 1, {"--cache-dir", (tmp.path / "cache1").string()}}});  // no --asset-dir
+  HttpClient& c = cl.c;
   const std::string sha = cluster::sha256_hex(obj);
   ASSERT_EQ(c.request("PUT", "/v1/assets/sha256:" + sha, obj).status, 201);
   spec["scene"]["shapes"].back()["obj"] = "sha256:" + sha;
   const std::string id = submit(c, spec);
   const json s = wait_state(c, id, "succeeded", 60);
   EXPECT_EQ(s.at("bits"), expected);
-  auto rc = redis.connect();
+  auto rc = cl.redis.connect();
   EXPECT_EQ(rc.cmd({"GET", "tally:asset:" + sha}).str, obj);
   EXPECT_TRUE(fs::exists(tmp.path / "cache1" / "blobs" / sha));  // the worker's store, checked against the hash
 }
@@ -840,33 +827,28 @@ TEST(Cluster, ImageResultsReadDuringThePassStayBitIdenticalThroughARedisRestart)
     expected_pixels = exr_pixels(c, id, tmp.path);
     ref.terminate();
   }
-  RedisServer redis(tmp.path);
-  std::vector<std::string> flags = cluster_flags(redis);
-  flags.insert(flags.end(), {"--log-level", "debug"});
-  ServerProcess server(tmp.path / "data", flags);
   // Blocks of >= 40 ms (a sleep, no CPU): every pass lasts several of the coordinator's
   // 50 ms rounds, so results are there to be read before the pass ends.
-  WorkerProcess w1(redis.url(), "w1", tmp.path, 1, {}, faulty("sleep_ms=40"));
-  WorkerProcess w2(redis.url(), "w2", tmp.path, 1, {}, faulty("sleep_ms=40"));
-  HttpClient c = server.client();
-  wait_until([&] { return live_workers(c) == 2; }, 20, "two workers");
+  TestCluster cl(tmp.path, {{"w1", 1, {}, faulty("sleep_ms=40")}, {"w2", 1, {}, faulty("sleep_ms=40")}},
+                 {.server_flags = {"--log-level", "debug"}});
+  HttpClient& c = cl.c;
   const std::string id = submit(c, image);
   wait_until([&] { return get_json(c, "/v1/jobs/" + id).value("passes", 0) >= 2; }, 120, "two passes merged");
-  redis.stop();
+  cl.redis.stop();
   std::this_thread::sleep_for(500ms);
-  redis.start();  // empty
+  cl.redis.start();  // empty
   json s;
   try {
     s = wait_state(c, id, "succeeded", 180);
   } catch (const std::exception& e) {
-    FAIL() << e.what() << "\n" << server.log();
+    FAIL() << e.what() << "\n" << cl.server.log();
   }
   EXPECT_EQ(s.at("bits"), expected_bits);
   EXPECT_EQ(exr_pixels(c, id, tmp.path), expected_pixels);
   EXPECT_GE(metrics_counts(c).at("passes_republished").get<uint64_t>(), 1u);
   // The coordinator's pass-boundary lines say how many results of each pass it had read
   // before the pass ended: at least one pass was read early.
-  const std::string log = server.log();
+  const std::string log = cl.server.log();
   size_t early = 0;
   for (size_t at = log.find("read before the end"); at != std::string::npos; at = log.find("read before the end", at + 1)) {
     const size_t comma = log.rfind(", ", at);

@@ -22,6 +22,7 @@
 
 #include "client/sse_parser.hpp"
 #include "server_process.hpp"
+#include "tests/support/sqlite_damage.hpp"
 
 namespace tally::e2e {
 namespace {
@@ -175,24 +176,10 @@ TEST(Hardening, DamagedDatabaseIsQuarantinedAndSalvaged) {
   }
   const fs::path db = data / "tally.db";
   ASSERT_TRUE(fs::exists(db));
-  int64_t page_size = 0;
-  std::vector<int64_t> leaves;
-  {
-    SQLite::Database d(db.string(), SQLite::OPEN_READONLY);
-    page_size = d.execAndGet("PRAGMA page_size").getInt64();
-    SQLite::Statement q(d, "SELECT pageno FROM dbstat WHERE name = 'jobs' AND pagetype = 'leaf' ORDER BY pageno");
-    while (q.executeStep()) leaves.push_back(q.getColumn(0).getInt64());
-  }
-  ASSERT_GE(leaves.size(), 3u) << "the jobs table should span several pages";
-  {
-    // Overwrite the b-tree header and cell pointers of a leaf page in the middle.
-    const int64_t page = leaves[leaves.size() / 2];
-    std::fstream f(db, std::ios::in | std::ios::out | std::ios::binary);
-    f.seekp((page - 1) * page_size);
-    const std::string junk(64, '\xA5');
-    f.write(junk.data(), static_cast<std::streamsize>(junk.size()));
-    ASSERT_TRUE(f.good());
-  }
+  const test::DamagedPage damaged = test::damage_middle_jobs_leaf(db);
+  ASSERT_GE(damaged.leaves, 3u) << "the jobs table should span several pages";
+  ASSERT_TRUE(damaged.written);
+  const int64_t page_size = damaged.page_size;
 
   ServerProcess server(data);  // throws if it does not start
   HttpClient c = server.client();
@@ -236,7 +223,7 @@ TEST(Hardening, DamagedDatabaseIsQuarantinedAndSalvaged) {
       EXPECT_EQ(c.request("GET", "/v1/jobs/" + id).status, 404);
     }
   }
-  std::printf("%zu of %d jobs lost with one damaged leaf page (%zu leaves)\n", lost, kJobs, leaves.size());
+  std::printf("%zu of %d jobs lost with one damaged leaf page (%zu leaves)\n", lost, kJobs, damaged.leaves);
   EXPECT_GE(lost, 1u);
   EXPECT_LT(lost, static_cast<size_t>(kJobs) / 2);
   EXPECT_NE(server.log().find(quarantined[0].filename().string()), std::string::npos);

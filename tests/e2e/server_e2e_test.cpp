@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <exception>
 #include <thread>
 
 #include "client/sse_parser.hpp"
@@ -265,19 +266,33 @@ TEST(ServerE2E, SigtermEndsStreamsAndJobsResumeBitIdentical) {
   HttpClient c = server.client();
   const std::string id = submit(c, spec);
   std::vector<SseEvent> ev;
+  std::exception_ptr watch_error;
   std::thread watcher([&] {
-    HttpClient wc = server.client();
-    ev = read_events(wc, id);
+    try {
+      HttpClient wc = server.client();
+      ev = read_events(wc, id);
+    } catch (...) {
+      watch_error = std::current_exception();  // reported below, never std::terminate
+    }
   });
-  // Terminate once the job is really running (bounded wait), not after a fixed delay.
+  // Terminate once the job is really running and the watcher's stream is open (bounded
+  // waits), not after a fixed delay: on a loaded machine the watcher could otherwise
+  // connect after SIGTERM and be refused.
+  auto stream_open = [&] {
+    const std::string m = c.request("GET", "/metrics").body;
+    const size_t at = m.find("\ntally_http_event_streams ");
+    return at != std::string::npos && m.compare(at + 26, 2, "0\n") != 0;
+  };
   for (int i = 0; i < 1500; ++i) {
     const json st = get_json(c, "/v1/jobs/" + id);
-    if (st.at("state") == "running" && st.value("samples", 0ULL) > 0) break;
+    if (st.at("state") == "running" && st.value("samples", 0ULL) > 0 && stream_open()) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
   ASSERT_EQ(get_json(c, "/v1/jobs/" + id).at("state"), "running");
+  EXPECT_TRUE(stream_open()) << "the watcher's event stream never opened";
   EXPECT_EQ(server.terminate(), 0) << server.log();
   watcher.join();
+  ASSERT_FALSE(watch_error) << "the watcher failed";
   ASSERT_FALSE(ev.empty());
   EXPECT_EQ(ev.back().event, "shutdown");
   server.start();

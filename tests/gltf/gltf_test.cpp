@@ -26,6 +26,9 @@ namespace {
 namespace fs = std::filesystem;
 using test::GltfWriter;
 using json = nlohmann::json;
+// A scene parsed as a job's "/scene", and the SpecError it raises ("" if none).
+constexpr auto* parse = &test::parse_scene_json;
+constexpr auto* error_of = &test::scene_error;
 
 struct TempDir {
   fs::path root;
@@ -42,20 +45,6 @@ struct TempDir {
   }
 };
 
-Scene parse(const json& scene, const JobLimits& limits) {
-  SpecReader r(scene, "/scene");
-  return parse_scene(r, limits);
-}
-
-// The SpecError a scene raises ("" if none): "pointer: message".
-std::string error_of(const json& scene, const JobLimits& limits) {
-  try {
-    parse(scene, limits);
-  } catch (const SpecError& e) {
-    return e.what();
-  }
-  return "";
-}
 
 json gltf_shape(const std::string& file) { return {{"type", "gltf"}, {"file", file}}; }
 

@@ -22,6 +22,9 @@ namespace {
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
+// A scene parsed as a job's "/scene", and the SpecError it raises ("" if none).
+constexpr auto* parse = &test::parse_scene_json;
+constexpr auto* error_of = &test::scene_error;
 
 struct Dir {
   fs::path root;
@@ -52,18 +55,6 @@ const char* kMtl =
     "newmtl shiny\nKd 0.6 0.6 0.6\nKs 0.6 0.2 0.2\nNs 40\n"
     "newmtl lamp\nKd 0 0 0\nKs 0 0 0\nKe 2 3 4\n";
 
-Scene parse(const json& scene, const JobLimits& limits) {
-  SpecReader r(scene, "/scene");
-  return parse_scene(r, limits);
-}
-std::string error_of(const json& scene, const JobLimits& limits) {
-  try {
-    parse(scene, limits);
-  } catch (const SpecError& e) {
-    return e.what();
-  }
-  return "";
-}
 json obj_scene(const std::string& path) { return {{"shapes", json::array({{{"type", "mesh"}, {"obj", path}}})}}; }
 
 TEST(Mtl, MaterialsMapTermByTerm) {

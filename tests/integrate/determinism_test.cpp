@@ -19,14 +19,7 @@ const json kSpecs[] = {
      {"domain", {{"type", "disk"}}}, {"estimator", {{"type", "rejection"}}}, {"stop", {{"rel_error", 1e-4}}}},
 };
 
-void expect_same_state(const JobState& a, const JobState& b) {
-  ASSERT_EQ(a.channels.size(), b.channels.size());
-  for (size_t i = 0; i < a.channels.size(); ++i) EXPECT_EQ(a.channels[i], b.channels[i]) << i;
-  EXPECT_EQ(a.samples, b.samples);
-  EXPECT_EQ(a.passes, b.passes);
-  EXPECT_EQ(a.counters, b.counters);
-  EXPECT_EQ(a.tail.sorted_values(), b.tail.sorted_values());
-}
+using testing::expect_same_state;
 
 TEST(Determinism, OneAndTwoThreadsGiveIdenticalBits) {
   for (const json& spec : kSpecs) {
@@ -60,25 +53,9 @@ TEST(Determinism, ResumeFromCheckpointIsBitIdentical) {
   for (const json& spec : kSpecs) {
     const auto ref = testing::run_spec(spec, 2);
     for (uint64_t stop_after : {1, 2, 5}) {
-      auto job = compile_job(spec, JobLimits{});
-      JobRunner first(job->kernel(), job->stop_rule(), JobCaps{});
-      std::string saved;
-      std::atomic<bool> cancel{false};
-      LocalRunOptions o;
-      o.threads = 2;
-      o.cancel = &cancel;
-      o.on_pass = [&](const JobRunner& jr) {
-        if (jr.state().passes == stop_after) {
-          saved = encode_checkpoint(jr.state());
-          cancel = true;
-        }
-      };
-      run_local(first, o);
-      if (saved.empty()) continue;  // finished before that pass
-      auto job2 = compile_job(spec, JobLimits{});
-      JobRunner resumed(job2->kernel(), job2->stop_rule(), JobCaps{}, decode_checkpoint(saved));
-      run_local(resumed, 1);
-      expect_same_state(ref->state(), resumed.state());
+      const testing::Interrupted first = testing::run_until_pass(spec, stop_after);
+      if (first.checkpoint.empty()) continue;  // finished before that pass
+      expect_same_state(ref->state(), testing::resume_spec(spec, decode_checkpoint(first.checkpoint))->state());
     }
   }
 }

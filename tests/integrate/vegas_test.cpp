@@ -122,14 +122,7 @@ TEST(Vegas, GridSamplingMatchesItsDensity) {
   EXPECT_GT(vegas_grid_density(g, hi), 2.0 * vegas_grid_density(g, lo));
 }
 
-void expect_same_state(const JobState& a, const JobState& b) {
-  ASSERT_EQ(a.channels.size(), b.channels.size());
-  for (size_t i = 0; i < a.channels.size(); ++i) EXPECT_EQ(a.channels[i], b.channels[i]) << i;
-  EXPECT_EQ(a.samples, b.samples);
-  EXPECT_EQ(a.passes, b.passes);
-  EXPECT_EQ(a.counters, b.counters);
-  EXPECT_EQ(a.kernel_state, b.kernel_state);  // the grid and every iteration, bit for bit
-}
+using testing::expect_same_state;
 
 const json kDeterminismSpec = vegas_spec(GenzParams{GenzFamily::discontinuous, {2.0, 3.0, 1.5}, {0.6, 0.4, 0.5}},
                                          17, 4096 * 63);
@@ -146,27 +139,11 @@ TEST(Vegas, OneAndTwoThreadsGiveIdenticalBits) {
 TEST(Vegas, ResumeMidAdaptationIsBitIdentical) {
   const auto ref = testing::run_spec(kDeterminismSpec, 2);
   for (uint64_t stop_after : {1, 2, 4}) {
-    auto job = compile_job(kDeterminismSpec, JobLimits{});
-    JobRunner first(job->kernel(), job->stop_rule(), JobCaps{});
-    std::string saved;
-    std::atomic<bool> cancel{false};
-    LocalRunOptions o;
-    o.threads = 2;
-    o.cancel = &cancel;
-    o.on_pass = [&](const JobRunner& jr) {
-      if (jr.state().passes == stop_after) {
-        saved = encode_checkpoint(jr.state());
-        cancel = true;
-      }
-    };
-    run_local(first, o);
-    ASSERT_FALSE(saved.empty());
-    const JobState restored = decode_checkpoint(saved);
-    EXPECT_EQ(restored.kernel_state, first.state().kernel_state);
-    auto job2 = compile_job(kDeterminismSpec, JobLimits{});
-    JobRunner resumed(job2->kernel(), job2->stop_rule(), JobCaps{}, restored);
-    run_local(resumed, 1);
-    expect_same_state(ref->state(), resumed.state());
+    const testing::Interrupted first = testing::run_until_pass(kDeterminismSpec, stop_after);
+    ASSERT_FALSE(first.checkpoint.empty());
+    JobState restored = decode_checkpoint(first.checkpoint);
+    EXPECT_EQ(restored.kernel_state, first.run->state().kernel_state);
+    expect_same_state(ref->state(), testing::resume_spec(kDeterminismSpec, std::move(restored))->state());
   }
 }
 
@@ -499,26 +476,9 @@ TEST(VegasPlus, OneAndTwoThreadsGiveIdenticalBits) {
 TEST(VegasPlus, ResumeMidAdaptationIsBitIdentical) {
   const auto ref = testing::run_spec(kPlusDeterminismSpec, 2);
   for (uint64_t stop_after : {1, 2, 4}) {
-    auto job = compile_job(kPlusDeterminismSpec, JobLimits{});
-    JobRunner first(job->kernel(), job->stop_rule(), JobCaps{});
-    std::string saved;
-    std::atomic<bool> cancel{false};
-    LocalRunOptions o;
-    o.threads = 2;
-    o.cancel = &cancel;
-    o.on_pass = [&](const JobRunner& jr) {
-      if (jr.state().passes == stop_after) {
-        saved = encode_checkpoint(jr.state());
-        cancel = true;
-      }
-    };
-    run_local(first, o);
-    ASSERT_FALSE(saved.empty());
-    const JobState restored = decode_checkpoint(saved);
-    auto job2 = compile_job(kPlusDeterminismSpec, JobLimits{});
-    JobRunner resumed(job2->kernel(), job2->stop_rule(), JobCaps{}, restored);
-    run_local(resumed, 1);
-    expect_same_state(ref->state(), resumed.state());
+    const testing::Interrupted first = testing::run_until_pass(kPlusDeterminismSpec, stop_after);
+    ASSERT_FALSE(first.checkpoint.empty());
+    expect_same_state(ref->state(), testing::resume_spec(kPlusDeterminismSpec, decode_checkpoint(first.checkpoint))->state());
   }
 }
 

@@ -10,7 +10,9 @@
 #include "common/engine/local_executor.hpp"
 #include "common/lighting/lighting_counters.hpp"
 #include "common/lighting/lighting_spec.hpp"
+#include "common/lighting/scene_json.hpp"
 #include "common/protocol/kind_json.hpp"
+#include "common/protocol/spec_reader.hpp"
 #include "common/math/vec3.hpp"
 
 namespace tally::test {
@@ -36,6 +38,22 @@ inline JobRun run_spec(json spec, unsigned threads = 1, const JobLimits& limits 
   o.threads = threads;
   run_local(*r.runner, o);
   return r;
+}
+
+// `scene` parsed as a job's "/scene" (throws SpecError naming the field).
+inline Scene parse_scene_json(const json& scene, const JobLimits& limits) {
+  SpecReader r(scene, "/scene");
+  return parse_scene(r, limits);
+}
+
+// The SpecError that parsing `scene` raises ("" if none): "pointer: message".
+inline std::string scene_error(const json& scene, const JobLimits& limits) {
+  try {
+    parse_scene_json(scene, limits);
+  } catch (const SpecError& e) {
+    return e.what();
+  }
+  return "";
 }
 
 inline json vec(const Vec3& v) { return json::array({v.x, v.y, v.z}); }

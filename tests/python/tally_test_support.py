@@ -84,24 +84,25 @@ class Server:
         shutil.rmtree(self.dir, ignore_errors=True)
 
 
-class CuttingProxy:
-    """A loopback TCP proxy in front of `port`. It records each connection's request bytes.
+def _shutdown(*socks: socket.socket) -> None:
+    """Shuts both directions of each socket down (a peer that has gone is fine)."""
+    for s in socks:
+        try:
+            s.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
 
-    The first `cut_streams` event-stream connections (requests whose first line has
-    /events) are cut mid-event: the proxy forwards the response up to 10 bytes into the
-    `cut_after + 1`-th SSE event and then closes both sides."""
 
-    def __init__(self, port: int, cut_streams: int = 1, cut_after: int = 3):
-        self.upstream = port
-        self.cut_streams = cut_streams
-        self.cut_after = cut_after
-        self.requests: List[bytes] = []
-        self.cuts = 0
-        self._lock = threading.Lock()
+class _LoopbackProxy:
+    """A listener on 127.0.0.1 (an ephemeral port) whose accept thread hands every
+    connection to `_serve` on a thread of its own; close() stops and joins them (bounded).
+    Subclasses set their own fields before calling __init__ (it starts accepting)."""
+
+    def __init__(self, scheme: str):
         self._listener = socket.create_server(("127.0.0.1", 0))
         self._listener.settimeout(0.2)
         self.port = self._listener.getsockname()[1]
-        self.url = f"http://127.0.0.1:{self.port}"
+        self.url = f"{scheme}://127.0.0.1:{self.port}"
         self._stop = threading.Event()
         self._threads: List[threading.Thread] = []
         self._accept_thread = threading.Thread(target=self._accept, daemon=True)
@@ -117,14 +118,34 @@ class CuttingProxy:
     def _accept(self) -> None:
         while not self._stop.is_set():
             try:
-                client, _ = self._listener.accept()
+                conn, _ = self._listener.accept()
             except socket.timeout:
                 continue
             except OSError:
                 return
-            t = threading.Thread(target=self._serve, args=(client,), daemon=True)
+            t = threading.Thread(target=self._serve, args=(conn,), daemon=True)
             self._threads.append(t)
             t.start()
+
+    def _serve(self, conn: socket.socket) -> None:
+        raise NotImplementedError
+
+
+class CuttingProxy(_LoopbackProxy):
+    """A loopback TCP proxy in front of `port`. It records each connection's request bytes.
+
+    The first `cut_streams` event-stream connections (requests whose first line has
+    /events) are cut mid-event: the proxy forwards the response up to 10 bytes into the
+    `cut_after + 1`-th SSE event and then closes both sides."""
+
+    def __init__(self, port: int, cut_streams: int = 1, cut_after: int = 3):
+        self.upstream = port
+        self.cut_streams = cut_streams
+        self.cut_after = cut_after
+        self.requests: List[bytes] = []
+        self.cuts = 0
+        self._lock = threading.Lock()
+        super().__init__("http")
 
     def _serve(self, client: socket.socket) -> None:
         try:
@@ -174,12 +195,9 @@ class CuttingProxy:
         except OSError:
             pass
         finally:
-            for s in (client, server):
-                try:
-                    s.shutdown(socket.SHUT_RDWR)
-                except OSError:
-                    pass
-                s.close()
+            _shutdown(client, server)
+            client.close()
+            server.close()
 
     def request_heads(self, needle: bytes) -> List[bytes]:
         with self._lock:
@@ -201,7 +219,7 @@ def free_port() -> int:
     return port
 
 
-class TlsProxy:
+class TlsProxy(_LoopbackProxy):
     """A TLS-terminating loopback proxy in front of `port`, with a throw-away self-signed
     certificate for 127.0.0.1 made by the openssl command (cafile: the certificate)."""
 
@@ -217,34 +235,11 @@ class TlsProxy:
                        check=True, capture_output=True, timeout=60)
         self._ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
         self._ctx.load_cert_chain(self.cafile, key)
-        self._listener = socket.create_server(("127.0.0.1", 0))
-        self._listener.settimeout(0.2)
-        self.port = self._listener.getsockname()[1]
-        self.url = f"https://127.0.0.1:{self.port}"
-        self._stop = threading.Event()
-        self._threads: List[threading.Thread] = []
-        self._accept_thread = threading.Thread(target=self._accept, daemon=True)
-        self._accept_thread.start()
+        super().__init__("https")
 
     def close(self) -> None:
-        self._stop.set()
-        self._accept_thread.join(timeout=5)
-        self._listener.close()
-        for t in self._threads:
-            t.join(timeout=5)
+        super().close()
         shutil.rmtree(self.dir, ignore_errors=True)
-
-    def _accept(self) -> None:
-        while not self._stop.is_set():
-            try:
-                raw, _ = self._listener.accept()
-            except socket.timeout:
-                continue
-            except OSError:
-                return
-            t = threading.Thread(target=self._serve, args=(raw,), daemon=True)
-            self._threads.append(t)
-            t.start()
 
     def _serve(self, raw: socket.socket) -> None:
         try:
@@ -269,11 +264,7 @@ class TlsProxy:
             except OSError:
                 pass
             finally:
-                for s in (src, dst):
-                    try:
-                        s.shutdown(socket.SHUT_RDWR)
-                    except OSError:
-                        pass
+                _shutdown(src, dst)
 
         back = threading.Thread(target=pump, args=(server, client), daemon=True)
         back.start()

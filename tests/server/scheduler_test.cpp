@@ -115,6 +115,38 @@ TEST(Scheduler, DirectUseCommitsInBlockOrder) {
   EXPECT_TRUE(wait_until([&] { return s.scheduled_jobs() == 0; }, 5));
 }
 
+TEST(Scheduler, JobReaddedWhileItsLastPassCommitsRunsToTheEnd) {
+  // An extend right at a job's end: the manager re-adds the job while the executor's
+  // worker is still inside pass_done for the last pass of the previous run. The old
+  // run's cleanup used to erase the new run, which then never finished (a status GET
+  // waited 30 s in RequestHandler.StatusIsCachedButFresh, now and then).
+  std::mutex mu;
+  std::condition_variable cv;
+  int passes = 0;
+  auto job = compile_fake_job(fake_spec(1000), {});
+  PassWork pass;
+  for (uint64_t i = 0; i < 4; ++i) pass.blocks.push_back(Block{i, i * 100, 100, 0});
+  InProcessExecutor* executor = nullptr;
+  ExecutorCallbacks cb;
+  cb.pass_done = [&](const std::string&, const PassWork&, std::vector<BlockResult>&&, double) {
+    bool first = false;
+    {
+      std::lock_guard lock(mu);
+      first = ++passes == 1;
+    }
+    if (first) executor->add(ExecutorJob{"a", job->kernel(), "", 2, 0, ""}, pass);  // the job ended: extend
+    cv.notify_all();
+    return PassWork{};  // this run ends here
+  };
+  InProcessExecutor s(2, cb);
+  executor = &s;
+  s.add(ExecutorJob{"a", job->kernel(), "", 1, 0, ""}, pass);
+  std::unique_lock lock(mu);
+  ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(20), [&] { return passes == 2; })) << "the re-added run never ran";
+  lock.unlock();
+  EXPECT_TRUE(wait_until([&] { return s.scheduled_jobs() == 0; }, 5));
+}
+
 TEST(Scheduler, PriorityWeights) {
   EXPECT_EQ(clamp_priority(99), 5);
   EXPECT_EQ(clamp_priority(-99), -5);

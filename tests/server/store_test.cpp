@@ -5,8 +5,13 @@
 #include <SQLiteCpp/SQLiteCpp.h>
 
 #include <filesystem>
+#include <map>
 
+#include <fmt/format.h>
+
+#include "server/jobs/sqlite_salvage.hpp"
 #include "server_test_support.hpp"
+#include "tests/support/sqlite_damage.hpp"
 
 namespace tally::test {
 namespace {
@@ -81,6 +86,118 @@ TEST(JobStore, UnopenableDatabaseErrorNamesThePath) {
   } catch (const std::runtime_error& e) {
     EXPECT_NE(std::string(e.what()).find((dir.path / "tally.db").string()), std::string::npos) << e.what();
   }
+}
+
+// A finished job as the recorder stores it: its RunFacts in `facts`, its checkpoint
+// kept on disk.
+StoredJob finished_job(int i) {
+  StoredJob j;
+  j.id = fmt::format("job{:03}", i);
+  j.seq = i;
+  j.spec = fmt::format("{{\"kind\":\"fake\",\"pad\":\"{}\"}}", std::string(300, 'p'));
+  j.priority = i % 3;
+  j.state = "succeeded";
+  j.stop_rule = "{\"max_samples\":5}";
+  j.result = fmt::format("{{\"x\":{}}}", i);
+  j.checkpoint = std::string("\0cp", 3) + std::to_string(i);
+  j.created_at = 1.0 + i;
+  j.started_at = 2.0 + i;
+  j.finished_at = 3.0 + i;
+  j.owner = i % 2 ? "alice" : "";
+  j.facts = fmt::format("{{\"samples\":{},\"stop_reason\":\"max_samples\"}}", 1000 + i);
+  return j;
+}
+
+void expect_same_row(const StoredJob& got, const StoredJob& want) {
+  EXPECT_EQ(got.id, want.id);
+  EXPECT_EQ(got.seq, want.seq);
+  EXPECT_EQ(got.spec, want.spec);
+  EXPECT_EQ(got.priority, want.priority);
+  EXPECT_EQ(got.state, want.state);
+  EXPECT_EQ(got.stop_rule, want.stop_rule);
+  EXPECT_EQ(got.result, want.result);
+  EXPECT_EQ(got.owner, want.owner);
+  EXPECT_EQ(got.facts, want.facts) << got.id;
+  EXPECT_EQ(got.created_at, want.created_at);
+  EXPECT_EQ(got.started_at, want.started_at);
+  EXPECT_EQ(got.finished_at, want.finished_at);
+}
+
+// The salvage of a damaged tally.db had its own row reader, which missed the facts
+// column: a salvaged finished job came back without its RunFacts. Salvage reads
+// every column the store writes (here from an undamaged file, so every row).
+TEST(JobStore, SalvageKeepsAFinishedJobsFacts) {
+  TempDir dir;
+  std::vector<StoredJob> saved;
+  {
+    auto store = open_sqlite_store(dir.path.string());
+    for (int i = 1; i <= 3; ++i) {
+      saved.push_back(finished_job(i));
+      store->save(saved.back());
+    }
+  }
+  const SalvageResult r = quarantine_and_salvage((dir.path / "tally.db").string());
+  EXPECT_TRUE(r.lost.empty());
+  EXPECT_TRUE(r.partial.empty());
+  ASSERT_EQ(r.jobs.size(), saved.size());
+  for (size_t i = 0; i < saved.size(); ++i) {
+    expect_same_row(r.jobs[i], saved[i]);
+    EXPECT_EQ(r.jobs[i].checkpoint, saved[i].checkpoint);
+  }
+}
+
+// The whole path: a damaged leaf page, the store reopened (quarantine, salvage, the
+// rows saved into a fresh file); every finished job it kept has its facts.
+TEST(JobStore, DamagedStoreKeepsTheSalvagedJobsFacts) {
+  TempDir dir;
+  const std::filesystem::path db = dir.path / "tally.db";
+  constexpr int kJobs = 60;
+  std::map<std::string, StoredJob> saved;
+  {
+    auto store = open_sqlite_store(dir.path.string());
+    for (int i = 1; i <= kJobs; ++i) {
+      StoredJob j = finished_job(i);
+      store->save(j);
+      saved[j.id] = j;
+    }
+  }
+  const DamagedPage damaged = damage_middle_jobs_leaf(db);
+  ASSERT_GE(damaged.leaves, 3u) << "the jobs table should span several pages";
+  ASSERT_TRUE(damaged.written);
+  auto store = open_sqlite_store(dir.path.string());
+  ASSERT_TRUE(store->damage()) << "the damaged page went unnoticed";
+  const auto rows = store->load_all();
+  EXPECT_GE(rows.size(), static_cast<size_t>(kJobs) / 2);
+  EXPECT_LT(rows.size(), static_cast<size_t>(kJobs));
+  for (const StoredJob& row : rows) {
+    ASSERT_TRUE(saved.count(row.id)) << row.id;
+    expect_same_row(row, saved[row.id]);
+  }
+}
+
+// A file from before the owner and facts columns whose migration never ran (a
+// damaged one): salvage reads those columns as "".
+TEST(JobStore, SalvageReadsAFileFromBeforeOwnerAndFacts) {
+  TempDir dir;
+  const std::string path = (dir.path / "tally.db").string();
+  {
+    SQLite::Database d(path, SQLite::OPEN_READWRITE | SQLite::OPEN_CREATE);
+    d.exec("CREATE TABLE jobs (id TEXT PRIMARY KEY, seq INTEGER NOT NULL, spec TEXT NOT NULL,"
+           " priority INTEGER NOT NULL, state TEXT NOT NULL, stop_rule TEXT NOT NULL, error TEXT NOT NULL DEFAULT '',"
+           " result TEXT NOT NULL DEFAULT '', checkpoint BLOB, created_at REAL NOT NULL, started_at REAL NOT NULL,"
+           " finished_at REAL NOT NULL, updated_at REAL NOT NULL DEFAULT 0)");
+    d.exec("INSERT INTO jobs (id, seq, spec, priority, state, stop_rule, result, checkpoint, created_at, started_at,"
+           " finished_at) VALUES ('old', 4, '{}', 1, 'succeeded', '{}', '{\"x\":2}', x'0001', 1.0, 2.0, 3.0)");
+  }
+  const SalvageResult r = quarantine_and_salvage(path);
+  EXPECT_TRUE(r.lost.empty());
+  ASSERT_EQ(r.jobs.size(), 1u);
+  EXPECT_EQ(r.jobs[0].id, "old");
+  EXPECT_EQ(r.jobs[0].seq, 4);
+  EXPECT_EQ(r.jobs[0].result, "{\"x\":2}");
+  EXPECT_EQ(r.jobs[0].owner, "");
+  EXPECT_EQ(r.jobs[0].facts, "");
+  EXPECT_EQ(r.jobs[0].checkpoint, std::string("\0\1", 2));
 }
 
 TEST(JobStore, MemoryStoreBehavesLikeSqlite) {

@@ -11,7 +11,7 @@ import ssl
 import time
 import urllib.parse
 from dataclasses import dataclass
-from typing import Any, Dict, Iterator, List, Mapping, Optional, Tuple, Type
+from typing import Any, BinaryIO, Dict, Iterator, List, Mapping, Optional, Tuple, Type, Union
 
 from .errors import TallyConnectionError, problem_from_response
 from .image import Image, decode_exr, image_from_tiles
@@ -192,20 +192,11 @@ class Client:
 
     def has_asset(self, ref: str) -> bool:
         """Whether the server stores the asset ``"sha256:<hex>"`` for this caller (HEAD)."""
-        conn = self._connection(self.timeout)
-        try:
-            try:
-                conn.request("HEAD", self._target(f"/v1/assets/{ref}", None), headers=self._headers())
-                resp = conn.getresponse()
-                resp.read()
-            except _NETWORK_ERRORS as e:
-                raise TallyConnectionError(f"HEAD {self.url}/v1/assets/{ref}: {e}") from e
-        finally:
-            conn.close()
+        resp = self._exchange("HEAD", f"/v1/assets/{ref}", None, None, self._headers(), self.timeout)
         if resp.status == 404:
             return False
         if resp.status >= 400:
-            raise problem_from_response(resp.status, b"", {k.lower(): v for k, v in resp.getheaders()})
+            raise problem_from_response(resp.status, b"", resp.headers)
         return True
 
     def upload_asset(self, path: str, *, skip_if_present: bool = True) -> str:
@@ -216,22 +207,11 @@ class Client:
         if skip_if_present and self.has_asset(ref):
             return ref
         size = os.path.getsize(path)
-        conn = self._connection(self.timeout + size / 2e6)
-        try:
-            try:
-                with open(path, "rb") as f:
-                    conn.request("PUT", self._target(f"/v1/assets/{ref}", None), body=f,
-                                 headers=self._headers({"Content-Type": "application/octet-stream",
-                                                        "Content-Length": str(size)}))
-                resp = conn.getresponse()
-                payload = resp.read()
-            except _NETWORK_ERRORS as e:
-                raise TallyConnectionError(f"PUT {self.url}/v1/assets/{ref}: {e}") from e
-            hdrs = {k.lower(): v for k, v in resp.getheaders()}
-        finally:
-            conn.close()
+        headers = self._headers({"Content-Type": "application/octet-stream", "Content-Length": str(size)})
+        with open(path, "rb") as f:
+            resp = self._exchange("PUT", f"/v1/assets/{ref}", None, f, headers, self.timeout + size / 2e6)
         if resp.status >= 400:
-            raise problem_from_response(resp.status, payload, hdrs)
+            raise problem_from_response(resp.status, resp.body, resp.headers)
         return ref
 
     def upload_scene_assets(self, spec: Mapping[str, Any], base_dir: str = ".") -> JsonObject:
@@ -281,20 +261,26 @@ class Client:
             extra["Content-Type"] = "application/json"
         if headers:
             extra.update(headers)
-        conn = self._connection(self.timeout)
+        resp = self._exchange(method, path, query, data, self._headers(extra), self.timeout)
+        if resp.status >= 400:
+            raise problem_from_response(resp.status, resp.body, resp.headers)
+        return resp
+
+    def _exchange(self, method: str, path: str, query: Optional[Mapping[str, str]],
+                  body: Optional[Union[bytes, BinaryIO]], headers: Mapping[str, str], timeout: float) -> _Response:
+        """One request on its own connection and the whole answer, whatever its status
+        (a file body is streamed); a network failure is a TallyConnectionError."""
+        conn = self._connection(timeout)
         try:
             try:
-                conn.request(method, self._target(path, query), body=data, headers=self._headers(extra))
+                conn.request(method, self._target(path, query), body=body, headers=dict(headers))
                 resp = conn.getresponse()
                 payload = resp.read()
             except _NETWORK_ERRORS as e:
                 raise TallyConnectionError(f"{method} {self.url}{path}: {e}") from e
-            hdrs = {k.lower(): v for k, v in resp.getheaders()}
+            return _Response(resp.status, {k.lower(): v for k, v in resp.getheaders()}, payload)
         finally:
             conn.close()
-        if resp.status >= 400:
-            raise problem_from_response(resp.status, payload, hdrs)
-        return _Response(resp.status, hdrs, payload)
 
     def _json(self, method: str, path: str, **kw: Any) -> JsonObject:
         out = self._request(method, path, **kw).json()
