@@ -224,6 +224,21 @@ TEST(Assets, SceneNamingAMissingAssetIs422NamingIt) {
   EXPECT_EQ(json::parse(bad.body).at("pointer"), "/scene/shapes/1/obj");
 }
 
+// The same scene file named from --asset-dir and by hash (after its PUT): both jobs end
+// with the same bits and the same pixels of tile 0.
+void expect_by_path_equals_by_hash(HttpClient& c, const json& by_path_spec, const json& by_hash_spec) {
+  const std::string by_path = submit(c, by_path_spec);
+  const std::string by_hash = submit(c, by_hash_spec);
+  const json a = wait_state(c, by_path, "succeeded");
+  const json b = wait_state(c, by_hash, "succeeded");
+  EXPECT_EQ(a.at("bits"), b.at("bits"));
+  const ClientResponse ta = c.request("GET", "/v1/jobs/" + by_path + "/tiles/0");
+  const ClientResponse tb = c.request("GET", "/v1/jobs/" + by_hash + "/tiles/0");
+  ASSERT_EQ(ta.status, 200);
+  EXPECT_EQ(ta.body, tb.body);
+  EXPECT_FALSE(ta.body.empty());
+}
+
 TEST(Assets, UploadedObjRendersBitIdenticalToTheSameFileFromAssetDir) {
   TempDir tmp;
   const std::string obj = lamp_obj(4);
@@ -233,16 +248,7 @@ TEST(Assets, UploadedObjRendersBitIdenticalToTheSameFileFromAssetDir) {
   HttpClient c = server.client();
   const std::string hex = sha256_hex(obj);
   ASSERT_EQ(put(c, hex, obj).status, 201);
-  const std::string by_path = submit(c, obj_image_spec("lamp.obj"));
-  const std::string by_hash = submit(c, obj_image_spec("sha256:" + hex));
-  const json a = wait_state(c, by_path, "succeeded");
-  const json b = wait_state(c, by_hash, "succeeded");
-  EXPECT_EQ(a.at("bits"), b.at("bits"));
-  const ClientResponse ta = c.request("GET", "/v1/jobs/" + by_path + "/tiles/0");
-  const ClientResponse tb = c.request("GET", "/v1/jobs/" + by_hash + "/tiles/0");
-  ASSERT_EQ(ta.status, 200);
-  EXPECT_EQ(ta.body, tb.body);
-  EXPECT_FALSE(ta.body.empty());
+  expect_by_path_equals_by_hash(c, obj_image_spec("lamp.obj"), obj_image_spec("sha256:" + hex));
 }
 
 // An equirectangular map as EXR bytes (the image module's encoder: R, G, B come first, the
@@ -277,15 +283,7 @@ TEST(Assets, UploadedEnvironmentMapLightsAJobBitIdenticalToTheSameFileFromAssetD
   HttpClient c = server.client();
   const std::string hex = sha256_hex(exr);
   ASSERT_EQ(put(c, hex, exr).status, 201);
-  const std::string by_path = submit(c, env_image_spec("sky.exr"));
-  const std::string by_hash = submit(c, env_image_spec("sha256:" + hex));
-  const json a = wait_state(c, by_path, "succeeded");
-  const json b = wait_state(c, by_hash, "succeeded");
-  EXPECT_EQ(a.at("bits"), b.at("bits"));
-  const ClientResponse ta = c.request("GET", "/v1/jobs/" + by_path + "/tiles/0");
-  const ClientResponse tb = c.request("GET", "/v1/jobs/" + by_hash + "/tiles/0");
-  ASSERT_EQ(ta.status, 200);
-  EXPECT_EQ(ta.body, tb.body);
+  expect_by_path_equals_by_hash(c, env_image_spec("sky.exr"), env_image_spec("sha256:" + hex));
   // validate answers with the plan, which names the map as the reason the sky is on.
   const ClientResponse v =
       c.request("POST", "/v1/jobs/validate", env_image_spec("sha256:" + hex).dump(), {{"Content-Type", "application/json"}});

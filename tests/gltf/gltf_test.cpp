@@ -140,17 +140,7 @@ json image_spec(const json& scene) {
 }
 
 void expect_bit_identical(const test::JobRun& a, const test::JobRun& b) {
-  const auto& ca = a.runner->state().channels;
-  const auto& cb = b.runner->state().channels;
-  ASSERT_EQ(ca.size(), cb.size());
-  size_t differ = 0;
-  for (size_t i = 0; i < ca.size(); ++i) {
-    if (ca[i].n != cb[i].n || std::memcmp(&ca[i].mean, &cb[i].mean, sizeof(double)) != 0 ||
-        std::memcmp(&ca[i].m2, &cb[i].m2, sizeof(double)) != 0) {
-      ++differ;
-    }
-  }
-  EXPECT_EQ(differ, 0u) << "of " << ca.size() << " channels";
+  EXPECT_EQ(test::differing_channels(a, b), 0u) << "of " << a.runner->state().channels.size() << " channels";
   EXPECT_EQ(plan_json(*a.job), plan_json(*b.job));
 }
 

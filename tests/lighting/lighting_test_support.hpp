@@ -1,7 +1,9 @@
 #pragma once
 // Runs lighting specs through the production path: JSON -> compile_lighting_job ->
 // JobRunner -> run_local -> tallies.
+#include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <memory>
 #include <nlohmann/json.hpp>
 
@@ -25,6 +27,22 @@ struct JobRun {
   const Tally& channel(size_t c) const { return runner->state().channels.at(c); }
   uint64_t counter(LightingCounter c) const { return runner->state().counters[c]; }
 };
+
+// Channels of `a` and `b` whose count, mean or M2 differ in any bit (0: bit-identical;
+// different channel counts count every channel of the longer one).
+inline size_t differing_channels(const JobRun& a, const JobRun& b) {
+  const auto& ca = a.runner->state().channels;
+  const auto& cb = b.runner->state().channels;
+  if (ca.size() != cb.size()) return std::max(ca.size(), cb.size());
+  size_t differ = 0;
+  for (size_t i = 0; i < ca.size(); ++i) {
+    if (ca[i].n != cb[i].n || std::memcmp(&ca[i].mean, &cb[i].mean, sizeof(double)) != 0 ||
+        std::memcmp(&ca[i].m2, &cb[i].m2, sizeof(double)) != 0) {
+      ++differ;
+    }
+  }
+  return differ;
+}
 
 // Specs without "sampler" run with independent samples here: these tests assert
 // properties of i.i.d. samples (per-sample variances, 4-se bounds on each channel's own
