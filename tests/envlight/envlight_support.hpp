@@ -17,26 +17,11 @@
 namespace tally::test {
 
 namespace fs = std::filesystem;
-inline constexpr double kPiT = std::numbers::pi;
-
-// A directory of its own per test (removed by the destructor).
-struct TempDir {
-  fs::path path;
-  explicit TempDir(const std::string& name) {
-    path = fs::temp_directory_path() / ("tally_envlight_" + name + "_" + std::to_string(::getpid()));
-    fs::remove_all(path);
-    fs::create_directories(path);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-  JobLimits limits() const {
-    JobLimits l;
-    l.asset_dir = path.string();
-    return l;
-  }
+// A directory of its own per test (tally_envlight_<name>_<pid>/assets is the asset dir).
+struct TempDir : AssetSandbox {
+  explicit TempDir(const std::string& name) : AssetSandbox("tally_envlight_" + name) {}
 };
+inline constexpr double kPiT = std::numbers::pi;
 
 // RGB float image, row-major from the top row, written with OpenImageIO (format by the
 // extension: .exr float, .hdr RGBE).

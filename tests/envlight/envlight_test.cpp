@@ -28,8 +28,8 @@ TEST(EnvLightDecode, ExrFloatsRoundTripExactly) {
   TempDir dir("decode_exr");
   std::vector<float> rgb(3 * 6 * 3);
   for (size_t i = 0; i < rgb.size(); ++i) rgb[i] = static_cast<float>(0.001 * static_cast<double>(i * i) + 1e-7 * static_cast<double>(i));
-  write_image(dir.path / "m.exr", 6, 3, rgb);
-  std::ifstream f(dir.path / "m.exr", std::ios::binary);
+  write_image(dir.assets() / "m.exr", 6, 3, rgb);
+  std::ifstream f(dir.assets() / "m.exr", std::ios::binary);
   const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
   EXPECT_EQ(sniff_image_format(bytes), "openexr");
   const DecodedImage im = decode_image(bytes, 1000);
@@ -50,8 +50,8 @@ TEST(EnvLightDecode, ExrFloatsRoundTripExactly) {
 TEST(EnvLightDecode, RadianceHdrDecodesWithTheOpenImageIoModule) {
   TempDir dir("decode_hdr");
   const std::vector<float> rgb = {0.5f, 1.0f, 2.0f, 3.0f, 0.25f, 0.125f, 0, 0, 0, 10, 20, 40};
-  write_image(dir.path / "m.hdr", 2, 2, rgb);
-  std::ifstream f(dir.path / "m.hdr", std::ios::binary);
+  write_image(dir.assets() / "m.hdr", 2, 2, rgb);
+  std::ifstream f(dir.assets() / "m.hdr", std::ios::binary);
   const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
   EXPECT_EQ(sniff_image_format(bytes), "hdr");
   if (image_module_backend().rfind("OpenImageIO", 0) != 0) {
@@ -309,7 +309,7 @@ TEST(EnvLight, ConstantMapIsTheConstantSkyBitForBit) {
   // A constant map is the constant sky of its radiance (the parser makes it one), so the
   // image, the point estimates and the counters are the same bits.
   TempDir dir("constant");
-  write_image(dir.path / "c.exr", 16, 8, constant_rgb(16, 8, 0.5f, 0.25f, 1.0f));
+  write_image(dir.assets() / "c.exr", 16, 8, constant_rgb(16, 8, 0.5f, 0.25f, 1.0f));
   const json map = sky_map("c.exr", 2.0, 33.0);  // rotation of a constant map changes nothing
   const json sky = {{"type", "sky"}, {"radiance", {1.0, 0.5, 2.0}}};
   const JobRun a = run_spec(open_image_spec(map), 2, dir.limits());
@@ -331,7 +331,7 @@ TEST(EnvLight, NearlyConstantMapSampledAsAMapMatchesTheSkyWithinErrorBars) {
   const int W = 64, H = 32;
   std::vector<float> rgb = constant_rgb(W, H, 1.5f, 1.5f, 1.5f);
   rgb[3 * (10 * W + 7)] = std::nextafter(1.5f, 2.0f);
-  write_image(dir.path / "n.exr", W, H, rgb);
+  write_image(dir.assets() / "n.exr", W, H, rgb);
   const double rho = 0.6, L = 1.5;
   const JobRun r = run_spec(env_point_spec(sky_map("n.exr"), normalize(Vec3{0.3, 0.5, 0.8}), {"light_area", "mis"}, 100000, rho),
                             1, dir.limits());
@@ -351,7 +351,7 @@ json hot_texel_map(const TempDir& dir, const HotTexel& h, const std::string& nam
   std::vector<float> rgb = constant_rgb(h.W, h.H, 0, 0, 0);
   const size_t i = 3 * static_cast<size_t>(h.iv * h.W + h.iu);
   rgb[i] = static_cast<float>(h.value), rgb[i + 1] = static_cast<float>(0.5 * h.value), rgb[i + 2] = static_cast<float>(0.25 * h.value);
-  write_image(dir.path / name, h.W, h.H, rgb);
+  write_image(dir.assets() / name, h.W, h.H, rgb);
   return name;
 }
 
@@ -417,7 +417,7 @@ TEST(EnvLight, ErrorBarsCoverTheExactValue) {
   TempDir dir("coverage");
   const int W = 32, H = 16;
   const std::vector<float> rgb = test_map_rgb(W, H);
-  write_image(dir.path / "m.exr", W, H, rgb);
+  write_image(dir.assets() / "m.exr", W, H, rgb);
   const double rho = 0.8;
   double E = 0;
   for (int iv = 0; iv < H / 2; ++iv) {
@@ -442,7 +442,7 @@ TEST(EnvLight, ErrorBarsCoverTheExactValue) {
 
 TEST(EnvLight, BitIdenticalForAnyThreadCountAndPlanned) {
   TempDir dir("threads");
-  write_image(dir.path / "m.exr", 32, 16, test_map_rgb(32, 16));
+  write_image(dir.assets() / "m.exr", 32, 16, test_map_rgb(32, 16));
   for (const char* sampler : {"independent", "sobol"}) {
     json spec = open_image_spec(sky_map("m.exr", 0.8, -20.0), 6);
     spec["sampler"] = sampler;
@@ -482,36 +482,36 @@ TEST(EnvLight, BadInputsNameTheField) {
   // Non-finite and negative texels: named by column, row and channel.
   std::vector<float> m = constant_rgb(16, 8, 1, 1, 1);
   m[3 * (3 * 16 + 4) + 1] = std::numeric_limits<float>::quiet_NaN();
-  write_image(dir.path / "nan.exr", 16, 8, m);
+  write_image(dir.assets() / "nan.exr", 16, 8, m);
   EXPECT_EQ(error_of(spec(sky_map("nan.exr")), lim, &msg), map_ptr);
   EXPECT_NE(msg.find("texel (column 4, row 3) channel G is nan"), std::string::npos) << msg;
   m = constant_rgb(16, 8, 1, 1, 1);
   m[3 * 5] = -2.0f;
-  write_image(dir.path / "neg.exr", 16, 8, m);
+  write_image(dir.assets() / "neg.exr", 16, 8, m);
   EXPECT_EQ(error_of(spec(sky_map("neg.exr")), lim, &msg), map_ptr);
   EXPECT_NE(msg.find("texel (column 5, row 0) channel R is -2"), std::string::npos) << msg;
   // Zero bytes; not an HDR image; not 2:1.
-  std::ofstream(dir.path / "empty.exr").close();
+  std::ofstream(dir.assets() / "empty.exr").close();
   EXPECT_EQ(error_of(spec(sky_map("empty.exr")), lim, &msg), map_ptr);
   EXPECT_NE(msg.find("not an OpenEXR or Radiance"), std::string::npos) << msg;
-  std::ofstream(dir.path / "text.exr") << "hello";
+  std::ofstream(dir.assets() / "text.exr") << "hello";
   EXPECT_EQ(error_of(spec(sky_map("text.exr")), lim, &msg), map_ptr) << msg;
-  write_image(dir.path / "ldr.png", 8, 4, constant_rgb(8, 4, 0.5f, 0.5f, 0.5f));  // 8-bit: not radiance
+  write_image(dir.assets() / "ldr.png", 8, 4, constant_rgb(8, 4, 0.5f, 0.5f, 0.5f));  // 8-bit: not radiance
   EXPECT_EQ(error_of(spec(sky_map("ldr.png")), lim, &msg), map_ptr);
   EXPECT_NE(msg.find("not an OpenEXR or Radiance .hdr image, a png file"), std::string::npos) << msg;
   std::string exr_bytes;
-  write_image(dir.path / "cut_src.exr", 16, 8, constant_rgb(16, 8, 1, 2, 3));
+  write_image(dir.assets() / "cut_src.exr", 16, 8, constant_rgb(16, 8, 1, 2, 3));
   {
-    std::ifstream f(dir.path / "cut_src.exr", std::ios::binary);
+    std::ifstream f(dir.assets() / "cut_src.exr", std::ios::binary);
     exr_bytes.assign((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
   }
-  std::ofstream(dir.path / "cut.exr", std::ios::binary) << exr_bytes.substr(0, exr_bytes.size() / 2);
+  std::ofstream(dir.assets() / "cut.exr", std::ios::binary) << exr_bytes.substr(0, exr_bytes.size() / 2);
   EXPECT_EQ(error_of(spec(sky_map("cut.exr")), lim, &msg), map_ptr) << msg;  // truncated: the decoder's error
-  write_image(dir.path / "square.exr", 8, 8, constant_rgb(8, 8, 1, 1, 1));
+  write_image(dir.assets() / "square.exr", 8, 8, constant_rgb(8, 8, 1, 1, 1));
   EXPECT_EQ(error_of(spec(sky_map("square.exr")), lim, &msg), map_ptr);
   EXPECT_NE(msg.find("2:1"), std::string::npos) << msg;
   // Parameters.
-  write_image(dir.path / "ok.exr", 8, 4, test_map_rgb(8, 4));
+  write_image(dir.assets() / "ok.exr", 8, 4, test_map_rgb(8, 4));
   json s = spec(sky_map("ok.exr"));
   s["scene"]["lights"][0]["intensity"] = std::nan("");
   EXPECT_EQ(error_of(s, lim, &msg), "/scene/lights/0/intensity") << msg;

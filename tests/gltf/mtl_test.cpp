@@ -25,22 +25,7 @@ using json = nlohmann::json;
 // A scene parsed as a job's "/scene", and the SpecError it raises ("" if none).
 constexpr auto* parse = &test::parse_scene_json;
 constexpr auto* error_of = &test::scene_error;
-
-struct Dir {
-  fs::path root;
-  explicit Dir(const std::string& name) : root(fs::temp_directory_path() / name) {
-    fs::remove_all(root);
-    fs::create_directories(root / "assets" / "m");
-    fs::create_directories(root / "outside");
-  }
-  ~Dir() { fs::remove_all(root); }
-  JobLimits limits() const {
-    JobLimits l;
-    l.asset_dir = (root / "assets").string();
-    return l;
-  }
-  void write(const fs::path& rel, const std::string& text) const { std::ofstream(root / rel) << text; }
-};
+using Dir = test::AssetSandbox;
 
 const char* kObj =
     "mtllib lib.mtl\n"

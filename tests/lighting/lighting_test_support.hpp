@@ -4,7 +4,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <memory>
+#include <string>
 #include <nlohmann/json.hpp>
 
 #include "common/engine/job_definition.hpp"
@@ -17,6 +20,8 @@
 #include "common/protocol/spec_reader.hpp"
 #include "common/math/vec3.hpp"
 
+#include <unistd.h>
+
 namespace tally::test {
 
 using json = nlohmann::json;
@@ -26,6 +31,37 @@ struct JobRun {
   std::unique_ptr<JobRunner> runner;
   const Tally& channel(size_t c) const { return runner->state().channels.at(c); }
   uint64_t counter(LightingCounter c) const { return runner->state().counters[c]; }
+};
+
+// A directory of its own per test, removed by the destructor: root/assets is the job's
+// --asset-dir, root/outside a place hostile scene files point at (escape tests). The
+// process id in the name keeps concurrent test processes apart.
+struct AssetSandbox {
+  std::filesystem::path root;
+  explicit AssetSandbox(const std::string& name)
+      : root(std::filesystem::temp_directory_path() / (name + "_" + std::to_string(::getpid()))) {
+    std::filesystem::remove_all(root);
+    std::filesystem::create_directories(assets());
+    std::filesystem::create_directories(outside());
+  }
+  ~AssetSandbox() {
+    std::error_code ec;
+    std::filesystem::remove_all(root, ec);
+  }
+  AssetSandbox(const AssetSandbox&) = delete;
+  AssetSandbox& operator=(const AssetSandbox&) = delete;
+  std::filesystem::path assets() const { return root / "assets"; }
+  std::filesystem::path outside() const { return root / "outside"; }
+  JobLimits limits() const {
+    JobLimits l;
+    l.asset_dir = assets().string();
+    return l;
+  }
+  // Writes `bytes` to root/`rel`, creating its folders.
+  void write(const std::filesystem::path& rel, const std::string& bytes) const {
+    std::filesystem::create_directories((root / rel).parent_path());
+    std::ofstream(root / rel, std::ios::binary) << bytes;
+  }
 };
 
 // Channels of `a` and `b` whose count, mean or M2 differ in any bit (0: bit-identical;

@@ -31,23 +31,7 @@ namespace fs = std::filesystem;
 namespace OIIO = OIIO_NAMESPACE;
 using json = nlohmann::json;
 using test::GltfWriter;
-
-struct TempDir {
-  fs::path root;
-  explicit TempDir(const std::string& name)
-      : root(fs::temp_directory_path() / (name + "_" + std::to_string(::getpid()))) {
-    fs::remove_all(root);
-    fs::create_directories(root / "assets");
-    fs::create_directories(root / "outside");
-  }
-  ~TempDir() { fs::remove_all(root); }
-  fs::path assets() const { return root / "assets"; }
-  JobLimits limits() const {
-    JobLimits l;
-    l.asset_dir = assets().string();
-    return l;
-  }
-};
+using TempDir = test::AssetSandbox;
 
 // An 8-bit image file (PNG, or any format OpenImageIO writes by the name's extension).
 std::string encode(const std::string& name, int w, int h, int nc, const std::vector<uint8_t>& px) {
