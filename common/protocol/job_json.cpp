@@ -67,13 +67,11 @@ json progress_event_json(const JobRunner& r) {
 }
 
 json state_event_json(JobStatus status, const JobRunner* runner, const std::string& error, bool end) {
-  json st = {{"state", std::string(job_status_name(status))}};
-  if (runner) {
-    st["stop_reason"] = std::string(stop_reason_name(runner->stop_reason()));
-    if (end) st["target_met"] = runner->target_met();
-  }
-  if (!error.empty()) st["error_message"] = error;
-  return st;
+  if (!runner) return state_event_json(status, static_cast<const RunFacts*>(nullptr), error, end);
+  RunFacts facts;  // the two facts the event shows, read from the runner
+  facts.stop_reason = runner->stop_reason();
+  facts.target_met = end && runner->target_met();
+  return state_event_json(status, &facts, error, end);
 }
 
 json state_event_json(JobStatus status, const RunFacts* facts, const std::string& error, bool end) {
