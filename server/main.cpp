@@ -77,6 +77,11 @@ int main(int argc, char** argv) {
   app.add_option("--max-samples", mc.limits.max_samples, "per-job cap: samples")->capture_default_str();
   app.add_option("--max-seconds", mc.limits.max_seconds, "per-job cap: compute seconds")->capture_default_str();
   app.add_option("--max-pixels", mc.limits.max_pixels, "per-job cap: image pixels")->capture_default_str();
+  app.add_option("--max-triangles", mc.limits.max_triangles, "per-job cap: triangles of a lighting scene (~100 bytes each)")
+      ->check(CLI::Range(size_t{1}, size_t{1} << 31))
+      ->capture_default_str();
+  app.add_option("--max-texture-bytes", mc.limits.max_texture_bytes, "per-job cap: decoded texture bytes (12 a texel)")
+      ->capture_default_str();
   app.add_option("--checkpoint-interval", mc.checkpoint_interval_s, "least seconds between a job's checkpoints")
       ->capture_default_str();
   std::string memory_budget = "auto", finished_cache = "256MiB", retain_max_age = "0", retain_max_bytes = "0";

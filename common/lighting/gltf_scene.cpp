@@ -513,7 +513,8 @@ class GltfLoader {
       if (prim.mode != -1 && prim.mode != TINYGLTF_MODE_TRIANGLES) {
         fail(pp + "/mode", "only triangles (mode 4) are supported");
       }
-      const size_t limit = limits_.max_table_size;
+      const size_t max_triangles = limits_.max_triangles;
+      const size_t limit = 3 * max_triangles;  // vertices: a primitive without indices has 3 a triangle
       auto pos_it = prim.attributes.find("POSITION");
       if (pos_it == prim.attributes.end()) fail(pp + "/attributes", "has no POSITION");
       size_t nv = 0;
@@ -562,7 +563,7 @@ class GltfLoader {
       std::vector<double> idx;
       size_t ni = 0;
       if (prim.indices >= 0) {
-        idx = read_accessor(prim.indices, pp + "/indices", TINYGLTF_TYPE_SCALAR, true, 3 * limit, &ni);
+        idx = read_accessor(prim.indices, pp + "/indices", TINYGLTF_TYPE_SCALAR, true, 3 * max_triangles, &ni);
         const auto ct = model_.accessors[static_cast<size_t>(prim.indices)].componentType;
         if (ct == TINYGLTF_COMPONENT_TYPE_FLOAT) fail(fmt::format("/accessors/{}/componentType", prim.indices), "indices must be integers");
       } else {
@@ -571,7 +572,7 @@ class GltfLoader {
         for (size_t i = 0; i < nv; ++i) idx[i] = static_cast<double>(i);
       }
       if (ni % 3 != 0) fail(prim.indices >= 0 ? fmt::format("/accessors/{}/count", prim.indices) : pp, "is not a multiple of 3");
-      if (triangles_ + ni / 3 > limit) fail(pp, fmt::format("too many triangles (limit {})", limit));
+      if (triangles_ + ni / 3 > max_triangles) fail(pp, fmt::format("too many triangles (limit {})", max_triangles));
       triangles_ += ni / 3;
       s.triangles.resize(ni / 3);
       for (size_t t = 0; t < ni / 3; ++t) {

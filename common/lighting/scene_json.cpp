@@ -217,8 +217,8 @@ std::vector<Shape> load_obj(const std::string& relative, const std::string& poin
   size_t total = 0;
   for (const auto& shape : reader.GetShapes()) {
     const auto& idx = shape.mesh.indices;
-    if (triangles_so_far + total + idx.size() / 3 > limits.max_table_size) {
-      throw SpecError(pointer, fmt::format("too many triangles (limit {})", limits.max_table_size));
+    if (triangles_so_far + total + idx.size() / 3 > limits.max_triangles) {
+      throw SpecError(pointer, fmt::format("too many triangles (limit {})", limits.max_triangles));
     }
     for (size_t f = 0; f + 2 < idx.size(); f += 3) {
       std::array<uint32_t, 3> t{};
@@ -366,8 +366,8 @@ std::vector<Shape> parse_shape(SpecReader r, Scene& scene, const JobLimits& limi
       if (vj.size() / 3 > limits.max_table_size) {
         throw SpecError(vp, fmt::format("too many vertices (limit {})", limits.max_table_size));
       }
-      if (triangles_so_far + ij.size() / 3 > limits.max_table_size) {
-        throw SpecError(ip, fmt::format("too many triangles (limit {})", limits.max_table_size));
+      if (triangles_so_far + ij.size() / 3 > limits.max_triangles) {
+        throw SpecError(ip, fmt::format("too many triangles (limit {})", limits.max_triangles));
       }
       std::vector<Vec3> v(vj.size() / 3);
       for (size_t i = 0; i < v.size(); ++i) {

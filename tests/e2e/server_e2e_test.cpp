@@ -210,6 +210,38 @@ TEST(ServerE2E, EveryErrorStatusIsProblemJson) {
   EXPECT_EQ(c.request("GET", "/livez").status, 200);
 }
 
+// --max-triangles caps the triangles of a lighting scene (all meshes together): a scene
+// over it is a 422 naming the mesh's indices and the limit; one at the limit runs.
+TEST(ServerE2E, MaxTrianglesFlagCapsLightingScenes) {
+  TempDir tmp;
+  ServerProcess server(tmp.path / "data", {"--max-triangles", "2"});
+  HttpClient c = server.client();
+  const auto spec_with = [](int triangles) {
+    json idx = json::array();
+    for (int t = 0; t < triangles; ++t) idx.insert(idx.end(), {0, 1, 2});
+    const json mesh = {{"type", "mesh"}, {"vertices", {-1, -1, -1, 1, -1, -1, 0, 1, -1}}, {"indices", idx}, {"material", "white"}};
+    const json lamp = {{"type", "quad"}, {"corner", {-0.5, -0.5, 2}}, {"edge_u", {0, 1, 0}}, {"edge_v", {1, 0, 0}}, {"material", "lamp"}};
+    const json point = {{"p", {0, 0, 0}}, {"n", {0, 0, 1}}, {"wo", {0, 0, 1}}, {"material", "white"}};
+    return json{{"kind", "lighting"},
+                {"seed", 1},
+                {"scene",
+                 {{"materials",
+                   {{"white", {{"type", "diffuse"}, {"albedo", {0.8, 0.8, 0.8}}}},
+                    {"lamp", {{"type", "emissive"}, {"radiance", {5, 5, 5}}}}}},
+                  {"shapes", json::array({mesh, lamp})}}},
+                {"query", {{"type", "points"}, {"points", json::array({point})}}},
+                {"estimators", {"light_area"}},
+                {"stop", {{"max_samples", 1000}}}};
+  };
+  const ClientResponse over = c.request("POST", "/v1/jobs", spec_with(3).dump(), {{"Content-Type", "application/json"}});
+  expect_problem(over, 422);
+  const json p = json::parse(over.body);
+  EXPECT_EQ(p.at("pointer"), "/scene/shapes/0/indices");
+  EXPECT_NE(p.at("detail").get<std::string>().find("too many triangles (limit 2)"), std::string::npos) << over.body;
+  const std::string id = submit(c, spec_with(2));
+  EXPECT_EQ(wait_state(c, id, "succeeded", 30).at("state"), "succeeded");
+}
+
 TEST(ServerE2E, DepthBombOverTheWire) {
   TempDir tmp;
   ServerProcess server(tmp.path / "data");  // default body limit 1 MiB holds the bomb

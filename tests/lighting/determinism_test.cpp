@@ -138,8 +138,11 @@ TEST(Spec, ErrorsNameTheField) {
   s = base;
   s["scene"]["shapes"][0] = {{"type", "mesh"}, {"vertices", {0, 0, 0, 1, 0, 0, 0, 1, 0}}, {"indices", {0, 1, 2, 0, 1, 2, 0, 1, 2, 0, 1, 2}}, {"material", "white"}};
   JobLimits tiny;
-  tiny.max_table_size = 3;
+  tiny.max_triangles = 3;
   EXPECT_EQ(spec_error_pointer(s, tiny), "/scene/shapes/0/indices");
+  tiny = JobLimits{};
+  tiny.max_table_size = 2;  // the inline mesh's 3 vertices
+  EXPECT_EQ(spec_error_pointer(s, tiny), "/scene/shapes/0/vertices");
 }
 
 TEST(Spec, AssetPathsCannotEscape) {
