@@ -18,6 +18,7 @@
 #include <thread>
 
 #include "common/image/image_io.hpp"
+#include "gltf/gltf_writer.hpp"
 #include "server/auth/token.hpp"
 #include "server_process.hpp"
 
@@ -249,6 +250,34 @@ TEST(Assets, UploadedObjRendersBitIdenticalToTheSameFileFromAssetDir) {
   const std::string hex = sha256_hex(obj);
   ASSERT_EQ(put(c, hex, obj).status, 201);
   expect_by_path_equals_by_hash(c, obj_image_spec("lamp.obj"), obj_image_spec("sha256:" + hex));
+}
+
+// The lamp as a self-contained glTF (.glb): a 1x1 emissive square at z = 1.5 facing down.
+std::string lamp_glb() {
+  test::GltfWriter w;
+  const int lamp = w.material({{"emissiveFactor", {1.0, 0.9, 0.8}},
+                               {"pbrMetallicRoughness", {{"baseColorFactor", {0, 0, 0, 1}}, {"metallicFactor", 0.0}}}});
+  w.node({{"mesh", w.mesh({-0.5f, -0.5f, 1.5f, -0.5f, 0.5f, 1.5f, 0.5f, 0.5f, 1.5f, 0.5f, -0.5f, 1.5f}, {0, 1, 2, 0, 2, 3}, lamp)}});
+  return w.glb();
+}
+
+json glb_image_spec(const std::string& file) {
+  json spec = obj_image_spec("unused.obj");
+  spec["scene"]["shapes"][1] = {{"type", "gltf"}, {"file", file}};
+  spec["scene"]["materials"].erase("lamp");
+  return spec;
+}
+
+TEST(Assets, UploadedGlbRendersBitIdenticalToTheSameFileFromAssetDir) {
+  TempDir tmp;
+  const std::string glb = lamp_glb();
+  fs::create_directories(tmp.path / "dir");
+  std::ofstream(tmp.path / "dir" / "lamp.glb", std::ios::binary) << glb;
+  ServerProcess server(tmp.path / "data", {"--asset-dir", (tmp.path / "dir").string()});
+  HttpClient c = server.client();
+  const std::string hex = sha256_hex(glb);
+  ASSERT_EQ(put(c, hex, glb).status, 201);
+  expect_by_path_equals_by_hash(c, glb_image_spec("lamp.glb"), glb_image_spec("sha256:" + hex));
 }
 
 // An equirectangular map as EXR bytes (the image module's encoder: R, G, B come first, the

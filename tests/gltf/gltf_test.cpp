@@ -25,26 +25,11 @@ namespace {
 
 namespace fs = std::filesystem;
 using test::GltfWriter;
+using TempDir = test::AssetSandbox;
 using json = nlohmann::json;
 // A scene parsed as a job's "/scene", and the SpecError it raises ("" if none).
 constexpr auto* parse = &test::parse_scene_json;
 constexpr auto* error_of = &test::scene_error;
-
-struct TempDir {
-  fs::path root;
-  explicit TempDir(const std::string& name) : root(fs::temp_directory_path() / name) {
-    fs::remove_all(root);
-    fs::create_directories(root / "assets");
-  }
-  ~TempDir() { fs::remove_all(root); }
-  fs::path assets() const { return root / "assets"; }
-  JobLimits limits() const {
-    JobLimits l;
-    l.asset_dir = assets().string();
-    return l;
-  }
-};
-
 
 json gltf_shape(const std::string& file) { return {{"type", "gltf"}, {"file", file}}; }
 
@@ -389,6 +374,23 @@ TEST(GltfExample, TheDemoSceneLoadsAndCompiles) {
   EXPECT_GT(dot(to_sphere, s.delta_lights[0].direction), s.delta_lights[0].cos_inner);
   // The whole job compiles (Embree, lights, plan).
   EXPECT_NE(compile_lighting_job(spec, dir.limits()), nullptr);
+  // And renders, small: every pixel finite and not negative, some light reaches the
+  // camera, and 1 and 2 threads give the same bits.
+  json small = spec;
+  small["scene"]["shapes"][0]["resolution"] = {32, 24};
+  small["query"].erase("adaptive");
+  small["stop"] = {{"max_samples", 4}};
+  const test::JobRun one = test::run_spec(small, 1, dir.limits());
+  const test::JobRun two = test::run_spec(small, 2, dir.limits());
+  EXPECT_EQ(test::differing_channels(one, two), 0u);
+  double sum = 0;
+  size_t bad = 0;
+  for (const Tally& t : one.runner->state().channels) {
+    bad += (std::isfinite(t.mean) && t.mean >= 0) ? 0 : 1;
+    sum += t.mean;
+  }
+  EXPECT_EQ(bad, 0u);
+  EXPECT_GT(sum, 0.0);
 }
 
 }  // namespace
