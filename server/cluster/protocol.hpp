@@ -18,7 +18,7 @@
 //   tally:counters                  hash: first, dup_equal, dup_differ, stale, failures
 //   tally:workers                   zset name -> last heartbeat (unix s)
 //   tally:worker:{name}             hash: name, host, threads, heartbeat, blocks_done, current_job
-//   tally:asset:{sha256}            bytes of an OBJ file, content-addressed
+//   tally:asset:{sha256}            bytes of a scene file (OBJ, .mtl, glTF/.glb, buffer, image, map), content-addressed
 //
 // run = "{epoch}.{generation}": a new one each time a job enters the coordinator, so
 // nothing of an older epoch, an earlier cancelled run or a previous pass is ever merged.

@@ -215,9 +215,11 @@ class Client:
         return ref
 
     def upload_scene_assets(self, spec: Mapping[str, Any], base_dir: str = ".") -> JsonObject:
-        """A copy of ``spec`` whose local files (the scene fields ``obj`` and ``map``, relative
-        to ``base_dir``) are uploaded (only those the server lacks) and named by their hash,
-        as ``tally submit`` does. Names that are not local files are left alone."""
+        """A copy of ``spec`` whose local files (the scene fields ``obj``, ``file`` and ``map``,
+        relative to ``base_dir``) are uploaded (only those the server lacks) and named by
+        their hash, as ``tally submit`` does. Names that are not local files are left alone.
+        Files named inside those files (a .gltf's buffers and images, an OBJ's .mtl and
+        map_Kd) are not uploaded: use a .glb, data URIs or ``sha256:`` names there."""
         def walk(v: Any) -> Any:
             if isinstance(v, dict):
                 out = {}
