@@ -166,6 +166,9 @@ def main():
 
     counts = collections.Counter()
     errors = collections.Counter()
+    idle = collections.Counter()                # not errors: see watch()
+    latency = collections.defaultdict(list)     # op -> seconds, outside restarts
+    odd_answers = []                            # first bytes of unexpected smuggling answers
     acked = {}          # id -> True
     finished = {}       # id -> state, once seen finished
     extended = set()    # ids we extended (they may run again)
@@ -178,10 +181,18 @@ def main():
         return "connection (during restart)" if restarting.is_set() else f"{op}: {type(e).__name__}"
 
     def watch(job_id, port):
+        # A stream whose headers arrived and then stays quiet for the socket timeout is
+        # idle, not stalled: a queued job sends nothing until it starts or the heartbeat
+        # (15 s). Only a timeout before the headers counts as an error.
+        headers_in = False
         try:
             c = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+            t_req = time.time()
             c.request("GET", f"/v1/jobs/{job_id}/events", headers={"Accept": "text/event-stream"})
             r = c.getresponse()
+            headers_in = True
+            with lock:
+                latency["watch (headers)"].append(time.time() - t_req)
             end = time.time() + rng.uniform(0.2, 2.0)
             while time.time() < end:
                 if not r.read1(4096):
@@ -193,11 +204,16 @@ def main():
                     errors[f"watch {r.status}"] += 1
         except (OSError, http.client.HTTPException) as e:
             with lock:
-                errors[classify_exc(e, "watch")] += 1
+                if headers_in and isinstance(e, TimeoutError) and not restarting.is_set():
+                    counts["watch"] += 1
+                    idle["watch: stream idle for 5 s after its headers (queued job)"] += 1
+                else:
+                    errors[classify_exc(e, "watch")] += 1
 
     def one(op):
         port = srv.port
         ids = list(acked)
+        t_op = time.time()
         try:
             if op == "submit":
                 st, body = request(port, "POST", "/v1/jobs", json.dumps(job_spec(rng)))
@@ -247,12 +263,17 @@ def main():
                                 b"GET /livez HTTP/1.1\r\nHost: x\r\n\r\n")
                 if out.count(b"HTTP/1.1 ") > 1 or (out and not out.startswith(b"HTTP/1.1 400")):
                     errors["smuggle: answered twice or not 400"] += 1
+                    with lock:
+                        if len(odd_answers) < 5:
+                            odd_answers.append(out[:200].decode("latin-1"))
                 elif not out:
                     errors["smuggle: no answer"] += 1
             else:
                 return
             with lock:
                 counts[op] += 1
+                if not restarting.is_set():
+                    latency[op].append(time.time() - t_op)
         except (OSError, http.client.HTTPException) as e:
             with lock:
                 errors[classify_exc(e, op)] += 1
@@ -307,9 +328,16 @@ def main():
     exit_code = srv.stop()
 
     total = sum(counts.values())
+
+    def pct(xs, q):
+        xs = sorted(xs)
+        return round(xs[min(len(xs) - 1, int(q * len(xs)))], 3) if xs else None
     report = {
         "duration_s": round(time.time() - t0, 1), "rate_per_s": a.rate, "kills": kills,
         "requests": total, "requests_by_op": dict(counts), "errors_by_class": dict(errors),
+        "not_errors": dict(idle),
+        "latency_s_p50_p99_max": {op: [pct(v, 0.5), pct(v, 0.99), pct(v, 1.0)] for op, v in sorted(latency.items())},
+        "unexpected_smuggling_answers": odd_answers,
         "jobs_acknowledged": len(acked), "jobs_lost": len(lost), "finished_jobs_regressed": len(regressed),
         "rss_kb_start": rss_start, "rss_kb_end": rss_end, "sigterm_exit": exit_code,
     }
