@@ -6,6 +6,8 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <condition_variable>
+#include <future>
 #include <mutex>
 
 #include "server_test_support.hpp"
@@ -81,6 +83,70 @@ TEST(StoreFailure, NothingIsAcknowledgedThatIsNotStored) {
 // The port used to open only after recovery, so /readyz never said 503. Now the
 // server listens first: until the jobs are recovered /readyz is 503 and the job
 // routes answer 503 (a partial job list would look like lost jobs).
+// Wraps a store; a save of a finished ("succeeded") row waits at a gate until it is opened.
+class GatedStore final : public JobStore {
+ public:
+  explicit GatedStore(std::unique_ptr<JobStore> inner) : inner_(std::move(inner)) {}
+  void save(const StoredJob& j) override {
+    if (j.state == "succeeded") {
+      std::unique_lock lock(mu_);
+      held_ = true;
+      cv_.notify_all();
+      cv_.wait(lock, [&] { return open_; });
+    }
+    inner_->save(j);
+    saves_done_.fetch_add(1);
+  }
+  std::vector<StoredJob> load_all() override { return inner_->load_all(); }
+  std::optional<std::string> load_checkpoint(const std::string& id) override { return inner_->load_checkpoint(id); }
+  bool remove(const std::string& id) override { return inner_->remove(id); }
+  uint64_t next_epoch() override { return inner_->next_epoch(); }
+  bool wait_until_a_save_is_held(double seconds) {
+    std::unique_lock lock(mu_);
+    return cv_.wait_for(lock, std::chrono::duration<double>(seconds), [&] { return held_; });
+  }
+  void open() {
+    std::lock_guard lock(mu_);
+    open_ = true;
+    cv_.notify_all();
+  }
+  std::atomic<int> saves_done_{0};
+
+ private:
+  std::unique_ptr<JobStore> inner_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  bool held_ = false, open_ = false;
+};
+
+// A job reads as finished before its final save is stored (the pass callback saves it
+// after publishing the end). A DELETE in that window used to remove the row, answer
+// 204, and then the save wrote the row back: the deleted job returned after a restart
+// (seen as Delete.FinishedJobIsGoneFromMemoryAndStore failing now and then). Here the
+// final save is held at a gate while the DELETE runs.
+TEST(Delete, ASaveInFlightDoesNotBringTheRowBack) {
+  auto owned = std::make_unique<GatedStore>(make_memory_store());
+  GatedStore* store = owned.get();
+  Harness h(test_manager_config(), std::move(owned));
+  struct OpenAtExit {  // a failed assertion must not leave the worker held at the gate
+    GatedStore* s;
+    ~OpenAtExit() { s->open(); }
+  } open_at_exit{store};
+  const std::string id = h.submit(fake_spec(20000));
+  ASSERT_TRUE(store->wait_until_a_save_is_held(30));
+  ASSERT_TRUE(h.wait_state(id, "succeeded"));
+  const int saves_before = store->saves_done_.load();
+  auto del = std::async(std::launch::async, [&] { return h.call("DELETE", "/v1/jobs/" + id).status; });
+  // (EXPECT, not ASSERT, from here: the gate must open before `del` is waited for.)
+  EXPECT_TRUE(wait_until([&] { return stored_state(*store, id) == "<missing>"; }, 10));  // the row, at once
+  store->open();
+  EXPECT_TRUE(wait_until([&] { return store->saves_done_.load() > saves_before; }, 10));  // the held save wrote
+  EXPECT_EQ(del.get(), 204);
+  EXPECT_EQ(stored_state(*store, id), "<missing>");
+  EXPECT_FALSE(store->load_checkpoint(id).has_value());
+  EXPECT_EQ(h.call("GET", "/v1/jobs/" + id).status, 404);
+}
+
 TEST(Readiness, JobRoutesWaitForRecovery) {
   Harness h;
   h.handler->set_ready(false);
