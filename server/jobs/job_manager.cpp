@@ -697,6 +697,21 @@ void JobManager::remove(const std::string& id) {
       }
     }
   }
+  {
+    // A job reads as finished before its final save (the pass callback stores it after
+    // publishing the end), so a save may be in flight or still to come: mark the job
+    // removed under its save lock (a later save then writes nothing) and delete the row
+    // once more, in case a save wrote it back meanwhile. Only the save lock is held here
+    // (the pass callback takes it under the manager's lock: never the other way round).
+    std::lock_guard save_lock(job->save_mu_);
+    job->removed_ = true;
+    try {
+      if (store_.remove(id)) log::job(log::Level::debug, id, "a save in flight had written the row back: deleted again");
+    } catch (const std::exception& e) {
+      log::job(log::Level::warn, id, "deleting the job's row again failed ({}): it may come back after a restart",
+               e.what());
+    }
+  }
   job->events_.close();
   log::job(log::Level::info, id, "deleted");
 }

@@ -50,6 +50,7 @@ bool JobRecorder::persist(Job& job, bool with_checkpoint, bool retry) {
   if (state) s.checkpoint = encode_checkpoint(*state);
   state.reset();
   std::lock_guard save_lock(job.save_mu_);
+  if (job.removed_) return true;                  // deleted meanwhile: nothing to keep
   if (version < job.saved_version_) return true;  // a newer state is already stored
   try {
     store_.save(s);
