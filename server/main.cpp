@@ -24,6 +24,7 @@
 #include "server/http/http_server.hpp"
 #include "server/jobs/job_manager.hpp"
 #include "server/jobs/memory_budget.hpp"
+#include "server/job_limit_flags.hpp"
 #include "server/jobs/job_store.hpp"
 #include "server/http/listen_address.hpp"
 #include "server/api/metrics.hpp"
@@ -72,16 +73,7 @@ int main(int argc, char** argv) {
   app.add_option("--max-json-depth", hc.max_json_depth, "nesting depth of request JSON")->capture_default_str();
   app.add_option("--max-running", mc.max_running, "jobs sharing the workers at once")->capture_default_str();
   app.add_option("--max-queued", mc.max_queued, "jobs waiting for a running slot (then 503)")->capture_default_str();
-  app.add_option("--max-dimensions", mc.limits.max_dimensions, "per-job cap: integration dimensions")->capture_default_str();
-  app.add_option("--max-channels", mc.limits.max_channels, "per-job cap: channels")->capture_default_str();
-  app.add_option("--max-samples", mc.limits.max_samples, "per-job cap: samples")->capture_default_str();
-  app.add_option("--max-seconds", mc.limits.max_seconds, "per-job cap: compute seconds")->capture_default_str();
-  app.add_option("--max-pixels", mc.limits.max_pixels, "per-job cap: image pixels")->capture_default_str();
-  app.add_option("--max-triangles", mc.limits.max_triangles, "per-job cap: triangles of a lighting scene (~100 bytes each)")
-      ->check(CLI::Range(size_t{1}, size_t{1} << 31))
-      ->capture_default_str();
-  app.add_option("--max-texture-bytes", mc.limits.max_texture_bytes, "per-job cap: decoded texture bytes (12 a texel)")
-      ->capture_default_str();
+  add_job_limit_flags(app, mc.limits);
   app.add_option("--checkpoint-interval", mc.checkpoint_interval_s, "least seconds between a job's checkpoints")
       ->capture_default_str();
   std::string memory_budget = "auto", finished_cache = "256MiB", retain_max_age = "0", retain_max_bytes = "0";

@@ -10,6 +10,7 @@
 #include <thread>
 
 #include "server/cluster/worker.hpp"
+#include "server/job_limit_flags.hpp"
 
 namespace tally::cluster {
 
@@ -31,15 +32,7 @@ int worker_main(int argc, char** argv,
   app.add_option("--name", cfg.name, "unique worker name (default: host-pid)");
   app.add_option("--cache-dir", cache_dir, "asset cache (default: $TMPDIR/tally-worker-<name>)");
   app.add_option("--health-file", cfg.health_file, "file rewritten at every heartbeat (for liveness probes)");
-  app.add_option("--max-dimensions", cfg.limits.max_dimensions, "per-job cap: integration dimensions")->capture_default_str();
-  app.add_option("--max-channels", cfg.limits.max_channels, "per-job cap: channels")->capture_default_str();
-  app.add_option("--max-pixels", cfg.limits.max_pixels, "per-job cap: image pixels")->capture_default_str();
-  app.add_option("--max-triangles", cfg.limits.max_triangles, "per-job cap: triangles of a lighting scene")
-      ->check(CLI::Range(size_t{1}, size_t{1} << 31))
-      ->capture_default_str();
-  app.add_option("--max-texture-bytes", cfg.limits.max_texture_bytes, "per-job cap: decoded texture bytes")
-      ->capture_default_str();
-  app.add_option("--max-samples", cfg.limits.max_samples, "per-job cap: samples")->capture_default_str();
+  add_job_limit_flags(app, cfg.limits);
   app.add_flag("--verbose", cfg.verbose, "log every block");
   CLI11_PARSE(app, argc, argv);
   try {
