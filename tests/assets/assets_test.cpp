@@ -225,31 +225,43 @@ TEST(Assets, SceneNamingAMissingAssetIs422NamingIt) {
   EXPECT_EQ(json::parse(bad.body).at("pointer"), "/scene/shapes/1/obj");
 }
 
-// The same scene file named from --asset-dir and by hash (after its PUT): both jobs end
-// with the same bits and the same pixels of tile 0.
-void expect_by_path_equals_by_hash(HttpClient& c, const json& by_path_spec, const json& by_hash_spec) {
-  const std::string by_path = submit(c, by_path_spec);
-  const std::string by_hash = submit(c, by_hash_spec);
-  const json a = wait_state(c, by_path, "succeeded");
-  const json b = wait_state(c, by_hash, "succeeded");
-  EXPECT_EQ(a.at("bits"), b.at("bits"));
-  const ClientResponse ta = c.request("GET", "/v1/jobs/" + by_path + "/tiles/0");
-  const ClientResponse tb = c.request("GET", "/v1/jobs/" + by_hash + "/tiles/0");
-  ASSERT_EQ(ta.status, 200);
-  EXPECT_EQ(ta.body, tb.body);
-  EXPECT_FALSE(ta.body.empty());
-}
+// A server whose --asset-dir holds `name` with `bytes`, the same bytes also uploaded
+// (PUT) as an asset: the scene file can be named both ways.
+struct SameFileTwice {
+  static fs::path write(const TempDir& tmp, const std::string& name, const std::string& bytes) {
+    fs::create_directories(tmp.path / "dir");
+    std::ofstream(tmp.path / "dir" / name, std::ios::binary) << bytes;
+    return tmp.path / "data";
+  }
+  SameFileTwice(const std::string& name, const std::string& bytes)
+      : hex(sha256_hex(bytes)),
+        server(write(tmp, name, bytes), {"--asset-dir", (tmp.path / "dir").string()}),
+        c(server.client()) {
+    EXPECT_EQ(put(c, hex, bytes).status, 201);
+  }
+  // Both jobs (`spec_of(name)`, `spec_of("sha256:<hex>")`) end with the same bits and
+  // the same pixels of tile 0.
+  template <class SpecOf>
+  void expect_by_path_equals_by_hash(const std::string& name, SpecOf spec_of) {
+    const std::string by_path = submit(c, spec_of(name));
+    const std::string by_hash = submit(c, spec_of("sha256:" + hex));
+    const json a = wait_state(c, by_path, "succeeded");
+    const json b = wait_state(c, by_hash, "succeeded");
+    EXPECT_EQ(a.at("bits"), b.at("bits"));
+    const ClientResponse ta = c.request("GET", "/v1/jobs/" + by_path + "/tiles/0");
+    const ClientResponse tb = c.request("GET", "/v1/jobs/" + by_hash + "/tiles/0");
+    ASSERT_EQ(ta.status, 200);
+    EXPECT_EQ(ta.body, tb.body);
+    EXPECT_FALSE(ta.body.empty());
+  }
+  TempDir tmp;
+  std::string hex;
+  ServerProcess server;
+  HttpClient c;
+};
 
 TEST(Assets, UploadedObjRendersBitIdenticalToTheSameFileFromAssetDir) {
-  TempDir tmp;
-  const std::string obj = lamp_obj(4);
-  fs::create_directories(tmp.path / "dir");
-  std::ofstream(tmp.path / "dir" / "lamp.obj") << obj;
-  ServerProcess server(tmp.path / "data", {"--asset-dir", (tmp.path / "dir").string()});
-  HttpClient c = server.client();
-  const std::string hex = sha256_hex(obj);
-  ASSERT_EQ(put(c, hex, obj).status, 201);
-  expect_by_path_equals_by_hash(c, obj_image_spec("lamp.obj"), obj_image_spec("sha256:" + hex));
+  SameFileTwice("lamp.obj", lamp_obj(4)).expect_by_path_equals_by_hash("lamp.obj", obj_image_spec);
 }
 
 // The lamp as a self-contained glTF (.glb): a 1x1 emissive square at z = 1.5 facing down.
@@ -269,15 +281,7 @@ json glb_image_spec(const std::string& file) {
 }
 
 TEST(Assets, UploadedGlbRendersBitIdenticalToTheSameFileFromAssetDir) {
-  TempDir tmp;
-  const std::string glb = lamp_glb();
-  fs::create_directories(tmp.path / "dir");
-  std::ofstream(tmp.path / "dir" / "lamp.glb", std::ios::binary) << glb;
-  ServerProcess server(tmp.path / "data", {"--asset-dir", (tmp.path / "dir").string()});
-  HttpClient c = server.client();
-  const std::string hex = sha256_hex(glb);
-  ASSERT_EQ(put(c, hex, glb).status, 201);
-  expect_by_path_equals_by_hash(c, glb_image_spec("lamp.glb"), glb_image_spec("sha256:" + hex));
+  SameFileTwice("lamp.glb", lamp_glb()).expect_by_path_equals_by_hash("lamp.glb", glb_image_spec);
 }
 
 // An equirectangular map as EXR bytes (the image module's encoder: R, G, B come first, the
@@ -304,15 +308,10 @@ json env_image_spec(const std::string& map) {
 }
 
 TEST(Assets, UploadedEnvironmentMapLightsAJobBitIdenticalToTheSameFileFromAssetDir) {
-  TempDir tmp;
-  const std::string exr = env_map_exr(32, 16);
-  fs::create_directories(tmp.path / "dir");
-  std::ofstream(tmp.path / "dir" / "sky.exr", std::ios::binary) << exr;
-  ServerProcess server(tmp.path / "data", {"--asset-dir", (tmp.path / "dir").string()});
-  HttpClient c = server.client();
-  const std::string hex = sha256_hex(exr);
-  ASSERT_EQ(put(c, hex, exr).status, 201);
-  expect_by_path_equals_by_hash(c, env_image_spec("sky.exr"), env_image_spec("sha256:" + hex));
+  SameFileTwice both("sky.exr", env_map_exr(32, 16));
+  both.expect_by_path_equals_by_hash("sky.exr", env_image_spec);
+  HttpClient& c = both.c;
+  const std::string& hex = both.hex;
   // validate answers with the plan, which names the map as the reason the sky is on.
   const ClientResponse v =
       c.request("POST", "/v1/jobs/validate", env_image_spec("sha256:" + hex).dump(), {{"Content-Type", "application/json"}});
