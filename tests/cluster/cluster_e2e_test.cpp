@@ -142,21 +142,27 @@ std::vector<float> exr_pixels(HttpClient& c, const std::string& id, const fs::pa
   return out;
 }
 
+// An image job's `bits` and EXR pixels from an in-process tally-server: what a cluster
+// run of the same spec must equal.
+struct ImageReference {
+  json bits;
+  std::vector<float> pixels;
+};
+ImageReference in_process_image(const fs::path& tmp, const json& spec) {
+  ServerProcess ref(tmp / "ref");
+  HttpClient c = ref.client();
+  const std::string id = submit(c, spec);
+  ImageReference out{wait_state(c, id, "succeeded").at("bits"), exr_pixels(c, id, tmp)};
+  ref.terminate();
+  return out;
+}
+
 TEST(Cluster, ThreeWorkersMatchInProcessBitsAndPixels) {
   TempDir tmp;
   const json integ = disk_spec(120'000'000, 7);
   const json image = lighting_image_spec(32);
   const json expected_integ = local_bits(integ);
-  std::vector<float> expected_pixels;
-  json expected_image_bits;
-  {
-    ServerProcess ref(tmp.path / "ref");
-    HttpClient c = ref.client();
-    const std::string id = submit(c, image);
-    expected_image_bits = wait_state(c, id, "succeeded").at("bits");
-    expected_pixels = exr_pixels(c, id, tmp.path);
-    ref.terminate();
-  }
+  const ImageReference expected = in_process_image(tmp.path, image);
 
   TestCluster cl(tmp.path, {{"w0"}, {"w1"}, {"w2"}});
   HttpClient& c = cl.c;
@@ -165,8 +171,8 @@ TEST(Cluster, ThreeWorkersMatchInProcessBitsAndPixels) {
   const json sa = wait_state(c, a, "succeeded", 120);
   const json sb = wait_state(c, b, "succeeded", 120);
   EXPECT_EQ(sa.at("bits"), expected_integ);
-  EXPECT_EQ(sb.at("bits"), expected_image_bits);
-  EXPECT_EQ(exr_pixels(c, b, tmp.path), expected_pixels);
+  EXPECT_EQ(sb.at("bits"), expected.bits);
+  EXPECT_EQ(exr_pixels(c, b, tmp.path), expected.pixels);
 
   // Every worker took part and is listed with its fields; no block was stored twice.
   // (Counts are refreshed twice a second, heartbeats every second: wait for both.)
@@ -817,16 +823,7 @@ TEST(Cluster, UploadedAssetsReachWorkersByHash) {
 TEST(Cluster, ImageResultsReadDuringThePassStayBitIdenticalThroughARedisRestart) {
   TempDir tmp;
   const json image = lighting_image_spec(256);  // 64 x 48: passes of up to 16 blocks
-  std::vector<float> expected_pixels;
-  json expected_bits;
-  {
-    ServerProcess ref(tmp.path / "ref");
-    HttpClient c = ref.client();
-    const std::string id = submit(c, image);
-    expected_bits = wait_state(c, id, "succeeded").at("bits");
-    expected_pixels = exr_pixels(c, id, tmp.path);
-    ref.terminate();
-  }
+  const ImageReference expected = in_process_image(tmp.path, image);
   // Blocks of >= 40 ms (a sleep, no CPU): every pass lasts several of the coordinator's
   // 50 ms rounds, so results are there to be read before the pass ends.
   TestCluster cl(tmp.path, {{"w1", 1, {}, faulty("sleep_ms=40")}, {"w2", 1, {}, faulty("sleep_ms=40")}},
@@ -843,8 +840,8 @@ TEST(Cluster, ImageResultsReadDuringThePassStayBitIdenticalThroughARedisRestart)
   } catch (const std::exception& e) {
     FAIL() << e.what() << "\n" << cl.server.log();
   }
-  EXPECT_EQ(s.at("bits"), expected_bits);
-  EXPECT_EQ(exr_pixels(c, id, tmp.path), expected_pixels);
+  EXPECT_EQ(s.at("bits"), expected.bits);
+  EXPECT_EQ(exr_pixels(c, id, tmp.path), expected.pixels);
   EXPECT_GE(metrics_counts(c).at("passes_republished").get<uint64_t>(), 1u);
   // The coordinator's pass-boundary lines say how many results of each pass it had read
   // before the pass ended: at least one pass was read early.
