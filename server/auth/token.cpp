@@ -7,6 +7,8 @@
 #include <array>
 #include <stdexcept>
 
+#include "server/digest_hex.hpp"
+
 namespace tally {
 
 namespace {
@@ -42,21 +44,7 @@ std::string generate_token() { return "tly_" + random_base64url(32); }
 
 std::string generate_session_id() { return random_base64url(32); }
 
-std::string token_sha256_hex(std::string_view token) {
-  unsigned char md[EVP_MAX_MD_SIZE];
-  unsigned int len = 0;
-  if (EVP_Digest(token.data(), token.size(), md, &len, EVP_sha256(), nullptr) != 1) {
-    throw std::runtime_error("SHA-256 failed");
-  }
-  static constexpr char kHex[] = "0123456789abcdef";
-  std::string out;
-  out.reserve(2 * len);
-  for (unsigned i = 0; i < len; ++i) {
-    out.push_back(kHex[md[i] >> 4]);
-    out.push_back(kHex[md[i] & 15]);
-  }
-  return out;
-}
+std::string token_sha256_hex(std::string_view token) { return digest_hex(EVP_sha256(), token, "SHA-256 failed"); }
 
 bool constant_time_equal(std::string_view a, std::string_view b) {
   if (a.size() != b.size()) return false;

@@ -9,6 +9,7 @@
 #include <openssl/evp.h>
 
 #include "common/engine/byte_codec.hpp"
+#include "server/digest_hex.hpp"
 
 namespace tally::cluster {
 
@@ -195,18 +196,7 @@ BlockResult decode_result(std::string_view bytes) {
 namespace tally::cluster {
 
 std::string result_digest(std::string_view encoded) {
-  unsigned char md[EVP_MAX_MD_SIZE];
-  unsigned int len = 0;
-  if (EVP_Digest(encoded.data(), encoded.size(), md, &len, EVP_sha1(), nullptr) != 1) {
-    throw std::runtime_error("SHA-1 of a result failed (OpenSSL)");
-  }
-  static constexpr char kHex[] = "0123456789abcdef";
-  std::string out(2 * len, '0');
-  for (unsigned i = 0; i < len; ++i) {
-    out[2 * i] = kHex[md[i] >> 4];
-    out[2 * i + 1] = kHex[md[i] & 15];
-  }
-  return out;
+  return digest_hex(EVP_sha1(), encoded, "SHA-1 of a result failed (OpenSSL)");
 }
 
 }  // namespace tally::cluster
