@@ -79,6 +79,12 @@ void RedisExecutor::add(ExecutorJob ej, PassWork first_pass) {
   cv_.notify_all();
 }
 
+RedisExecutor::Job* RedisExecutor::find(const std::string& id) const {
+  std::lock_guard lock(mu_);
+  auto it = jobs_.find(id);
+  return it == jobs_.end() ? nullptr : it->second.get();
+}
+
 bool RedisExecutor::cancel(const std::string& id) {
   {
     std::lock_guard lock(mu_);
@@ -213,13 +219,8 @@ void RedisExecutor::step() {
   }
   for (const auto& id : to_cancel) leave(id, false, {});
   for (const auto& id : to_publish) {
-    Job* j;
-    {
-      std::lock_guard lock(mu_);
-      auto it = jobs_.find(id);
-      if (it == jobs_.end()) continue;
-      j = it->second.get();
-    }
+    Job* j = find(id);
+    if (!j) continue;
     publish(*j);
   }
 
@@ -500,13 +501,8 @@ void RedisExecutor::prefetch() {
     }
   }
   for (const auto& id : ids) {
-    Job* job;
-    {
-      std::lock_guard lock(mu_);
-      auto it = jobs_.find(id);
-      if (it == jobs_.end()) continue;
-      job = it->second.get();
-    }
+    Job* job = find(id);
+    if (!job) continue;
     size_t bytes = 0;
     const std::string error = read_results(*job, true, bytes);
     if (!error.empty()) {
@@ -644,13 +640,8 @@ void RedisExecutor::delete_job_keys(Job& job) {
 }
 
 void RedisExecutor::leave(const std::string& id, bool failed, const std::string& error) {
-  Job* job;
-  {
-    std::lock_guard lock(mu_);
-    auto it = jobs_.find(id);
-    if (it == jobs_.end()) return;
-    job = it->second.get();
-  }
+  Job* job = find(id);
+  if (!job) return;
   delete_job_keys(*job);  // a late result finds no run: stale, never merged
   {
     std::lock_guard lock(mu_);

@@ -109,6 +109,9 @@ class RedisExecutor final : public Executor {
   // job (a result that cannot be decoded or belongs to another block), else "".
   std::string read_results(Job& job, bool prefetch, size_t& bytes);
   void prefetch();
+  // The job with this id, or null (takes mu_ for the lookup only; a Job is erased only by
+  // the coordinator thread, which is the caller).
+  Job* find(const std::string& id) const;
   void leave(const std::string& id, bool failed, const std::string& error);
   void delete_job_keys(Job& job);
   // Deletes the keys of jobs that left the executor; one Redis could not reach stays
