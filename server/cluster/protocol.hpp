@@ -7,10 +7,13 @@
 //                                   compute_s + computed (workers' seconds and blocks)
 //   tally:s:{id}:{run}:{pass}       stream of the pass's blocks, k consecutive ones per
 //                                   entry (b = blocks, s = first slot), consumer group "w"
-//   tally:p:{id}:{run}:{pass}       hash: n (blocks in the pass), input (pass input bytes)
-//   tally:r:{id}:{run}:{pass}       hash: slot -> encoded BlockResult (first wins)
-//   tally:d:{id}:{run}:{pass}       hash: slot -> sha1 of the first result, kept a few
-//                                   passes longer so late duplicates are still compared
+//   tally:p:{id}:{run}:{pass}       hash: n (blocks in the pass), e (entries in the pass),
+//                                   input (pass input bytes), done (blocks stored)
+//   tally:r:{id}:{run}:{pass}       hash: first slot of an entry -> the entry's results
+//                                   (append_entry_result, one field per entry; first wins)
+//   tally:d:{id}:{run}:{pass}       hash: first slot of an entry -> sha1 of its first
+//                                   results, kept a few passes longer so late duplicates
+//                                   are still compared
 //   tally:f:{id}:{run}:{pass}       hash: slot -> failed deliveries
 //   tally:active                    set of the stream keys workers read
 //   tally:wake                      stream the coordinator appends to when work appears
@@ -50,21 +53,25 @@ inline std::string worker_key(std::string_view name) { return "tally:worker:" + 
 inline std::string asset_key(std::string_view sha) { return "tally:asset:" + std::string(sha); }
 
 // An entry of a pass stream holds k consecutive blocks (fields b = k encoded blocks,
-// s = slot of the first): the coordinator sizes k so an entry takes ~20 ms to compute.
+// s = slot of the first): the coordinator sizes k so an entry takes ~20 ms to compute,
+// and a pass keeps its partition into entries when it is published again (after a
+// reconnect or a Redis restart), so an entry's first slot names the same blocks in every
+// delivery.
 //
-// Stores an entry's results: each slot's first result wins (HSETNX), the entry is
-// acked in the same atomic step; a duplicate is compared byte for byte while the pass
-// is open, by SHA-1 digest once it is merged. The worker sends each result's digest
-// (result_digest, the hex of what redis.sha1hex would compute) so Redis does not hash
-// every result: the first result's digest is kept, a late duplicate's is compared with
-// it. Returns {first, duplicate equal, duplicate different, stale}; a difference marks
-// the job (non-determinism). Stale: the job was cancelled, belongs to another run, or its
-// pass is gone without a digest.
-// KEYS: results, stream, job, digests, counters, notify
-// ARGV: first slot, entry id, run, block count of the pass, job id, compute seconds,
-//       k results, then their k digests
+// Stores an entry's results as one hash field (its first slot): the first delivery's
+// results win (HSETNX), the entry is acked in the same atomic step; a duplicate is
+// compared byte for byte while the pass is open, by SHA-1 digest once it is merged. The
+// worker sends the digest (result_digest, the hex of what redis.sha1hex would compute)
+// so Redis does not hash the results. One field per entry, not per block: Redis does a
+// few operations per entry whatever its length. Returns {first, duplicate equal,
+// duplicate different, stale}, counted in blocks; a difference marks the job
+// (non-determinism). Stale: the job was cancelled, belongs to another run, or its pass
+// is gone without a digest.
+// KEYS: results, stream, job, digests, counters, notify, pass
+// ARGV: first slot, entry id, run, entry count of the pass, job id, compute seconds,
+//       blocks in the entry, the entry's results, their digest
 inline constexpr std::string_view kStoreScript = R"lua(
-local k = (#ARGV - 6) / 2
+local k = tonumber(ARGV[7])
 local run = redis.call('HGET', KEYS[3], 'run')
 if run ~= ARGV[3] or redis.call('HGET', KEYS[3], 'cancelled') == '1' then
   redis.call('HINCRBY', KEYS[5], 'stale', k)
@@ -74,28 +81,22 @@ redis.call('HINCRBYFLOAT', KEYS[3], 'compute_s', ARGV[6])
 redis.call('HINCRBY', KEYS[3], 'computed', k)
 local open = redis.call('EXISTS', KEYS[2]) == 1
 if open then redis.call('XACK', KEYS[2], 'w', ARGV[2]) end
+local slot = ARGV[1]
 local first, eq, diff, stale = 0, 0, 0, 0
-local base = tonumber(ARGV[1])
-local mismatch = nil
-for i = 1, k do
-  local slot = tostring(base + i - 1)
-  local res = ARGV[6 + i]
-  local digest = ARGV[6 + k + i]
-  if open and redis.call('HSETNX', KEYS[1], slot, res) == 1 then
-    redis.call('HSET', KEYS[4], slot, digest)
-    first = first + 1
-  elseif open and redis.call('HEXISTS', KEYS[1], slot) == 1 then
-    if redis.call('HGET', KEYS[1], slot) == res then eq = eq + 1 else diff = diff + 1; mismatch = slot end
+if open and redis.call('HSETNX', KEYS[1], slot, ARGV[8]) == 1 then
+  redis.call('HSET', KEYS[4], slot, ARGV[9])
+  redis.call('HINCRBY', KEYS[7], 'done', k)
+  first = k
+elseif open and redis.call('HEXISTS', KEYS[1], slot) == 1 then
+  if redis.call('HGET', KEYS[1], slot) == ARGV[8] then eq = k else diff = k end
+else
+  local d = redis.call('HGET', KEYS[4], slot)
+  if not d then
+    stale = k
+  elseif d == ARGV[9] then
+    eq = k
   else
-    local d = redis.call('HGET', KEYS[4], slot)
-    if not d then
-      stale = stale + 1
-    elseif d == digest then
-      eq = eq + 1
-    else
-      diff = diff + 1
-      mismatch = slot
-    end
+    diff = k
   end
 end
 if first > 0 then redis.call('HINCRBY', KEYS[5], 'first', first) end
@@ -103,7 +104,7 @@ if eq > 0 then redis.call('HINCRBY', KEYS[5], 'dup_equal', eq) end
 if stale > 0 then redis.call('HINCRBY', KEYS[5], 'stale', stale) end
 if diff > 0 then
   redis.call('HINCRBY', KEYS[5], 'dup_differ', diff)
-  redis.call('HSET', KEYS[3], 'mismatch', mismatch)
+  redis.call('HSET', KEYS[3], 'mismatch', slot)
   redis.call('RPUSH', KEYS[6], ARGV[5])
 elseif first > 0 and redis.call('HLEN', KEYS[1]) == tonumber(ARGV[4]) then
   redis.call('RPUSH', KEYS[6], ARGV[5])

@@ -207,6 +207,7 @@ void RedisExecutor::step() {
   clean_finished();
   // Cancels first: their keys go, so no worker starts another of their blocks.
   std::vector<std::string> to_cancel, to_publish;
+  bool running = false;  // a pass is out: its results are read as they arrive
   {
     std::lock_guard lock(mu_);
     for (auto& [id, j] : jobs_) {
@@ -214,6 +215,8 @@ void RedisExecutor::step() {
         to_cancel.push_back(id);
       } else if (!j->published) {
         to_publish.push_back(id);
+      } else {
+        running = true;
       }
     }
   }
@@ -224,9 +227,10 @@ void RedisExecutor::step() {
     publish(*j);
   }
 
-  // Wait briefly for a completed pass (the store script pushes the job id).
+  // Wait briefly for a completed pass (the store script pushes the job id); while passes
+  // run, wake every 10 ms to read the entries stored meanwhile.
   std::vector<std::string> notified;
-  const RValue r = conn_->cmd({"BLPOP", kNotify, "0.05"});
+  const RValue r = conn_->cmd({"BLPOP", kNotify, running || !to_publish.empty() ? "0.01" : "0.05"});
   notified_at_ = Clock::now();
   if (r.is_array() && r.elems.size() == 2) {
     notified.push_back(r.elems[1].str);
@@ -289,12 +293,47 @@ void RedisExecutor::publish(Job& job) {
     for (const auto& [rel, a] : job.assets) conn_->cmd({"SET", asset_key(a.sha256), a.bytes, "NX"});
     job.hash_written = true;
   }
-  // Results already stored (a republish after a reconnect without a Redis restart) need
-  // no new entry. A pass published for the first time has none: skip the round trip.
-  std::set<size_t> have;
+  // Entries already stored (a republish after a reconnect without a Redis restart) need
+  // no new stream entry. A pass published for the first time has none: skip the round trip.
+  std::set<size_t> have;  // first slots
   if (job.pass_published) {
     for (const RValue& k : conn_->cmd({"HKEYS", r}).elems) have.insert(static_cast<size_t>(k.as_int()));
   }
+  if (job.entries.empty()) plan_entries(job);
+  std::vector<std::pair<std::string, std::string>> entries;  // first slot, blocks
+  size_t stored_blocks = 0;
+  for (const auto& [first, count] : job.entries) {
+    if (have.count(first)) {
+      stored_blocks += count;
+      continue;
+    }
+    std::string bytes;
+    for (size_t i = first; i < first + count; ++i) bytes += encode_block(job.pass.blocks[i]);
+    entries.emplace_back(std::to_string(first), std::move(bytes));
+  }
+  // The whole pass in one round trip (the pass boundary is the coordinator's only
+  // serial latency: workers idle until this lands).
+  const std::string n_s = std::to_string(n), e_s = std::to_string(job.entries.size());
+  conn_->append({"HSET", p, "n", n_s, "e", e_s, "input", job.pass.pass_input});
+  conn_->append({"DEL", s});
+  conn_->append({"XGROUP", "CREATE", s, kGroup, "$", "MKSTREAM"});
+  for (const auto& [first, bytes] : entries) conn_->append({"XADD", s, "*", "b", bytes, "s", first});
+  conn_->append({"SADD", kActive, s});
+  conn_->append({"XADD", kWake, "MAXLEN", "~", "1000", "*", "j", id});
+  std::string error;
+  for (size_t i = 0; i < entries.size() + 5; ++i) {
+    const RValue v = conn_->get_reply();  // read every reply, even after an error
+    if (v.type == RValue::Type::error && error.empty()) error = v.str;
+  }
+  if (!error.empty()) throw RedisReplyError("publishing a pass: " + error);
+  std::lock_guard lock(mu_);
+  if (job.pass_start == Clock::time_point{}) job.pass_start = Clock::now();
+  job.published = true;
+  job.pass_published = true;
+  job.blocks.pending = n - std::min(n, stored_blocks);
+}
+
+void RedisExecutor::plan_entries(Job& job) {
   // Entry sizes by guided self-scheduling: each entry takes 1/(2T) of what is left (T:
   // live worker threads), at most ~20 ms and at least ~2 ms of work (from the workers'
   // measured time per block), so a pass starts with few big entries and ends with
@@ -312,53 +351,25 @@ void RedisExecutor::publish(Job& job) {
     k_max = std::clamp<size_t>(k_max, 1, std::max<size_t>(1, cfg_.max_entry_blocks));
     k_min = std::min(k_min, k_max);
   }
-  size_t missing = n - std::min(n, have.size());
-  std::vector<std::pair<std::string, std::string>> entries;  // first slot, blocks
-  size_t largest = 0;
-  for (size_t i = 0; i < n;) {
-    if (have.count(i)) {
-      ++i;
-      continue;
-    }
-    const size_t k = std::clamp((missing + 2 * threads - 1) / (2 * threads), k_min, k_max);
-    std::string bytes;
-    const size_t first = i;
-    while (i < n && i - first < k && !have.count(i)) bytes += encode_block(job.pass.blocks[i++]);
-    missing -= i - first;
-    largest = std::max(largest, i - first);
-    entries.emplace_back(std::to_string(first), std::move(bytes));
+  const size_t n = job.pass.blocks.size();
+  std::vector<std::pair<size_t, size_t>> entries;
+  size_t largest = 1;
+  for (size_t first = 0; first < n;) {
+    const size_t left = n - first;
+    const size_t k = std::min(left, std::clamp((left + 2 * threads - 1) / (2 * threads), k_min, k_max));
+    entries.emplace_back(first, k);
+    largest = std::max(largest, k);
+    first += k;
   }
-  {
-    std::lock_guard lock(mu_);
-    job.entry_blocks = std::max<size_t>(1, largest);
-    job.entry_count = entries.size();
-  }
-  // The whole pass in one round trip (the pass boundary is the coordinator's only
-  // serial latency: workers idle until this lands).
-  const std::string n_s = std::to_string(n);
-  conn_->append({"HSET", p, "n", n_s, "input", job.pass.pass_input});
-  conn_->append({"DEL", s});
-  conn_->append({"XGROUP", "CREATE", s, kGroup, "$", "MKSTREAM"});
-  for (const auto& [first, bytes] : entries) conn_->append({"XADD", s, "*", "b", bytes, "s", first});
-  conn_->append({"SADD", kActive, s});
-  conn_->append({"XADD", kWake, "MAXLEN", "~", "1000", "*", "j", id});
-  std::string error;
-  for (size_t i = 0; i < entries.size() + 5; ++i) {
-    const RValue v = conn_->get_reply();  // read every reply, even after an error
-    if (v.type == RValue::Type::error && error.empty()) error = v.str;
-  }
-  if (!error.empty()) throw RedisReplyError("publishing a pass: " + error);
   std::lock_guard lock(mu_);
-  if (job.pass_start == Clock::time_point{}) job.pass_start = Clock::now();
-  job.published = true;
-  job.pass_published = true;
-  job.blocks.pending = n - have.size();
+  job.entries = std::move(entries);
+  job.entry_blocks = largest;
 }
 
 void RedisExecutor::poll(const std::vector<std::string>& ids) {
   struct Probe {
     std::string id, r, s, jk;
-    size_t n;
+    size_t entries;  // result fields of a complete pass
   };
   std::vector<Probe> probes;
   {
@@ -366,7 +377,7 @@ void RedisExecutor::poll(const std::vector<std::string>& ids) {
     auto add_probe = [&](const Job& j) {
       if (!j.published || j.cancel_requested) return;
       probes.push_back({j.ej.id, pass_key('r', j.ej.id, j.run, j.pass.pass), pass_key('s', j.ej.id, j.run, j.pass.pass),
-                        job_key(j.ej.id), j.pass.blocks.size()});
+                        job_key(j.ej.id), j.entries.size()});
     };
     if (ids.empty()) {
       for (const auto& [id, j] : jobs_) add_probe(*j);
@@ -400,15 +411,15 @@ void RedisExecutor::poll(const std::vector<std::string>& ids) {
       } else if (!flags.elems[1].is_nil()) {
         o.what = Outcome::fail;
         o.error = fmt::format(
-            "non-determinism: two deliveries of block slot {} of pass gave different results; the job cannot be "
-            "trusted",
+            "non-determinism: two deliveries of the entry at block slot {} of a pass gave different results; the job "
+            "cannot be trusted",
             flags.elems[1].str);
       } else if (flags.elems[2].is_nil()) {
         o.what = Outcome::republish;  // Redis lost the job (restart, flush)
       }
     }
     if (o.what == Outcome::nothing) {
-      if (hlen.type == RValue::Type::integer && static_cast<size_t>(hlen.integer) >= pr.n) {
+      if (hlen.type == RValue::Type::integer && static_cast<size_t>(hlen.integer) >= pr.entries) {
         o.what = Outcome::merge;
       } else if (exists.type == RValue::Type::integer && exists.integer == 0) {
         o.what = Outcome::republish;
@@ -446,58 +457,71 @@ std::string RedisExecutor::read_results(Job& job, bool prefetch, size_t& bytes) 
     job.got_count = 0;
   }
   const std::string r = pass_key('r', job.ej.id, job.run, pass.pass);
-  std::vector<std::string> slots;
+  std::vector<size_t> want;  // indices into job.entries
+  auto entry_at = [&](size_t first) -> std::optional<size_t> {
+    auto it = std::lower_bound(job.entries.begin(), job.entries.end(), std::make_pair(first, size_t{0}));
+    if (it == job.entries.end() || it->first != first) return std::nullopt;
+    return static_cast<size_t>(it - job.entries.begin());
+  };
   if (prefetch) {
     const RValue keys = conn_->cmd({"HKEYS", r});
     for (const RValue& k : keys.elems) {
-      size_t slot = 0;
+      size_t first = 0;
       try {
-        slot = static_cast<size_t>(k.as_int());
+        first = static_cast<size_t>(k.as_int());
       } catch (const std::exception&) {
         return "a result field is not a slot number";
       }
-      if (slot >= n) return fmt::format("result slot {} is out of range (pass of {} blocks)", slot, n);
-      if (!job.got[slot]) slots.push_back(std::to_string(slot));
+      const auto e = entry_at(first);
+      if (!e) return fmt::format("result field {} is not the first slot of an entry of the pass", first);
+      if (!job.got[first]) want.push_back(*e);
     }
   } else {
-    for (size_t i = 0; i < n; ++i) {
-      if (!job.got[i]) slots.push_back(std::to_string(i));
+    for (size_t e = 0; e < job.entries.size(); ++e) {
+      if (!job.got[job.entries[e].first]) want.push_back(e);
     }
   }
-  if (slots.empty()) return {};
+  if (want.empty()) return {};
+  std::vector<std::string> fields;
+  for (size_t e : want) fields.push_back(std::to_string(job.entries[e].first));
   std::vector<std::string_view> argv = {"HMGET", r};
-  for (const auto& sl : slots) argv.push_back(sl);
+  for (const auto& f : fields) argv.push_back(f);
   const RValue v = conn_->cmd(argv);
   if (v.type == RValue::Type::error) throw RedisReplyError("HMGET: " + v.str);
-  for (size_t i = 0; i < slots.size() && i < v.elems.size(); ++i) {
+  for (size_t i = 0; i < want.size() && i < v.elems.size(); ++i) {
     if (v.elems[i].is_nil()) continue;
-    const size_t slot = static_cast<size_t>(std::stoull(slots[i]));
-    BlockResult res;
+    const auto [first, count] = job.entries[want[i]];
+    std::vector<BlockResult> res;
     try {
-      res = decode_result(v.elems[i].str);
+      res = decode_entry_results(v.elems[i].str);
     } catch (const WireError& e) {
-      return fmt::format("the result of block slot {} cannot be decoded: {}", slot, e.what());
+      return fmt::format("the results of the entry at block slot {} cannot be decoded: {}", first, e.what());
     }
-    if (res.block_index != pass.blocks[slot].index) {
-      return fmt::format("the result in slot {} belongs to block {}, expected {}", slot, res.block_index,
-                         pass.blocks[slot].index);
+    if (res.size() != count) {
+      return fmt::format("the entry at block slot {} has {} results, expected {}", first, res.size(), count);
+    }
+    for (size_t j = 0; j < count; ++j) {
+      if (res[j].block_index != pass.blocks[first + j].index) {
+        return fmt::format("the result in slot {} belongs to block {}, expected {}", first + j, res[j].block_index,
+                           pass.blocks[first + j].index);
+      }
     }
     bytes += v.elems[i].str.size();
-    job.got[slot] = std::move(res);
-    ++job.got_count;
+    for (size_t j = 0; j < count; ++j) job.got[first + j] = std::move(res[j]);
+    job.got_count += count;
   }
   return {};
 }
 
 void RedisExecutor::prefetch() {
-  // Only jobs whose results are large (images: a tally per pixel per block): reading and
-  // decoding them at the pass boundary would keep every worker waiting. Small results
-  // (integration) are read at the end in one round trip, as cheap as it gets.
+  // Results are read and decoded while the pass runs (one HKEYS per job, then only the
+  // entries not read yet), so the pass boundary, where every worker waits for the next
+  // pass, reads only the last entries.
   std::vector<std::string> ids;
   {
     std::lock_guard lock(mu_);
     for (const auto& [id, j] : jobs_) {
-      if (j->published && !j->cancel_requested && j->result_bytes >= 16384) ids.push_back(id);
+      if (j->published && !j->cancel_requested) ids.push_back(id);
     }
   }
   for (const auto& id : ids) {
@@ -541,7 +565,6 @@ void RedisExecutor::merge(const std::string& id) {
   job->got.clear();
   job->got_count = 0;
   const double decode_ms = ms_since(t_decode);
-  if (result_bytes > 0 && n > had) job->result_bytes = static_cast<double>(result_bytes) / static_cast<double>(n - had);
   const double wall = std::chrono::duration<double>(Clock::now() - job->pass_start).count();
   {
     try {
@@ -586,6 +609,7 @@ void RedisExecutor::merge(const std::string& id) {
       leave_now = true;
     } else {
       job->pass = std::move(next);
+      job->entries.clear();
       job->published = false;
       job->pass_published = false;
       job->pass_start = Clock::now();
@@ -614,7 +638,7 @@ void RedisExecutor::merge(const std::string& id) {
              "BLPOP returned, read + decode {:.3f} ms, collect {:.3f} ms, merge {:.3f} ms, publish {:.3f} ms ({} "
              "entries), boundary {:.3f} ms; at unix {:.6f}",
              pass_no, n, had, result_bytes, std::chrono::duration<double, std::milli>(t_read - notified_at_).count(), read_ms,
-             decode_ms, merge_ms, ms_since(t_publish), job->entry_count,
+             decode_ms, merge_ms, ms_since(t_publish), job->entries.size(),
              std::chrono::duration<double, std::milli>(Clock::now() - notified_at_).count(), unix_seconds());
   }
 }
@@ -681,7 +705,7 @@ void RedisExecutor::refresh() {
 
   // Per job: blocks in flight (pending entries) and redelivered.
   struct Probe {
-    std::string id, s, jk, r;
+    std::string id, s, jk, p;
     uint64_t n, k;
   };
   std::vector<Probe> probes;
@@ -689,7 +713,7 @@ void RedisExecutor::refresh() {
     std::lock_guard lock(mu_);
     for (const auto& [id, j] : jobs_) {
       if (j->published) {
-        probes.push_back({id, pass_key('s', id, j->run, j->pass.pass), job_key(id), pass_key('r', id, j->run, j->pass.pass),
+        probes.push_back({id, pass_key('s', id, j->run, j->pass.pass), job_key(id), pass_key('p', id, j->run, j->pass.pass),
                           j->pass.blocks.size(), j->entry_blocks});
       }
     }
@@ -698,7 +722,7 @@ void RedisExecutor::refresh() {
   for (const Probe& p : probes) {
     conn_->append({"XPENDING", p.s, kGroup});
     conn_->append({"HGET", p.jk, "redelivered"});
-    conn_->append({"HLEN", p.r});
+    conn_->append({"HGET", p.p, "done"});
     conn_->append({"XPENDING", p.s, kGroup, "-", "+", "50"});
   }
   // Entries delivered again and again without a result: the workers that took them died
@@ -724,7 +748,7 @@ void RedisExecutor::refresh() {
       inflight = static_cast<uint64_t>(pend.elems[0].integer);
     }
     const uint64_t redelivered = static_cast<uint64_t>(red.to_int().value_or(0));
-    const uint64_t done = stored.type == RValue::Type::integer ? static_cast<uint64_t>(stored.integer) : 0;
+    const uint64_t done = static_cast<uint64_t>(stored.to_int().value_or(0));
     ExecutorStats::JobBlocks b;
     b.in_flight = std::min<uint64_t>(p.n - std::min<uint64_t>(p.n, done), inflight * p.k);
     b.redelivered = redelivered;

@@ -86,27 +86,32 @@ class RedisExecutor final : public Executor {
     std::deque<uint64_t> digest_passes;
     ExecutorStats::JobBlocks blocks;
     double block_seconds = 0;  // workers' measured compute time per block
-    size_t entry_blocks = 1;   // blocks per stream entry in the current pass
-    size_t entry_count = 0;    // stream entries of the current pass
-    // The current pass's results read and decoded so far (slot order). Large results
-    // (images) are read while the pass runs, so the pass boundary reads only the last.
+    // The current pass cut into stream entries: (first slot, blocks), in slot order.
+    // Planned at its first publication and kept when it is published again, so a late
+    // result of an entry from before a reconnect covers exactly the blocks of an entry
+    // published after it (protocol.hpp).
+    std::vector<std::pair<size_t, size_t>> entries;
+    size_t entry_blocks = 1;   // blocks in the largest entry of the current pass
+    // The current pass's results read and decoded so far (slot order). They are read
+    // while the pass runs, so the pass boundary reads only the last entries.
     std::vector<std::optional<BlockResult>> got;
     size_t got_count = 0;
-    double result_bytes = 0;   // mean bytes of a result in the last merged pass
   };
 
   void loop();
   void step();
   bool connect();
   void publish(Job& job);
+  // Cuts the job's current pass into stream entries (Job::entries).
+  void plan_entries(Job& job);
   void sweep(const Job& job);
   // Checks the jobs' result hashes; merges complete passes. `ids` empty: all jobs.
   void poll(const std::vector<std::string>& ids);
   void merge(const std::string& id);
-  // Reads results of the job's current pass not read yet into Job::got, decoded and
-  // checked. `prefetch`: only the slots Redis lists now (while the pass runs); else
-  // every missing slot. Adds the bytes read to `bytes`. Returns an error that fails the
-  // job (a result that cannot be decoded or belongs to another block), else "".
+  // Reads the entries of the job's current pass not read yet into Job::got, decoded and
+  // checked. `prefetch`: only the entries Redis lists now (while the pass runs); else
+  // every missing one. Adds the bytes read to `bytes`. Returns an error that fails the
+  // job (results that cannot be decoded or belong to other blocks), else "".
   std::string read_results(Job& job, bool prefetch, size_t& bytes);
   void prefetch();
   // The job with this id, or null (takes mu_ for the lookup only; a Job is erased only by

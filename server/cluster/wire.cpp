@@ -191,6 +191,29 @@ BlockResult decode_result(std::string_view bytes) {
   return res;
 }
 
+void append_entry_result(std::string& entry, std::string_view encoded_result) {
+  if (encoded_result.size() > UINT32_MAX) throw WireError("a block result over 4 GiB cannot travel");
+  const auto n = static_cast<uint32_t>(encoded_result.size());
+  for (int i = 0; i < 4; ++i) entry.push_back(static_cast<char>((n >> (8 * i)) & 0xff));
+  entry.append(encoded_result);
+}
+
+std::vector<BlockResult> decode_entry_results(std::string_view bytes) {
+  if (bytes.empty()) throw WireError("an entry's results are empty");
+  std::vector<BlockResult> out;
+  size_t at = 0;
+  while (at < bytes.size()) {
+    if (bytes.size() - at < 4) throw WireError(fmt::format("entry results are truncated at byte {}", at));
+    uint32_t n = 0;
+    for (int i = 0; i < 4; ++i) n |= static_cast<uint32_t>(static_cast<unsigned char>(bytes[at + static_cast<size_t>(i)])) << (8 * i);
+    at += 4;
+    if (bytes.size() - at < n) throw WireError(fmt::format("entry results are truncated at byte {} (a result of {} bytes)", at, n));
+    out.push_back(decode_result(bytes.substr(at, n)));
+    at += n;
+  }
+  return out;
+}
+
 }  // namespace tally::cluster
 
 namespace tally::cluster {

@@ -25,8 +25,14 @@ std::vector<Block> decode_blocks(std::string_view bytes);
 std::string encode_result(const BlockResult& r);
 BlockResult decode_result(std::string_view bytes);
 
-// Lower-case hex SHA-1 of an encoded result (what redis.sha1hex would return): a worker
-// sends it beside the result, so Redis keeps digests without hashing every result.
+// A stream entry's results, stored as one Redis hash field: each block's encoded result
+// (encode_result) behind its length as 4 little-endian bytes, in block order.
+void append_entry_result(std::string& entry, std::string_view encoded_result);
+// Throws WireError unless `bytes` is one or more whole results.
+std::vector<BlockResult> decode_entry_results(std::string_view bytes);
+
+// Lower-case hex SHA-1 of an entry's encoded results (what redis.sha1hex would return):
+// a worker sends it beside them, so Redis keeps digests without hashing every result.
 std::string result_digest(std::string_view encoded);
 
 }  // namespace tally::cluster

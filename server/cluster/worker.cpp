@@ -47,7 +47,7 @@ struct Compiled {
 };
 
 struct PassMeta {
-  uint64_t n = 0;
+  uint64_t entries = 0;  // stream entries the pass is cut into (its result fields)
   std::string input;
 };
 
@@ -287,10 +287,10 @@ class Worker {
       std::lock_guard lock(mu_);
       if (auto it = metas_.find(p); it != metas_.end()) return it->second;
     }
-    const RValue h = conn.cmd({"HMGET", p, "n", "input"});
+    const RValue h = conn.cmd({"HMGET", p, "e", "input"});
     if (h.elems.size() != 2 || h.elems[0].is_nil()) return std::nullopt;
     PassMeta m;
-    m.n = static_cast<uint64_t>(h.elems[0].as_int());
+    m.entries = static_cast<uint64_t>(h.elems[0].as_int());
     m.input = h.elems[1].str;
     std::lock_guard lock(mu_);
     metas_[p] = m;
@@ -360,7 +360,8 @@ class Worker {
       std::lock_guard lock(mu_);
       held_[t] = Held{stream, entry_id, consumer, sk->id};
     }
-    std::vector<std::string> results;
+    std::string results;  // the entry's results, one hash field (append_entry_result)
+    size_t result_count = 0;
     std::string error;
     uint64_t block_index = 0;
     const auto t0 = Clock::now();
@@ -373,7 +374,8 @@ class Worker {
         BlockResult out;
         out.block_index = block.index;
         c.kernel->run_block_with(block, meta->input, out);
-        results.push_back(encode_result(out));
+        append_entry_result(results, encode_result(out));
+        ++result_count;
       }
     } catch (const std::exception& e) {
       error = fmt::format("block {} (slot {}) of job {} failed on worker {}: {}", block_index, slot, sk->id, cfg_.name,
@@ -391,23 +393,20 @@ class Worker {
       log(fmt::format("{}{}", error, r.as_int() == 2 ? " (delivery limit reached: the job fails)" : " (re-queued)"));
       return;
     }
-    const std::string n = std::to_string(meta->n);
+    const std::string entries = std::to_string(meta->entries);
     const std::string secs_s = fmt::format("{:.9f}", secs);
-    std::vector<std::string_view> args = {slot, entry_id, sk->run, n, sk->id, secs_s};
-    std::vector<std::string> digests;
-    digests.reserve(results.size());
-    for (const auto& r : results) digests.push_back(result_digest(r));
-    for (const auto& r : results) args.push_back(r);
-    for (const auto& d : digests) args.push_back(d);
-    size_t bytes = 0;
-    for (const auto& r : results) bytes += r.size();
+    const std::string k = std::to_string(result_count);
+    const std::string digest = result_digest(results);
+    const size_t bytes = results.size();
+    const std::vector<std::string_view> args = {slot, entry_id, sk->run, entries, sk->id, secs_s, k, results, digest};
     const auto t_store = Clock::now();
     const RValue r = eval_retrying(conn_owner, store_sha, kStoreScript,
                                    {pass_key('r', sk->id, sk->run, sk->pass), stream, jk,
-                                    pass_key('d', sk->id, sk->run, sk->pass), kCounters, kNotify},
+                                    pass_key('d', sk->id, sk->run, sk->pass), kCounters, kNotify,
+                                    pass_key('p', sk->id, sk->run, sk->pass)},
                                    args);
     const double store_ms = std::chrono::duration<double, std::milli>(Clock::now() - t_store).count();
-    blocks_done_.fetch_add(results.size());
+    blocks_done_.fetch_add(result_count);
     if (r.elems.size() == 4) {
       if (r.elems[1].integer > 0) {
         log(fmt::format("duplicate result for {} block(s) from slot {} of job {} pass {}: compared, identical",
@@ -420,7 +419,7 @@ class Worker {
       if (cfg_.verbose) {
         log(fmt::format("entry {} of job {} pass {}: first {} stale {}; {} blocks, {} result bytes; got at unix {:.6f}, "
                         "prepare {:.3f} ms, compute {:.3f} ms, store {:.3f} ms",
-                        slot, sk->id, sk->pass, r.elems[0].integer, r.elems[3].integer, results.size(), bytes, unix_got,
+                        slot, sk->id, sk->pass, r.elems[0].integer, r.elems[3].integer, result_count, bytes, unix_got,
                         prep_ms, secs * 1e3, store_ms));
       }
     }

@@ -561,14 +561,14 @@ TEST(Cluster, DifferingDuplicateFailsTheJobLoudly) {
   HttpClient& c = cl.c;
   const std::string id = submit(c, disk_spec(4096ull * 1023, 17));
   auto rc = cl.redis.connect();
-  // A result already stored in an open pass with at least 8 blocks.
+  // An entry's results already stored in an open pass of at least 8 entries.
   std::string rkey, slot, stored;
   wait_until([&] {
     for (const auto& k : rc.cmd({"KEYS", "tally:r:" + id + ":*"}).elems) {
       const auto all = rc.cmd({"HGETALL", k.str});
       const std::string pkey = "tally:p:" + k.str.substr(8);
-      const long long n = rc.cmd({"HGET", pkey, "n"}).to_int().value_or(0);
-      if (n >= 8 && all.elems.size() >= 2 && static_cast<long long>(all.elems.size() / 2) < n) {
+      const long long e = rc.cmd({"HGET", pkey, "e"}).to_int().value_or(0);
+      if (e >= 8 && all.elems.size() >= 2 && static_cast<long long>(all.elems.size() / 2) < e) {
         rkey = k.str;
         slot = all.elems[0].str;
         stored = all.elems[1].str;
@@ -576,23 +576,24 @@ TEST(Cluster, DifferingDuplicateFailsTheJobLoudly) {
       }
     }
     return false;
-  }, 60, "a stored result in an open pass");
-  // The same block, one bit different: what a non-deterministic kernel would send.
-  BlockResult bad = cluster::decode_result(stored);
-  bad.tallies.at(0).mean = std::bit_cast<double>(std::bit_cast<uint64_t>(bad.tallies.at(0).mean) ^ 1u);
-  const std::string bytes = cluster::encode_result(bad);
+  }, 60, "a stored entry in an open pass");
+  // The same blocks, one bit different: what a non-deterministic kernel would send.
+  std::vector<BlockResult> results = cluster::decode_entry_results(stored);
+  ASSERT_FALSE(results.empty());
+  results.front().tallies.at(0).mean = std::bit_cast<double>(std::bit_cast<uint64_t>(results.front().tallies.at(0).mean) ^ 1u);
+  std::string bytes;
+  for (const BlockResult& res : results) cluster::append_entry_result(bytes, cluster::encode_result(res));
   ASSERT_NE(bytes, stored);
   // tally:r:{id}:{run}:{pass}: store it as a worker would, through the store script.
   const std::string rest = rkey.substr(8);  // {id}:{run}:{pass}
   const size_t c1 = rest.find(':'), c2 = rest.find(':', c1 + 1);
   const std::string run = rest.substr(c1 + 1, c2 - c1 - 1);
-  const std::string pass = rest.substr(c2 + 1);
-  const std::string n = rc.cmd({"HGET", "tally:p:" + rest, "n"}).str;
-  const auto r = rc.cmd({"EVAL", cluster::kStoreScript, "6", rkey, "tally:s:" + rest, "tally:job:" + id,
-                         "tally:d:" + rest, "tally:counters", "tally:notify", slot, "0-1", run, n, id, "0", bytes,
-                         cluster::result_digest(bytes)});
+  const std::string e = rc.cmd({"HGET", "tally:p:" + rest, "e"}).str;
+  const auto r = rc.cmd({"EVAL", cluster::kStoreScript, "7", rkey, "tally:s:" + rest, "tally:job:" + id,
+                         "tally:d:" + rest, "tally:counters", "tally:notify", "tally:p:" + rest, slot, "0-1", run, e, id,
+                         "0", std::to_string(results.size()), bytes, cluster::result_digest(bytes)});
   ASSERT_EQ(r.elems.size(), 4u);
-  EXPECT_EQ(r.elems[2].integer, 1) << "the script did not see the difference";
+  EXPECT_EQ(r.elems[2].integer, static_cast<long long>(results.size())) << "the script did not see the difference";
   const json s = wait_state(c, id, "failed", 30);
   const std::string msg = s.value("error_message", "");
   EXPECT_NE(msg.find("non-determinism"), std::string::npos) << msg;

@@ -102,6 +102,27 @@ TEST(ClusterWire, CorruptInputIsRejected) {
   EXPECT_THROW(decode_blocks(""), WireError);
 }
 
+TEST(ClusterWire, EntryResultsRoundTripInOrderAndRejectDamage) {
+  // An entry's results are one Redis field: each block's result behind its length.
+  std::vector<BlockResult> in(3);
+  for (size_t i = 0; i < in.size(); ++i) {
+    in[i].block_index = 40 + i;
+    in[i].tallies = {{i + 1, 0.1 * static_cast<double>(i), 0.0}};
+  }
+  std::string entry;
+  for (const BlockResult& r : in) append_entry_result(entry, encode_result(r));
+  const std::vector<BlockResult> out = decode_entry_results(entry);
+  ASSERT_EQ(out.size(), 3u);
+  for (size_t i = 0; i < 3; ++i) EXPECT_EQ(encode_result(out[i]), encode_result(in[i])) << i;
+  EXPECT_THROW(decode_entry_results(""), WireError);                                  // no result at all
+  EXPECT_THROW(decode_entry_results(entry.substr(0, entry.size() - 1)), WireError);   // cut in a result
+  EXPECT_THROW(decode_entry_results(entry.substr(0, 2)), WireError);                  // cut in a length
+  EXPECT_THROW(decode_entry_results(entry + std::string(4, '\0')), WireError);       // an empty result
+  std::string longer = entry;
+  longer[0] = static_cast<char>(static_cast<unsigned char>(longer[0]) + 1);           // a length past its result
+  EXPECT_THROW(decode_entry_results(longer), WireError);
+}
+
 TEST(ClusterWire, BlocksRoundTrip) {
   const Block a{5, 1ULL << 40, 4096, 17}, b{6, 12, 1, 0};
   const auto v = decode_blocks(encode_block(a) + encode_block(b));
