@@ -22,9 +22,13 @@ namespace tally {
 
 class ByteWriter {
  public:
+  // Room for `bytes` more without reallocating (a checkpoint knows its size roughly).
+  void reserve(size_t bytes) { out_.reserve(out_.size() + bytes); }
   void u8(uint8_t v) { out_.push_back(static_cast<char>(v)); }
   void u64(uint64_t v) {
-    for (int i = 0; i < 8; ++i) out_.push_back(static_cast<char>((v >> (8 * i)) & 0xff));
+    char b[8];  // one append, not eight push_backs: checkpoints write millions of these
+    for (int i = 0; i < 8; ++i) b[i] = static_cast<char>((v >> (8 * i)) & 0xff);
+    out_.append(b, 8);
   }
   void f64(double v) { u64(std::bit_cast<uint64_t>(v)); }
   void raw(std::string_view s) { out_.append(s); }

@@ -39,6 +39,8 @@ using Reader = ByteReader<CheckpointError>;
 
 std::string encode_checkpoint(const JobState& s) {
   ByteWriter w;
+  w.reserve(64 + 8 * s.partition_samples.size() + 24 * s.channels.size() + 32 * s.trace.size() +
+            8 * s.tail.heap().size() + s.kernel_state.size() + 1024);
   w.raw(std::string_view(kMagic, sizeof kMagic));
   w.u64(kVersion);
   w.u64(s.passes);

@@ -470,7 +470,10 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     job->engine_ = std::move(engine);
     job->engine_version_ = version;
   }
-  const bool stored = checkpoint && recorder_.persist(*job, true);
+  // The last save is written before the state can leave memory; a periodic checkpoint
+  // is written on the recorder's thread while the next pass runs.
+  const bool stored = checkpoint && finished && recorder_.persist(*job, true);
+  if (checkpoint && !finished) recorder_.checkpoint_later(job);
   if (finished) {
     // Stored with its final checkpoint: the state leaves memory (else it stays until
     // a later save succeeds, and the image routes read it from memory).

@@ -19,36 +19,43 @@ double unix_now() {
 }
 }  // namespace
 
-bool JobRecorder::persist(Job& job, bool with_checkpoint, bool retry) {
-  StoredJob s;
-  uint64_t version;
-  std::optional<JobState> state;
-  {
-    std::lock_guard lock(job.mu_);
-    version = job.version_;
-    s.id = job.id_;
-    s.seq = job.seq_;
-    s.spec = dump(*job.spec_);
-    s.priority = job.priority_;
-    s.owner = job.owner_;
-    s.state = std::string(job_status_name(job.status_));
-    s.stop_rule = job.runner_  ? dump(stop_rule_to_json(job.runner_->rule()))
-                  : job.facts_ ? dump(stop_rule_to_json(job.facts_->rule))
-                               : std::string("{}");
-    s.error = job.error_;
-    if (is_terminal(job.status_) && job.final_result_ && !job.final_result_->is_null()) {
-      s.result = dump(*job.final_result_);
-    }
-    if (is_terminal(job.status_) && job.facts_) s.facts = dump(run_facts_json(*job.facts_));
-    if (with_checkpoint && job.runner_) state = job.runner_->state();  // encoded below, without the lock
-    s.created_at = job.created_at_;
-    s.started_at = job.started_at_;
-    s.finished_at = job.finished_at_;
+JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint) const {
+  Pending p;
+  StoredJob& s = p.row;
+  std::lock_guard lock(job.mu_);
+  p.version = job.version_;
+  s.id = job.id_;
+  s.seq = job.seq_;
+  s.spec = dump(*job.spec_);
+  s.priority = job.priority_;
+  s.owner = job.owner_;
+  s.state = std::string(job_status_name(job.status_));
+  s.stop_rule = job.runner_  ? dump(stop_rule_to_json(job.runner_->rule()))
+                : job.facts_ ? dump(stop_rule_to_json(job.facts_->rule))
+                             : std::string("{}");
+  s.error = job.error_;
+  if (is_terminal(job.status_) && job.final_result_ && !job.final_result_->is_null()) {
+    s.result = dump(*job.final_result_);
   }
+  if (is_terminal(job.status_) && job.facts_) s.facts = dump(run_facts_json(*job.facts_));
+  if (with_checkpoint && job.runner_) p.state = job.runner_->state();  // encoded later, without the lock
+  s.created_at = job.created_at_;
+  s.started_at = job.started_at_;
+  s.finished_at = job.finished_at_;
+  return p;
+}
+
+bool JobRecorder::persist(Job& job, bool with_checkpoint, bool retry) {
+  return store(job, take(job, with_checkpoint), retry);
+}
+
+bool JobRecorder::store(Job& job, Pending pending, bool retry) {
+  StoredJob& s = pending.row;
+  const uint64_t version = pending.version;
   // A request that waits for the job's lock waits for a copy, not for the encoding
   // (an image's checkpoint is hundreds of MB).
-  if (state) s.checkpoint = encode_checkpoint(*state);
-  state.reset();
+  if (pending.state) s.checkpoint = encode_checkpoint(*pending.state);
+  pending.state.reset();
   std::lock_guard save_lock(job.save_mu_);
   if (job.removed_) return true;                  // deleted meanwhile: nothing to keep
   if (version < job.saved_version_) return true;  // a newer state is already stored
@@ -73,12 +80,43 @@ bool JobRecorder::persist(Job& job, bool with_checkpoint, bool retry) {
   return true;
 }
 
+void JobRecorder::checkpoint_later(const std::shared_ptr<Job>& job) {
+  {
+    std::lock_guard lock(checkpoint_mu_);
+    if (checkpoint_busy_.count(job->id_)) return;  // the previous one is still being written
+    checkpoint_busy_.insert(job->id_);
+  }
+  Pending p = take(*job, true);
+  std::lock_guard lock(checkpoint_mu_);
+  checkpoints_.emplace_back(job, std::move(p));
+  checkpoint_cv_.notify_all();
+}
+
+void JobRecorder::write_checkpoints(std::stop_token st) {
+  std::unique_lock lock(checkpoint_mu_);
+  for (;;) {
+    checkpoint_cv_.wait(lock, st, [&] { return !checkpoints_.empty(); });
+    if (checkpoints_.empty()) return;  // stopped with nothing left (a stop drains the queue first)
+    auto [job, pending] = std::move(checkpoints_.front());
+    checkpoints_.erase(checkpoints_.begin());
+    lock.unlock();
+    store(*job, std::move(pending), true);
+    lock.lock();
+    checkpoint_busy_.erase(job->id_);
+  }
+}
+
 JobRecorder::JobRecorder(JobStore& store, JobCompiler compiler, JobLimits limits, size_t event_buffer)
     : store_(store), compiler_(std::move(compiler)), limits_(std::move(limits)), event_buffer_(event_buffer) {
   retrier_ = std::jthread([this](std::stop_token st) { retry_saves(st); });
+  checkpointer_ = std::jthread([this](std::stop_token st) { write_checkpoints(st); });
 }
 
 JobRecorder::~JobRecorder() {
+  // Checkpoints still queued are written before the retrier stops (a failed one is
+  // then left to the next start's recovery from the last stored checkpoint).
+  checkpointer_.request_stop();
+  if (checkpointer_.joinable()) checkpointer_.join();
   retrier_.request_stop();
   if (retrier_.joinable()) retrier_.join();
 }

@@ -8,6 +8,7 @@
 #include <map>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <stop_token>
 #include <thread>
 #include <memory>
@@ -34,6 +35,13 @@ class JobRecorder {
   // and, if `retry`, the job is saved again every 200 ms until it is stored (with
   // its checkpoint while it is unfinished). The job runs on either way.
   bool persist(Job& job, bool with_checkpoint, bool retry = true);
+  // A periodic checkpoint of a running job: the state is copied now (under the job's
+  // lock, on the caller's thread) and encoded and stored on the recorder's checkpoint
+  // thread, so the pass that asked goes on at once (an image's checkpoint takes
+  // hundreds of ms to encode and write; the workers would wait). One per job at a
+  // time: while the job's previous checkpoint is still being written, this one is
+  // skipped (the next interval takes it). Failures are handled as persist's, with retry.
+  void checkpoint_later(const std::shared_ptr<Job>& job);
   // The store's last error while its last save failed, else nullopt.
   std::optional<std::string> store_problem() const { return health_.problem(); }
   // What a salvage of a damaged store at open lost (JobStore::damage), else nullopt.
@@ -49,7 +57,16 @@ class JobRecorder {
   Recovered recover();
 
  private:
+  // What persist stores, taken under the job's lock (the state is encoded later).
+  struct Pending {
+    StoredJob row;
+    uint64_t version = 0;
+    std::optional<JobState> state;
+  };
+  Pending take(Job& job, bool with_checkpoint) const;
+  bool store(Job& job, Pending pending, bool retry);
   void retry_saves(std::stop_token st);
+  void write_checkpoints(std::stop_token st);
 
   JobStore& store_;
   JobCompiler compiler_;
@@ -59,7 +76,12 @@ class JobRecorder {
   std::mutex retry_mu_;
   std::condition_variable_any retry_cv_;
   std::map<std::string, std::weak_ptr<Job>> retry_;  // saves that failed, by job id
-  std::jthread retrier_;                              // last: runs retry_saves
+  std::jthread retrier_;                              // runs retry_saves
+  std::mutex checkpoint_mu_;
+  std::condition_variable_any checkpoint_cv_;
+  std::vector<std::pair<std::shared_ptr<Job>, Pending>> checkpoints_;  // queued
+  std::set<std::string> checkpoint_busy_;  // ids of jobs whose checkpoint is queued or being written
+  std::jthread checkpointer_;  // last: runs write_checkpoints, stopped (and drained) first
 };
 
 }  // namespace tally
