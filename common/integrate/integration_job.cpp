@@ -30,7 +30,8 @@ IntegrationResult IntegrationJob::result(const JobRunner& runner) const {
   r.sample_unit = s_.sweep ? "point set" : (s_.deterministic ? "rule" : "point");
   if (s_.deterministic) r.error_estimate = runner.error().abs_error;
   const auto rep = vegas_report(runner.state());
-  if (const size_t m = s_.integrand->components(); m > 1 && s_.deterministic) {
+  const size_t m = s_.integrand->components();
+  if (m > 1 && s_.deterministic) {
     // Cubature: each component's value and the rule's error estimate (channel m + c).
     const auto& ch = runner.state().channels;
     for (size_t c = 0; c < m; ++c) {
@@ -40,7 +41,7 @@ IntegrationResult IntegrationJob::result(const JobRunner& runner) const {
       e.error_estimate = have ? ch[m + c].mean : std::numeric_limits<double>::quiet_NaN();
       r.components.push_back(e);
     }
-  } else if (const size_t m = s_.integrand->components(); m > 1) {
+  } else if (m > 1) {
     const bool combined = rep && s_.estimator.combine == "weighted";
     for (size_t c = 0; c < m; ++c) {
       Estimate e = runner.estimate(c);  // the pooled samples of component c

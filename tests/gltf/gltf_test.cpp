@@ -140,7 +140,7 @@ TEST(Gltf, RendersBitIdenticalToTheSameJsonScene) {
   double sum = 0;
   for (const Tally& t : ref.runner->state().channels) sum += t.mean;
   ASSERT_GT(sum, 0.0);
-  for (const std::string file : std::vector<std::string>{"box.gltf", "box.glb"}) {
+  for (const std::string& file : std::vector<std::string>{"box.gltf", "box.glb"}) {
     json shape = gltf_shape(file);
     shape["camera"] = "main";
     shape["resolution"] = {24, 16};
@@ -250,8 +250,12 @@ TEST(Gltf, SpotFalloffMatchesTheClosedForm) {
     const double t = std::clamp((c - co) / (ci - co), 0.0, 1.0);
     const double expect = rho / kPi * I * t * t * c / (d * d);
     EXPECT_NEAR(r.channel(0).mean, expect, 1e-12 * std::max(expect, 1e-300)) << "x " << x;
-    if (x == 1.5) EXPECT_EQ(r.channel(0).mean, 0.0);  // outside the cone (atan(0.75) = 36.9 deg)
-    if (x == 0.2) EXPECT_EQ(t, 1.0);                    // inside the inner cone
+    if (x == 1.5) {
+      EXPECT_EQ(r.channel(0).mean, 0.0);  // outside the cone (atan(0.75) = 36.9 deg)
+    }
+    if (x == 0.2) {
+      EXPECT_EQ(t, 1.0);  // inside the inner cone
+    }
   }
 }
 
