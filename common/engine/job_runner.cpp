@@ -75,57 +75,81 @@ JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCap
   }
 }
 
-uint64_t JobRunner::next_pass_samples() const {
+uint64_t JobRunner::next_pass_samples(const JobState& st) const {
   const PassSchedule s = kernel_->schedule();
-  const uint64_t shift = std::min<uint64_t>(state_.passes, 40);
+  const uint64_t shift = std::min<uint64_t>(st.passes, 40);
   uint64_t n = std::min(s.max_pass_samples, s.first_pass_samples << shift);
   if (n == 0) n = 1;
   // Do not overshoot hard limits.
   uint64_t limit = caps_.max_samples;
   if (rule_.max_samples > 0) limit = std::min(limit, rule_.max_samples);
-  if (limit > state_.samples) n = std::min(n, limit - state_.samples);
+  if (limit > st.samples) n = std::min(n, limit - st.samples);
   // Aim an error-target pass at the predicted need (deterministic: depends on the
-  // state only), with 10% headroom, never below one block.
-  if (rule_.has_error_target() && state_.samples >= rule_.min_samples && !heavy_tail()) {
+  // state only), with 10% headroom, never below one block. (Not for plan_ahead's
+  // counts-only state: plan_ahead plans nothing for a rule with an error target.)
+  if (rule_.has_error_target() && st.samples >= rule_.min_samples && !heavy_tail()) {
     if (auto p = prediction(); p && std::isfinite(p->samples_remaining)) {
       const double want = std::max(1.1 * p->samples_remaining, static_cast<double>(s.block_samples));
       if (want < static_cast<double>(n)) n = static_cast<uint64_t>(want);
     }
   }
   // With a time budget, a pass should not run far past it.
-  if (rule_.time_budget_s > 0 && state_.compute_seconds > 0 && state_.samples > 0) {
+  if (rule_.time_budget_s > 0 && st.compute_seconds > 0 && st.samples > 0) {
     const double rate = samples_per_second();
-    const double left = std::max(0.0, rule_.time_budget_s - state_.compute_seconds);
+    const double left = std::max(0.0, rule_.time_budget_s - st.compute_seconds);
     const double fit = std::max(static_cast<double>(s.block_samples), rate * left * 1.05);
     if (fit < static_cast<double>(n)) n = static_cast<uint64_t>(fit);
   }
   if (s.sample_quantum > 1) {
     const uint64_t q = s.sample_quantum;
     const uint64_t up = (std::max<uint64_t>(n, 1) + q - 1) / q * q;
-    if (limit <= state_.samples || up <= limit - state_.samples) n = up;
+    if (limit <= st.samples || up <= limit - st.samples) n = up;
   }
   return std::max<uint64_t>(n, 1);
+}
+
+std::vector<Block> JobRunner::blocks_after(const JobState& st, uint64_t n) const {
+  const uint64_t block = std::max<uint64_t>(1, kernel_->schedule().block_samples);
+  std::vector<Block> blocks;
+  uint64_t index = 0;
+  for (uint32_t p : kernel_->active_partitions(st)) {
+    const uint64_t first = st.partition_samples.at(p);
+    for (uint64_t off = 0; off < n; off += block) {
+      blocks.push_back(Block{index++, first + off, std::min(block, n - off), p});
+    }
+  }
+  return blocks;
 }
 
 std::vector<Block> JobRunner::plan_pass() {
   if (finished()) return {};
   TALLY_CHECK_MSG(pending_.empty(), "plan_pass called twice without commit_pass");
-  const uint64_t n = next_pass_samples();
-  const uint64_t block = std::max<uint64_t>(1, kernel_->schedule().block_samples);
+  const uint64_t n = next_pass_samples(state_);
   pass_input_ = kernel_->pass_input(state_);
-  uint64_t index = 0;
-  for (uint32_t p : kernel_->active_partitions(state_)) {
-    const uint64_t first = state_.partition_samples.at(p);
-    for (uint64_t off = 0; off < n; off += block) {
-      pending_.push_back(Block{index++, first + off, std::min(block, n - off), p});
-    }
-  }
+  pending_ = blocks_after(state_, n);
   pending_samples_ = n;
   if (pending_.empty()) {
     // Nothing left to refine (adaptive sampling converged everywhere).
     reason_ = StopReason::error_target;
   }
   return pending_;
+}
+
+std::optional<std::vector<Block>> JobRunner::plan_ahead() const {
+  if (finished() || pending_.empty() || !kernel_->plans_from_counts()) return std::nullopt;
+  if (rule_.has_error_target() || rule_.time_budget_s > 0) return std::nullopt;
+  // The counts the pending pass leaves (commit_pass adds exactly these).
+  JobState next;
+  next.passes = state_.passes + 1;
+  next.samples = state_.samples + pending_samples_;
+  next.partition_samples = state_.partition_samples;
+  for (const Block& b : pending_) next.partition_samples.at(b.partition) += b.sample_count;
+  // evaluate_stop's rules that counts decide: the job ends after the pending pass.
+  if (rule_.max_samples > 0 && next.samples >= rule_.max_samples) return std::nullopt;
+  if (next.samples >= caps_.max_samples) return std::nullopt;
+  std::vector<Block> blocks = blocks_after(next, next_pass_samples(next));
+  if (blocks.empty()) return std::nullopt;
+  return blocks;
 }
 
 void JobRunner::commit_pass(std::vector<BlockResult>&& results, double wall_seconds) {

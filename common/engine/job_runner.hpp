@@ -51,6 +51,14 @@ class JobRunner {
   // The kernel's input for the pass just planned (Kernel::pass_input); pass it to
   // Kernel::run_block_with for each of its blocks. Empty for non-adaptive kernels.
   const std::string& pass_input() const { return pass_input_; }
+  // The pass plan_pass will return once the pass just planned is committed, planned now:
+  // only when nothing it depends on can come from that pass's results (the rule has no
+  // error target and no time budget; the kernel plans from sample counts alone,
+  // Kernel::plans_from_counts) and the job does not stop at its sample limit after it.
+  // Else nullopt. An executor may compute it early (PassWork::ahead) and must use what
+  // it computed only if the pass planned after the commit is equal: a stop the counts do
+  // not foresee (a fault, the compute-time cap, a cancel) leaves it unused.
+  std::optional<std::vector<Block>> plan_ahead() const;
   // `results[i]` belongs to the i-th planned block. `wall_seconds`: the pass's duration.
   void commit_pass(std::vector<BlockResult>&& results, double wall_seconds);
 
@@ -83,7 +91,9 @@ class JobRunner {
   std::vector<std::string> warnings() const;
 
  private:
-  uint64_t next_pass_samples() const;
+  // Samples of the pass after state `s` (the runner's, or plan_ahead's counts-only one).
+  uint64_t next_pass_samples(const JobState& s) const;
+  std::vector<Block> blocks_after(const JobState& s, uint64_t samples) const;
   void evaluate_stop();
   void push_trace();
 

@@ -83,6 +83,11 @@ class Kernel {
   // `run_block_with` for each block of that pass (remote workers receive them with the
   // blocks). Default: no input, and run_block_with is run_block.
   virtual std::string pass_input(const JobState&) const { return {}; }
+  // True if the next pass's plan (active_partitions) depends on the state's sample
+  // counts alone, never on merged results, and there is no pass input: then
+  // JobRunner::plan_ahead may plan a pass before the one before it is merged, and a
+  // cluster starts it early. Default false (opt in; adaptive kernels stay false).
+  virtual bool plans_from_counts() const { return false; }
   virtual void run_block_with(const Block& block, std::string_view /*pass_input*/, BlockResult& out) const {
     run_block(block, out);
   }

@@ -83,6 +83,7 @@ class IntegrationKernelBase : public Kernel {
   explicit IntegrationKernelBase(IntegrationProblem p)
       : p_(std::move(p)), key_(stream_key(p_.seed, 0)) {}
   size_t channel_count() const override { return 1; }
+  bool plans_from_counts() const override { return true; }  // fixed pass sizes, no pass input
   std::span<const std::string_view> counter_names() const override { return integration_counter_names(); }
   std::vector<std::string> warnings(const JobState& st) const override { return integration_counter_warnings(st); }
   PassSchedule schedule() const override {

@@ -51,6 +51,8 @@ class ImageKernel final : public Kernel, public ImageSource {
   uint32_t partition_count() const override { return tile_count(); }
   PassSchedule schedule() const override;
   std::vector<uint32_t> active_partitions(const JobState& state) const override;
+  // Adaptive sampling picks tiles from merged results; without it every tile gets samples.
+  bool plans_from_counts() const override { return !adaptive_; }
   void run_block(const Block& block, BlockResult& out) const override;
   std::span<const std::string_view> counter_names() const override { return lighting_counter_names(); }
   std::vector<std::string> warnings(const JobState& state) const override { return lighting_counter_warnings(state); }

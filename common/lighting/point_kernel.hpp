@@ -34,6 +34,7 @@ class PointKernel final : public Kernel {
 
   size_t channel_count() const override { return strategies_.size() * points_.size() * 3 * k_; }
   PassSchedule schedule() const override;
+  bool plans_from_counts() const override { return true; }
   void run_block(const Block& block, BlockResult& out) const override;
   std::span<const std::string_view> counter_names() const override { return lighting_counter_names(); }
   std::vector<std::string> warnings(const JobState& state) const override { return lighting_counter_warnings(state); }

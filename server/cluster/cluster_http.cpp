@@ -44,7 +44,8 @@ json workers_json(const RedisExecutor& ex) {
                          {"stale", c.stale},
                          {"failed_deliveries", c.failures},
                          {"blocks_merged", c.merged},
-                         {"passes_republished", c.republished}}}};
+                         {"passes_republished", c.republished},
+                         {"passes_published_ahead", c.ahead}}}};
   if (auto why = ex.not_ready_reason()) j["not_ready_reason"] = *why;
   return j;
 }
@@ -70,6 +71,8 @@ std::string cluster_metrics(const RedisExecutor& ex) {
   o += fmt::format("tally_cluster_results_total{{outcome=\"stale\"}} {}\n", c.stale);
   o += fmt::format("tally_cluster_results_total{{outcome=\"failed\"}} {}\n", c.failures);
   prom_metric(o, "tally_cluster_blocks_merged_total", "counter", "Blocks merged by this coordinator.", c.merged);
+  prom_metric(o, "tally_cluster_passes_ahead_total", "counter",
+              "Passes published before the pass before them was merged.", c.ahead);
   prom_header(o, "tally_cluster_job_blocks", "gauge", "Blocks of a running job's current pass.");
   for (const auto& [id, b] : ex.stats().blocks_by_job) {
     o += fmt::format("tally_cluster_job_blocks{{job=\"{}\",state=\"pending\"}} {}\n", id, b.pending);

@@ -68,12 +68,17 @@ void RedisExecutor::add(ExecutorJob ej, PassWork first_pass) {
     return;
   }
   job->ej = std::move(ej);
-  job->pass = std::move(first_pass);
+  if (first_pass.ahead) {
+    job->ahead = std::make_unique<PassRun>();
+    job->ahead->work = *first_pass.ahead;
+  }
+  first_pass.ahead.reset();
+  job->cur.work = std::move(first_pass);
   {
     std::lock_guard lock(mu_);
     if (stopping_) return;
     job->run = fmt::format("{}.{}", job->ej.epoch, ++generation_);
-    job->blocks.pending = job->pass.blocks.size();
+    job->blocks.pending = job->cur.work.blocks.size();
     jobs_[id] = std::move(job);
   }
   cv_.notify_all();
@@ -156,7 +161,8 @@ bool RedisExecutor::connect() {
     for (auto& [id, j] : jobs_) {
       // After a Redis restart everything unmerged is gone: publish it again. After a
       // mere disconnect, publishing again is harmless too (results already stored stay).
-      j->published = false;
+      j->cur.published = false;
+      if (j->ahead) j->ahead->published = false;
       if (restarted) j->swept = j->hash_written = false;
     }
     if (restarted) {
@@ -213,7 +219,7 @@ void RedisExecutor::step() {
     for (auto& [id, j] : jobs_) {
       if (j->cancel_requested) {
         to_cancel.push_back(id);
-      } else if (!j->published) {
+      } else if (!j->all_published()) {
         to_publish.push_back(id);
       } else {
         running = true;
@@ -276,45 +282,48 @@ void RedisExecutor::publish(Job& job) {
     sweep(job);
     job.swept = true;
   }
-  const std::string& id = job.ej.id;
-  const std::string jk = job_key(id);
-  const std::string s = pass_key('s', id, job.run, job.pass.pass);
-  const std::string p = pass_key('p', id, job.run, job.pass.pass);
-  const std::string r = pass_key('r', id, job.run, job.pass.pass);
-  const size_t n = job.pass.blocks.size();
-
   if (!job.hash_written) {
     // Once per run (and again if Redis lost it), not at every pass or reconnect: a
     // "failed" or "mismatch" mark a worker set while the connection was down must
     // survive a reconnect, and the spec and assets need not travel again.
+    const std::string jk = job_key(job.ej.id);
     conn_->cmd({"HSET", jk, "run", job.run, "cancelled", "0", "spec", job.ej.spec_json, "assets", job.manifest,
                 "max_failures", std::to_string(cfg_.max_failures)});
     conn_->cmd({"HDEL", jk, "failed", "mismatch"});
     for (const auto& [rel, a] : job.assets) conn_->cmd({"SET", asset_key(a.sha256), a.bytes, "NX"});
     job.hash_written = true;
   }
+  if (!job.cur.published) publish_pass(job, job.cur);
+  if (job.ahead && !job.ahead->published) publish_pass(job, *job.ahead);
+}
+
+void RedisExecutor::publish_pass(Job& job, PassRun& pass) {
+  const std::string& id = job.ej.id;
+  const std::string s = pass_key('s', id, job.run, pass.work.pass);
+  const std::string p = pass_key('p', id, job.run, pass.work.pass);
+  const std::string r = pass_key('r', id, job.run, pass.work.pass);
+  const size_t n = pass.work.blocks.size();
   // Entries already stored (a republish after a reconnect without a Redis restart) need
   // no new stream entry. A pass published for the first time has none: skip the round trip.
   std::set<size_t> have;  // first slots
-  if (job.pass_published) {
+  if (pass.was_published) {
     for (const RValue& k : conn_->cmd({"HKEYS", r}).elems) have.insert(static_cast<size_t>(k.as_int()));
   }
-  if (job.entries.empty()) plan_entries(job);
+  if (pass.entries.empty()) plan_entries(job, pass);
   std::vector<std::pair<std::string, std::string>> entries;  // first slot, blocks
   size_t stored_blocks = 0;
-  for (const auto& [first, count] : job.entries) {
+  for (const auto& [first, count] : pass.entries) {
     if (have.count(first)) {
       stored_blocks += count;
       continue;
     }
     std::string bytes;
-    for (size_t i = first; i < first + count; ++i) bytes += encode_block(job.pass.blocks[i]);
+    for (size_t i = first; i < first + count; ++i) bytes += encode_block(pass.work.blocks[i]);
     entries.emplace_back(std::to_string(first), std::move(bytes));
   }
-  // The whole pass in one round trip (the pass boundary is the coordinator's only
-  // serial latency: workers idle until this lands).
-  const std::string n_s = std::to_string(n), e_s = std::to_string(job.entries.size());
-  conn_->append({"HSET", p, "n", n_s, "e", e_s, "input", job.pass.pass_input});
+  // The whole pass in one round trip (workers without work wait until this lands).
+  const std::string n_s = std::to_string(n), e_s = std::to_string(pass.entries.size());
+  conn_->append({"HSET", p, "n", n_s, "e", e_s, "input", pass.work.pass_input});
   conn_->append({"DEL", s});
   conn_->append({"XGROUP", "CREATE", s, kGroup, "$", "MKSTREAM"});
   for (const auto& [first, bytes] : entries) conn_->append({"XADD", s, "*", "b", bytes, "s", first});
@@ -327,13 +336,13 @@ void RedisExecutor::publish(Job& job) {
   }
   if (!error.empty()) throw RedisReplyError("publishing a pass: " + error);
   std::lock_guard lock(mu_);
-  if (job.pass_start == Clock::time_point{}) job.pass_start = Clock::now();
-  job.published = true;
-  job.pass_published = true;
-  job.blocks.pending = n - std::min(n, stored_blocks);
+  if (pass.start == Clock::time_point{}) pass.start = Clock::now();
+  pass.published = true;
+  pass.was_published = true;
+  if (&pass == &job.cur) job.blocks.pending = n - std::min(n, stored_blocks);
 }
 
-void RedisExecutor::plan_entries(Job& job) {
+void RedisExecutor::plan_entries(const Job& job, PassRun& pass) {
   // Entry sizes by guided self-scheduling: each entry takes 1/(2T) of what is left (T:
   // live worker threads), at most ~20 ms and at least ~2 ms of work (from the workers'
   // measured time per block), so a pass starts with few big entries and ends with
@@ -351,7 +360,7 @@ void RedisExecutor::plan_entries(Job& job) {
     k_max = std::clamp<size_t>(k_max, 1, std::max<size_t>(1, cfg_.max_entry_blocks));
     k_min = std::min(k_min, k_max);
   }
-  const size_t n = job.pass.blocks.size();
+  const size_t n = pass.work.blocks.size();
   std::vector<std::pair<size_t, size_t>> entries;
   size_t largest = 1;
   for (size_t first = 0; first < n;) {
@@ -362,8 +371,8 @@ void RedisExecutor::plan_entries(Job& job) {
     first += k;
   }
   std::lock_guard lock(mu_);
-  job.entries = std::move(entries);
-  job.entry_blocks = largest;
+  pass.entries = std::move(entries);
+  pass.entry_blocks = largest;
 }
 
 void RedisExecutor::poll(const std::vector<std::string>& ids) {
@@ -375,9 +384,9 @@ void RedisExecutor::poll(const std::vector<std::string>& ids) {
   {
     std::lock_guard lock(mu_);
     auto add_probe = [&](const Job& j) {
-      if (!j.published || j.cancel_requested) return;
-      probes.push_back({j.ej.id, pass_key('r', j.ej.id, j.run, j.pass.pass), pass_key('s', j.ej.id, j.run, j.pass.pass),
-                        job_key(j.ej.id), j.entries.size()});
+      if (!j.cur.published || j.cancel_requested) return;
+      probes.push_back({j.ej.id, pass_key('r', j.ej.id, j.run, j.cur.work.pass),
+                        pass_key('s', j.ej.id, j.run, j.cur.work.pass), job_key(j.ej.id), j.cur.entries.size()});
     };
     if (ids.empty()) {
       for (const auto& [id, j] : jobs_) add_probe(*j);
@@ -437,7 +446,8 @@ void RedisExecutor::poll(const std::vector<std::string>& ids) {
       case Outcome::republish: {
         std::lock_guard lock(mu_);
         if (auto it = jobs_.find(o.id); it != jobs_.end()) {
-          it->second->published = false;
+          it->second->cur.published = false;
+          if (it->second->ahead) it->second->ahead->published = false;
           it->second->hash_written = false;  // the job hash may be gone too
           counters_.republished++;
           log::job(log::Level::warn, o.id, "its pass vanished from Redis; republishing");
@@ -449,19 +459,19 @@ void RedisExecutor::poll(const std::vector<std::string>& ids) {
   }
 }
 
-std::string RedisExecutor::read_results(Job& job, bool prefetch, size_t& bytes) {
-  const PassWork& pass = job.pass;
+std::string RedisExecutor::read_results(Job& job, PassRun& run, bool prefetch, size_t& bytes) {
+  const PassWork& pass = run.work;
   const size_t n = pass.blocks.size();
-  if (job.got.size() != n) {
-    job.got.assign(n, std::nullopt);
-    job.got_count = 0;
+  if (run.got.size() != n) {
+    run.got.assign(n, std::nullopt);
+    run.got_count = 0;
   }
   const std::string r = pass_key('r', job.ej.id, job.run, pass.pass);
-  std::vector<size_t> want;  // indices into job.entries
+  std::vector<size_t> want;  // indices into run.entries
   auto entry_at = [&](size_t first) -> std::optional<size_t> {
-    auto it = std::lower_bound(job.entries.begin(), job.entries.end(), std::make_pair(first, size_t{0}));
-    if (it == job.entries.end() || it->first != first) return std::nullopt;
-    return static_cast<size_t>(it - job.entries.begin());
+    auto it = std::lower_bound(run.entries.begin(), run.entries.end(), std::make_pair(first, size_t{0}));
+    if (it == run.entries.end() || it->first != first) return std::nullopt;
+    return static_cast<size_t>(it - run.entries.begin());
   };
   if (prefetch) {
     const RValue keys = conn_->cmd({"HKEYS", r});
@@ -474,23 +484,23 @@ std::string RedisExecutor::read_results(Job& job, bool prefetch, size_t& bytes) 
       }
       const auto e = entry_at(first);
       if (!e) return fmt::format("result field {} is not the first slot of an entry of the pass", first);
-      if (!job.got[first]) want.push_back(*e);
+      if (!run.got[first]) want.push_back(*e);
     }
   } else {
-    for (size_t e = 0; e < job.entries.size(); ++e) {
-      if (!job.got[job.entries[e].first]) want.push_back(e);
+    for (size_t e = 0; e < run.entries.size(); ++e) {
+      if (!run.got[run.entries[e].first]) want.push_back(e);
     }
   }
   if (want.empty()) return {};
   std::vector<std::string> fields;
-  for (size_t e : want) fields.push_back(std::to_string(job.entries[e].first));
+  for (size_t e : want) fields.push_back(std::to_string(run.entries[e].first));
   std::vector<std::string_view> argv = {"HMGET", r};
   for (const auto& f : fields) argv.push_back(f);
   const RValue v = conn_->cmd(argv);
   if (v.type == RValue::Type::error) throw RedisReplyError("HMGET: " + v.str);
   for (size_t i = 0; i < want.size() && i < v.elems.size(); ++i) {
     if (v.elems[i].is_nil()) continue;
-    const auto [first, count] = job.entries[want[i]];
+    const auto [first, count] = run.entries[want[i]];
     std::vector<BlockResult> res;
     try {
       res = decode_entry_results(v.elems[i].str);
@@ -507,28 +517,29 @@ std::string RedisExecutor::read_results(Job& job, bool prefetch, size_t& bytes) 
       }
     }
     bytes += v.elems[i].str.size();
-    for (size_t j = 0; j < count; ++j) job.got[first + j] = std::move(res[j]);
-    job.got_count += count;
+    for (size_t j = 0; j < count; ++j) run.got[first + j] = std::move(res[j]);
+    run.got_count += count;
   }
   return {};
 }
 
 void RedisExecutor::prefetch() {
-  // Results are read and decoded while the pass runs (one HKEYS per job, then only the
-  // entries not read yet), so the pass boundary, where every worker waits for the next
-  // pass, reads only the last entries.
+  // Results are read and decoded while the passes run (one HKEYS per pass, then only the
+  // entries not read yet), so the pass boundary, where the current pass is merged,
+  // reads only the last entries.
   std::vector<std::string> ids;
   {
     std::lock_guard lock(mu_);
     for (const auto& [id, j] : jobs_) {
-      if (j->published && !j->cancel_requested) ids.push_back(id);
+      if (j->cur.published && !j->cancel_requested) ids.push_back(id);
     }
   }
   for (const auto& id : ids) {
     Job* job = find(id);
     if (!job) continue;
     size_t bytes = 0;
-    const std::string error = read_results(*job, true, bytes);
+    std::string error = read_results(*job, job->cur, true, bytes);
+    if (error.empty() && job->ahead && job->ahead->published) error = read_results(*job, *job->ahead, true, bytes);
     if (!error.empty()) {
       log::job(log::Level::error, id, "{}", error);
       leave(id, true, error);
@@ -544,28 +555,28 @@ void RedisExecutor::merge(const std::string& id) {
     if (it == jobs_.end() || it->second->cancel_requested) return;
     job = it->second.get();
   }
-  const PassWork& pass = job->pass;
+  PassRun& run = job->cur;
+  const PassWork& pass = run.work;
   const size_t n = pass.blocks.size();
-  const std::string r = pass_key('r', id, job->run, pass.pass);
   const auto t_read = Clock::now();
-  const size_t had = job->got.size() == n ? job->got_count : 0;
+  const size_t had = run.got.size() == n ? run.got_count : 0;
   size_t result_bytes = 0;
-  const std::string error = read_results(*job, false, result_bytes);
+  const std::string error = read_results(*job, run, false, result_bytes);
   if (!error.empty()) {
     log::job(log::Level::error, id, "{}", error);
     leave(id, true, error);
     return;
   }
-  if (job->got_count < n) return;  // not complete yet
+  if (run.got_count < n) return;  // not complete yet
   const double read_ms = ms_since(t_read);
   const RValue m = conn_->cmd({"HMGET", job_key(id), "compute_s", "computed"});
   const auto t_decode = Clock::now();
   std::vector<BlockResult> results(n);
-  for (size_t i = 0; i < n; ++i) results[i] = std::move(*job->got[i]);
-  job->got.clear();
-  job->got_count = 0;
+  for (size_t i = 0; i < n; ++i) results[i] = std::move(*run.got[i]);
+  run.got.clear();
+  run.got_count = 0;
   const double decode_ms = ms_since(t_decode);
-  const double wall = std::chrono::duration<double>(Clock::now() - job->pass_start).count();
+  const double wall = std::chrono::duration<double>(Clock::now() - run.start).count();
   {
     try {
       const double secs = m.elems.at(0).is_nil() ? 0.0 : std::stod(m.elems[0].str);
@@ -580,7 +591,8 @@ void RedisExecutor::merge(const std::string& id) {
   const std::string s = pass_key('s', id, job->run, pass.pass);
   size_t replies = 2;
   conn_->append({"SREM", kActive, s});
-  conn_->append({"DEL", s, pass_key('p', id, job->run, pass.pass), r, pass_key('f', id, job->run, pass.pass)});
+  conn_->append({"DEL", s, pass_key('p', id, job->run, pass.pass), pass_key('r', id, job->run, pass.pass),
+                 pass_key('f', id, job->run, pass.pass)});
   job->digest_passes.push_back(pass.pass);
   while (job->digest_passes.size() > cfg_.digest_passes) {
     conn_->append({"DEL", pass_key('d', id, job->run, job->digest_passes.front())});
@@ -602,26 +614,11 @@ void RedisExecutor::merge(const std::string& id) {
   const uint64_t pass_no = pass.pass;
   PassWork next = cb_.pass_done(id, pass, std::move(results), wall);
   const double merge_ms = ms_since(t_merge);
-  bool leave_now = false;
-  {
-    std::lock_guard lock(mu_);
-    if (next.empty()) {
-      leave_now = true;
-    } else {
-      job->pass = std::move(next);
-      job->entries.clear();
-      job->published = false;
-      job->pass_published = false;
-      job->pass_start = Clock::now();
-      job->blocks = {};
-      job->blocks.pending = job->pass.blocks.size();
-    }
-  }
-  if (leave_now) {
+  if (next.empty()) {
     // The job is done: it leaves at once, whatever happens to Redis now. Its keys go
-    // next; if Redis is unreachable they are deleted after the reconnect, never
-    // republished (a finished job's last pass computed again would be merged into a
-    // job that has ended).
+    // next (with a pass published ahead, if any); if Redis is unreachable they are
+    // deleted after the reconnect, never republished (a finished job's last pass
+    // computed again would be merged into a job that has ended).
     {
       std::lock_guard lock(mu_);
       auto it = jobs_.find(id);
@@ -629,18 +626,60 @@ void RedisExecutor::merge(const std::string& id) {
       jobs_.erase(it);
     }
     clean_finished();
-  } else if (!job->cancel_requested) {
-    const auto t_publish = Clock::now();
-    publish(*job);
-    // One line per pass boundary: where the coordinator's serial time goes.
-    log::job(log::Level::debug, id,
-             "pass {} ({} blocks, {} read before the end, {} result bytes read at the end): noticed {:.3f} ms after "
-             "BLPOP returned, read + decode {:.3f} ms, collect {:.3f} ms, merge {:.3f} ms, publish {:.3f} ms ({} "
-             "entries), boundary {:.3f} ms; at unix {:.6f}",
-             pass_no, n, had, result_bytes, std::chrono::duration<double, std::milli>(t_read - notified_at_).count(), read_ms,
-             decode_ms, merge_ms, ms_since(t_publish), job->entries.size(),
-             std::chrono::duration<double, std::milli>(Clock::now() - notified_at_).count(), unix_seconds());
+    return;
   }
+  std::shared_ptr<const PassWork> after = std::move(next.ahead);
+  bool adopted = false, restarted = false;
+  if (job->ahead && same_plan(job->ahead->work, next)) {
+    // The pass published ahead is the one planned: its results so far stand.
+    adopted = true;
+  } else if (job->ahead) {
+    // Planned differently after all: what was computed for it must never be taken for
+    // the new plan's blocks (same pass number), so the job continues as a new run and
+    // the old run's keys are swept.
+    restarted = true;
+    log::job(log::Level::warn, id, "the pass published ahead ({}) differs from the pass planned; it is dropped",
+             job->ahead->work.pass);
+  }
+  {
+    std::lock_guard lock(mu_);
+    if (adopted) {
+      counters_.ahead++;
+      job->cur = std::move(*job->ahead);
+      job->ahead.reset();
+      job->cur.start = Clock::now();  // its wall time starts when the pass before it ends
+    } else {
+      job->ahead.reset();
+      job->cur = PassRun{};
+      job->cur.work = std::move(next);
+      if (restarted) {
+        job->run = fmt::format("{}.{}", job->ej.epoch, ++generation_);
+        job->swept = job->hash_written = false;
+        job->digest_passes.clear();
+      }
+    }
+    if (after) {
+      job->ahead = std::make_unique<PassRun>();
+      job->ahead->work = *after;
+    }
+    job->blocks = {};
+    job->blocks.pending = job->cur.work.blocks.size();
+  }
+  if (job->cancel_requested) return;
+  const auto t_publish = Clock::now();
+  publish(*job);
+  // The adopted pass may be complete already (its completion was announced while it was
+  // ahead): look at it in the next step.
+  if (adopted) conn_->cmd({"RPUSH", kNotify, id});
+  // One line per pass boundary: where the coordinator's serial time goes.
+  log::job(log::Level::debug, id,
+           "pass {} ({} blocks, {} read before the end, {} result bytes read at the end): noticed {:.3f} ms after "
+           "BLPOP returned, read + decode {:.3f} ms, collect {:.3f} ms, merge {:.3f} ms, publish {:.3f} ms ({} "
+           "entries{}), boundary {:.3f} ms; at unix {:.6f}",
+           pass_no, n, had, result_bytes, std::chrono::duration<double, std::milli>(t_read - notified_at_).count(),
+           read_ms, decode_ms, merge_ms, ms_since(t_publish), job->cur.entries.size(),
+           adopted ? ", published ahead" : "",
+           std::chrono::duration<double, std::milli>(Clock::now() - notified_at_).count(), unix_seconds());
 }
 
 void RedisExecutor::clean_finished() {
@@ -650,15 +689,20 @@ void RedisExecutor::clean_finished() {
   }
 }
 
+void RedisExecutor::delete_pass_keys(const Job& job, uint64_t pass) {
+  const std::string& id = job.ej.id;
+  const std::string s = pass_key('s', id, job.run, pass);
+  conn_->cmd({"SREM", kActive, s});
+  conn_->cmd({"DEL", s, pass_key('p', id, job.run, pass), pass_key('r', id, job.run, pass), pass_key('f', id, job.run, pass),
+              pass_key('d', id, job.run, pass)});
+}
+
 void RedisExecutor::delete_job_keys(Job& job) {
   const std::string& id = job.ej.id;
-  const std::string s = pass_key('s', id, job.run, job.pass.pass);
   conn_->cmd({"HSET", job_key(id), "cancelled", "1"});
-  conn_->cmd({"SREM", kActive, s});
-  conn_->cmd({"DEL", s, pass_key('p', id, job.run, job.pass.pass), pass_key('r', id, job.run, job.pass.pass),
-              pass_key('f', id, job.run, job.pass.pass)});
+  delete_pass_keys(job, job.cur.work.pass);
+  if (job.ahead) delete_pass_keys(job, job.ahead->work.pass);
   for (uint64_t p : job.digest_passes) conn_->cmd({"DEL", pass_key('d', id, job.run, p)});
-  conn_->cmd({"DEL", pass_key('d', id, job.run, job.pass.pass)});
   job.digest_passes.clear();
   conn_->cmd({"DEL", job_key(id)});
 }
@@ -712,9 +756,9 @@ void RedisExecutor::refresh() {
   {
     std::lock_guard lock(mu_);
     for (const auto& [id, j] : jobs_) {
-      if (j->published) {
-        probes.push_back({id, pass_key('s', id, j->run, j->pass.pass), job_key(id), pass_key('p', id, j->run, j->pass.pass),
-                          j->pass.blocks.size(), j->entry_blocks});
+      if (j->cur.published) {
+        probes.push_back({id, pass_key('s', id, j->run, j->cur.work.pass), job_key(id),
+                          pass_key('p', id, j->run, j->cur.work.pass), j->cur.work.blocks.size(), j->cur.entry_blocks});
       }
     }
   }

@@ -49,6 +49,7 @@ struct ClusterCounters {
   uint64_t first = 0, dup_equal = 0, dup_differ = 0, stale = 0, failures = 0;
   uint64_t merged = 0;  // blocks merged by this coordinator
   uint64_t republished = 0;  // passes republished after Redis lost them
+  uint64_t ahead = 0;        // passes published before the pass before them was merged (PassWork::ahead)
 };
 
 class RedisExecutor final : public Executor {
@@ -71,39 +72,50 @@ class RedisExecutor final : public Executor {
   const RedisExecutorConfig& config() const { return cfg_; }
 
  private:
+  // One pass of a job in Redis: the current one, or the next one published ahead of
+  // it (PassWork::ahead) so workers never wait for the current pass's merge.
+  struct PassRun {
+    PassWork work;
+    // The pass cut into stream entries: (first slot, blocks), in slot order. Planned at
+    // its first publication and kept when it is published again, so a late result of an
+    // entry from before a reconnect covers exactly the blocks of an entry published
+    // after it (protocol.hpp).
+    std::vector<std::pair<size_t, size_t>> entries;
+    size_t entry_blocks = 1;  // blocks in the largest entry
+    // Results read and decoded so far (slot order). They are read while the pass runs,
+    // so the pass boundary reads only the last entries.
+    std::vector<std::optional<BlockResult>> got;
+    size_t got_count = 0;
+    bool published = false;      // in Redis now
+    bool was_published = false;  // published before (a republish)
+    std::chrono::steady_clock::time_point start{};
+  };
   struct Job {
     ExecutorJob ej;
     std::string run;
-    PassWork pass;
+    PassRun cur;
+    std::unique_ptr<PassRun> ahead;  // the next pass, out before `cur` is merged
     std::map<std::string, JobAsset> assets;
     std::string manifest;
-    std::chrono::steady_clock::time_point pass_start;
-    bool published = false;  // the current pass is in Redis
-    bool pass_published = false;  // the current pass was published before (a republish)
     bool swept = false;      // keys of older runs removed
     bool hash_written = false;  // the job hash (run, spec, assets) written for this run
     bool cancel_requested = false;
     std::deque<uint64_t> digest_passes;
     ExecutorStats::JobBlocks blocks;
     double block_seconds = 0;  // workers' measured compute time per block
-    // The current pass cut into stream entries: (first slot, blocks), in slot order.
-    // Planned at its first publication and kept when it is published again, so a late
-    // result of an entry from before a reconnect covers exactly the blocks of an entry
-    // published after it (protocol.hpp).
-    std::vector<std::pair<size_t, size_t>> entries;
-    size_t entry_blocks = 1;   // blocks in the largest entry of the current pass
-    // The current pass's results read and decoded so far (slot order). They are read
-    // while the pass runs, so the pass boundary reads only the last entries.
-    std::vector<std::optional<BlockResult>> got;
-    size_t got_count = 0;
+    bool all_published() const { return cur.published && (!ahead || ahead->published); }
   };
 
   void loop();
   void step();
   bool connect();
+  // Publishes the job's passes that are not in Redis (the current one, then the one ahead).
   void publish(Job& job);
-  // Cuts the job's current pass into stream entries (Job::entries).
-  void plan_entries(Job& job);
+  void publish_pass(Job& job, PassRun& pass);
+  // Cuts a pass into stream entries (PassRun::entries).
+  void plan_entries(const Job& job, PassRun& pass);
+  // Deletes a pass's keys (stream, inputs, results, failures, digests).
+  void delete_pass_keys(const Job& job, uint64_t pass);
   void sweep(const Job& job);
   // Checks the jobs' result hashes; merges complete passes. `ids` empty: all jobs.
   void poll(const std::vector<std::string>& ids);
@@ -112,7 +124,7 @@ class RedisExecutor final : public Executor {
   // checked. `prefetch`: only the entries Redis lists now (while the pass runs); else
   // every missing one. Adds the bytes read to `bytes`. Returns an error that fails the
   // job (results that cannot be decoded or belong to other blocks), else "".
-  std::string read_results(Job& job, bool prefetch, size_t& bytes);
+  std::string read_results(Job& job, PassRun& pass, bool prefetch, size_t& bytes);
   void prefetch();
   // The job with this id, or null (takes mu_ for the lookup only; a Job is erased only by
   // the coordinator thread, which is the caller).

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <deque>
 #include <fstream>
@@ -74,6 +75,27 @@ std::optional<StreamKey> parse_stream_key(const std::string& k) {
     return std::nullopt;
   }
   return s;
+}
+
+// The order a thread tries the active streams in: jobs in turn (starting at a rotating
+// one, so jobs share the workers), and within a job its earlier pass first (a pass
+// published ahead is computed once the current one has no entry left to hand out).
+std::vector<std::string> reading_order(const std::vector<std::string>& streams, size_t rotate) {
+  std::map<std::string, std::vector<std::pair<uint64_t, std::string>>> by_job;
+  for (const std::string& s : streams) {
+    const auto sk = parse_stream_key(s);
+    by_job[sk ? sk->id : s].emplace_back(sk ? sk->pass : 0, s);
+  }
+  std::vector<std::vector<std::pair<uint64_t, std::string>>*> jobs;
+  for (auto& [id, passes] : by_job) {
+    std::sort(passes.begin(), passes.end());
+    jobs.push_back(&passes);
+  }
+  std::vector<std::string> order;
+  for (size_t i = 0; i < jobs.size(); ++i) {
+    for (const auto& [pass, s] : *jobs[(rotate + i) % jobs.size()]) order.push_back(s);
+  }
+  return order;
 }
 
 double unix_seconds() {
@@ -163,6 +185,10 @@ class Worker {
     size_t rotate = t;
     auto last_claim = Clock::now() - 1h;
     bool warned = false;
+    // The active streams, read again at most every 20 ms while there is work (a round
+    // trip per entry saved), and at once when none of them has an entry left.
+    std::vector<std::string> streams;
+    auto streams_at = Clock::now() - 1h;
     while (!stop_) {
       try {
         if (!conn) {
@@ -174,9 +200,13 @@ class Worker {
           if (warned) log("connected to redis again");
           warned = false;
         }
-        const RValue active = conn->cmd({"SMEMBERS", kActive});
-        std::vector<std::string> streams;
-        for (const RValue& v : active.elems) streams.push_back(v.str);
+        const bool fresh = Clock::now() - streams_at >= 20ms;
+        if (fresh) {
+          const RValue active = conn->cmd({"SMEMBERS", kActive});
+          streams.clear();
+          for (const RValue& v : active.elems) streams.push_back(v.str);
+          streams_at = Clock::now();
+        }
         bool worked = false;
         // Reclaim blocks whose lease expired (a killed or stalled worker's).
         if (!streams.empty() && Clock::now() - last_claim >= lease() / 4) {
@@ -202,8 +232,9 @@ class Worker {
           }
         }
         if (!worked) {
-          for (size_t i = 0; i < streams.size() && !worked; ++i) {
-            const std::string& s = streams[(rotate + i) % streams.size()];
+          const std::vector<std::string> order = reading_order(streams, rotate);
+          for (size_t i = 0; i < order.size() && !worked; ++i) {
+            const std::string& s = order[i];
             const RValue r = try_cmd(*conn, {"XREADGROUP", "GROUP", kGroup, consumer, "COUNT", "1", "STREAMS", s, ">"});
             if (r.is_array() && !r.elems.empty() && r.elems[0].elems.size() == 2 && !r.elems[0].elems[1].elems.empty()) {
               process(conn, t, consumer, s, r.elems[0].elems[1].elems[0], false, store_sha, fail_sha);
@@ -211,6 +242,10 @@ class Worker {
             }
           }
           ++rotate;
+        }
+        if (!worked && !fresh) {
+          streams_at = Clock::now() - 1h;  // nothing left in the remembered streams: look again
+          continue;
         }
         if (!worked) {
           // Idle: wait for the coordinator to announce work, at most a quarter lease
@@ -281,6 +316,26 @@ class Worker {
     return c;
   }
 
+  // The job's max_failures if `run` is its current run and it is not cancelled, else
+  // nullopt. A yes is remembered for 20 ms (a round trip per entry saved; an entry of a
+  // job cancelled meanwhile is computed and then counted stale by the store script); a
+  // no, or a run not seen yet, is always asked again.
+  std::optional<std::string> live_run(RedisConn& conn, const std::string& jk, const std::string& run) {
+    {
+      std::lock_guard lock(mu_);
+      if (auto it = live_.find(jk); it != live_.end() && it->second.run == run && Clock::now() - it->second.at < 20ms) {
+        return it->second.max_failures;
+      }
+    }
+    const RValue st = conn.cmd({"HMGET", jk, "run", "cancelled", "max_failures"});
+    if (st.elems.size() != 3 || st.elems[0].str != run || st.elems[1].str == "1") return std::nullopt;
+    LiveRun l{run, st.elems[2].is_nil() ? std::string("3") : st.elems[2].str, Clock::now()};
+    std::lock_guard lock(mu_);
+    if (live_.size() > 64) live_.clear();
+    live_[jk] = l;
+    return l.max_failures;
+  }
+
   std::optional<PassMeta> pass_meta(RedisConn& conn, const StreamKey& sk) {
     const std::string p = pass_key('p', sk.id, sk.run, sk.pass);
     {
@@ -343,13 +398,12 @@ class Worker {
       return;
     }
     const std::string jk = job_key(sk->id);
-    const RValue st = conn.cmd({"HMGET", jk, "run", "cancelled", "max_failures"});
-    if (st.elems.size() != 3 || st.elems[0].str != sk->run || st.elems[1].str == "1") {
+    const std::optional<std::string> max_failures = live_run(conn, jk, sk->run);
+    if (!max_failures) {
       try_cmd(conn, {"XACK", stream, kGroup, entry_id});  // cancelled or an older run: skip
       return;
     }
     if (redelivered) conn.cmd({"HINCRBY", jk, "redelivered", "1"});
-    const std::string max_failures = st.elems[2].is_nil() ? std::string("3") : st.elems[2].str;
     const Compiled c = compile(conn, *sk);
     const auto meta = pass_meta(conn, *sk);
     if (!meta) {
@@ -389,7 +443,7 @@ class Worker {
     if (!error.empty()) {
       const RValue r = eval_retrying(conn_owner, fail_sha, kFailScript,
                                      {stream, jk, pass_key('f', sk->id, sk->run, sk->pass), kCounters, kNotify, kWake},
-                                     {entry_id, slot, sk->run, max_failures, error, block_bytes, sk->id});
+                                     {entry_id, slot, sk->run, *max_failures, error, block_bytes, sk->id});
       log(fmt::format("{}{}", error, r.as_int() == 2 ? " (delivery limit reached: the job fails)" : " (re-queued)"));
       return;
     }
@@ -432,6 +486,11 @@ class Worker {
   std::map<std::string, Compiled> kernels_;
   std::deque<std::string> kernel_order_;
   std::map<std::string, PassMeta> metas_;
+  struct LiveRun {
+    std::string run, max_failures;
+    Clock::time_point at;
+  };
+  std::map<std::string, LiveRun> live_;  // job key -> its run, lately confirmed live
   std::deque<std::string> meta_order_;
   std::atomic<uint64_t> blocks_done_{0};
   std::atomic<long long> lease_ms_{30000};

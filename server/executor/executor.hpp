@@ -38,8 +38,26 @@ struct PassWork {
   uint64_t pass = 0;  // JobState::passes when the pass was planned: with (job, epoch) it keys results
   std::vector<Block> blocks;
   std::string pass_input;
+  // The pass after this one, when it can be planned before this one's results are merged
+  // (JobRunner::plan_ahead), else null. An executor may start computing it early; it
+  // uses those results only if the pass pass_done returns for this one is the same
+  // (same_plan), and drops them otherwise.
+  std::shared_ptr<const PassWork> ahead;
   bool empty() const { return blocks.empty(); }
 };
+
+// Same pass number, blocks and input: results computed for one belong to the other.
+inline bool same_plan(const PassWork& a, const PassWork& b) {
+  if (a.pass != b.pass || a.pass_input != b.pass_input || a.blocks.size() != b.blocks.size()) return false;
+  for (size_t i = 0; i < a.blocks.size(); ++i) {
+    const Block &x = a.blocks[i], &y = b.blocks[i];
+    if (x.index != y.index || x.first_sample != y.first_sample || x.sample_count != y.sample_count ||
+        x.partition != y.partition) {
+      return false;
+    }
+  }
+  return true;
+}
 
 struct ExecutorCallbacks {
   // Every block of `done` has a result (results[i] belongs to done.blocks[i]): commit

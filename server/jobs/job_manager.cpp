@@ -33,6 +33,23 @@ std::string new_job_id() {
 
 std::string dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
 
+// The runner's next pass for an executor, with the one after it when that can be
+// planned already (JobRunner::plan_ahead). Empty when the job is finished.
+PassWork plan_next(JobRunner& r) {
+  PassWork w;
+  w.pass = r.state().passes;
+  w.blocks = r.plan_pass();
+  w.pass_input = r.pass_input();
+  if (w.empty()) return w;
+  if (auto blocks = r.plan_ahead()) {
+    auto ahead = std::make_shared<PassWork>();
+    ahead->pass = w.pass + 1;
+    ahead->blocks = std::move(*blocks);
+    w.ahead = std::move(ahead);
+  }
+  return w;
+}
+
 JobStatus status_of(const JobRunner& r) {
   switch (r.stop_reason()) {
     case StopReason::none: return JobStatus::running;
@@ -311,9 +328,7 @@ void JobManager::start_queued_locked() {
       if (job->started_at_ <= 0) job->started_at_ = unix_now();
       job->version_++;
       publish_state_locked(*job);
-      pass.pass = job->runner_->state().passes;
-      pass.blocks = job->runner_->plan_pass();
-      pass.pass_input = job->runner_->pass_input();
+      pass = plan_next(*job->runner_);
       if (pass.empty()) {
         finish_locked(*job, unix_now());
       } else {
@@ -425,11 +440,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     version = job->version_;
     job->publishing_ = true;  // until this pass's progress event is in the log (below)
     const bool cancel_now = job->cancel_requested_ && !r.finished();
-    if (!cancel_now && !r.finished()) {
-      next.pass = r.state().passes;
-      next.blocks = r.plan_pass();
-      next.pass_input = r.pass_input();
-    }
+    if (!cancel_now && !r.finished()) next = plan_next(r);
     if (cancel_now || r.finished() || next.empty()) {
       // The last pass: its events, then state and end, all under the lock (once per job).
       auto progress = std::make_shared<const std::string>(dump(progress_event_json(r)));

@@ -56,6 +56,94 @@ TEST(JobRunner, PassesAreMultiplesOfTheSampleQuantumUnlessALimitCuts) {
   EXPECT_EQ(c.state().samples, 12345u);
 }
 
+// Three partitions, passes in multiples of 8, planned from counts alone.
+class CountPlannedValues final : public Kernel {
+ public:
+  size_t channel_count() const override { return 1; }
+  uint32_t partition_count() const override { return 3; }
+  PassSchedule schedule() const override {
+    PassSchedule s{1000, 64000, 496};
+    s.sample_quantum = 8;
+    return s;
+  }
+  bool plans_from_counts() const override { return planned_from_counts; }
+  void run_block(const Block& b, BlockResult& out) const override { UniformValues().run_block(b, out); }
+  bool planned_from_counts = true;
+};
+
+std::vector<BlockResult> run_blocks(const Kernel& k, const std::vector<Block>& blocks) {
+  std::vector<BlockResult> out(blocks.size());
+  for (size_t i = 0; i < blocks.size(); ++i) {
+    out[i].block_index = blocks[i].index;
+    k.run_block(blocks[i], out[i]);
+  }
+  return out;
+}
+
+bool same_blocks(const std::vector<Block>& a, const std::vector<Block>& b) {
+  if (a.size() != b.size()) return false;
+  for (size_t i = 0; i < a.size(); ++i) {
+    if (a[i].index != b[i].index || a[i].first_sample != b[i].first_sample || a[i].sample_count != b[i].sample_count ||
+        a[i].partition != b[i].partition) {
+      return false;
+    }
+  }
+  return true;
+}
+
+// A cluster publishes the pass plan_ahead gives before the pass before it is merged:
+// it must be exactly the pass plan_pass returns after that commit, and there must be
+// none when the job stops there.
+TEST(JobRunner, PlanAheadIsThePassPlannedAfterTheCommit) {
+  for (uint64_t max : {300'001ull, 128'000ull, 999ull}) {
+    StopRule rule;
+    rule.max_samples = max;
+    auto kernel = std::make_shared<CountPlannedValues>();
+    JobRunner r(kernel, rule, JobCaps{});
+    std::vector<Block> pass = r.plan_pass();
+    size_t passes = 0, ahead_count = 0;
+    while (!pass.empty()) {
+      const std::optional<std::vector<Block>> ahead = r.plan_ahead();
+      r.commit_pass(run_blocks(*kernel, pass), 0.01);
+      ++passes;
+      pass = r.plan_pass();
+      if (ahead) {
+        ++ahead_count;
+        EXPECT_TRUE(same_blocks(*ahead, pass)) << "max " << max << ", after pass " << passes;
+      } else {
+        EXPECT_TRUE(pass.empty()) << "max " << max << ": nothing planned ahead, yet pass " << passes + 1 << " came";
+      }
+    }
+    EXPECT_EQ(r.state().samples, max);
+    EXPECT_EQ(ahead_count + 1, passes) << "every pass but the last is planned ahead";
+  }
+}
+
+TEST(JobRunner, NothingIsPlannedAheadWhenResultsCanChangeThePlan) {
+  auto kernel = std::make_shared<CountPlannedValues>();
+  StopRule target;
+  target.abs_error = 1e-3;  // pass sizes follow the error
+  JobRunner a(kernel, target, JobCaps{});
+  a.plan_pass();
+  EXPECT_FALSE(a.plan_ahead());
+  StopRule budget;
+  budget.time_budget_s = 10;  // pass sizes follow the measured rate
+  JobRunner b(kernel, budget, JobCaps{});
+  b.plan_pass();
+  EXPECT_FALSE(b.plan_ahead());
+  auto adaptive = std::make_shared<CountPlannedValues>();
+  adaptive->planned_from_counts = false;  // e.g. VEGAS, adaptive image tiles
+  StopRule count;
+  count.max_samples = 1'000'000;
+  JobRunner c(adaptive, count, JobCaps{});
+  c.plan_pass();
+  EXPECT_FALSE(c.plan_ahead());
+  JobRunner d(kernel, count, JobCaps{});
+  EXPECT_FALSE(d.plan_ahead()) << "no pass planned yet";
+  d.plan_pass();
+  EXPECT_TRUE(d.plan_ahead());
+}
+
 TEST(JobRunner, MaxSamplesStopsExactly) {
   StopRule rule;
   rule.max_samples = 12345;
