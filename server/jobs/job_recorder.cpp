@@ -1,6 +1,11 @@
 #include "server/jobs/job_recorder.hpp"
 
 #include <fmt/format.h>
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
 
 #include "common/engine/checkpoint.hpp"
 #include "common/log/log.hpp"
@@ -93,6 +98,12 @@ void JobRecorder::checkpoint_later(const std::shared_ptr<Job>& job) {
 }
 
 void JobRecorder::write_checkpoints(std::stop_token st) {
+  // Background work: below the request threads and the workers (Linux: per thread), so
+  // encoding a big image's checkpoint never delays a response; a checkpoint due while
+  // this one is still being written is skipped, and the final save is synchronous.
+  if (::setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), 10) != 0) {
+    log::warn("cannot lower the checkpoint thread's priority: {}", std::strerror(errno));
+  }
   std::unique_lock lock(checkpoint_mu_);
   for (;;) {
     checkpoint_cv_.wait(lock, st, [&] { return !checkpoints_.empty(); });
