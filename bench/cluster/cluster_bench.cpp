@@ -3,7 +3,8 @@
 //  1. Overhead at equal cores: the same job on tally-server --workers 2 (in process) and
 //     on tally-server --redis with one tally-worker --threads 2, interleaved A B B A ...
 //     (argv[1] pairs, default 9); the median of the pairs' ratios with its spread and the
-//     load average (goal: Redis <= 1.03x). Integration and lighting image.
+//     load average (goal: Redis <= 1.03x). Integration (the unit disk, ~30 us per block;
+//     a 6-D expression, ~20x the work per block) and the lighting image.
 //  2. Coordinator ceiling: a RedisExecutor driven directly with one-sample blocks (trivial
 //     work) and 2 worker threads: blocks/s published and merged, with one block per entry
 //     (worst case) and with the default entry sizing.
@@ -212,7 +213,7 @@ void ceiling(const std::string& url, size_t max_entry_blocks, size_t passes, siz
 
 int main(int argc, char** argv) {
   const int rounds = argc > 1 ? std::atoi(argv[1]) : 9;
-  // "reclaim": part 3 alone; "lighting" / "integration": that overhead alone.
+  // "reclaim": part 3 alone; "lighting" / "integration" / "heavy": that overhead alone.
   const std::string only = argc > 2 ? argv[2] : "";
   TempDir tmp;
   const fs::path sock = tmp.path / "r.sock";
@@ -224,7 +225,7 @@ int main(int argc, char** argv) {
   int rc = 0;
   std::vector<pid_t> pids;
   try {
-    if (only.empty() || only == "lighting" || only == "integration") {
+    if (only.empty() || only == "lighting" || only == "integration" || only == "heavy") {
     // 1. Overhead at equal cores.
     ServerProcess in_process(tmp.path / "a", {"--checkpoint-interval", "0.5"});
     ServerProcess cluster(tmp.path / "b", {"--redis", url, "--checkpoint-interval", "0.5"});
@@ -235,11 +236,27 @@ int main(int argc, char** argv) {
     if (only.empty() || only == "integration") {
       overhead("integration (unit disk, 4e8 samples)", disk_spec(400'000'000, 1), ca, cb, rounds, pids_a, pids_b);
     }
+    if (only.empty() || only == "heavy") {
+      // The same result size per block with ~20x the compute per block: the overhead is
+      // per result, so it shrinks with the work per block.
+      const json heavy = {{"kind", "integrate"},
+                          {"integrand",
+                           {{"expression",
+                             "exp(-(x0*x0+x1*x1+x2*x2+x3*x3+x4*x4+x5*x5)) * cos(x0*x1 + x2*x3 + x4*x5) * "
+                             "(1 + sin(x0+x1+x2+x3+x4+x5))"}}},
+                          {"domain", {{"type", "box"}, {"lower", json::array({0, 0, 0, 0, 0, 0})},
+                                      {"upper", json::array({1, 1, 1, 1, 1, 1})}}},
+                          {"seed", 1},
+                          {"stop", {{"max_samples", 20'000'000}}}};
+      overhead("integration (6-D expression)", heavy, ca, cb, rounds, pids_a, pids_b);
+    }
     std::ifstream in(std::string(TALLY_SOURCE_DIR) + "/examples/lecture_lighting_image.json");
     json image = json::parse(in);
     image["stop"] = {{"max_samples", 256}};
     image["query"].erase("adaptive");
-    if (only != "integration") overhead("lighting image (128x96, 256 spp)", image, ca, cb, rounds, pids_a, pids_b);
+    if (only.empty() || only == "lighting") {
+      overhead("lighting image (128x96, 256 spp)", image, ca, cb, rounds, pids_a, pids_b);
+    }
     in_process.terminate();
     cluster.terminate();
     reap(pids.back());
@@ -254,7 +271,7 @@ int main(int argc, char** argv) {
     reap(pids.back());
     pids.pop_back();
     }
-    if (only == "lighting" || only == "integration") {
+    if (only == "lighting" || only == "integration" || only == "heavy") {
       for (pid_t p : pids) reap(p);
       reap(redis);
       return 0;
