@@ -247,8 +247,8 @@ int main(int argc, char** argv) {
                           {"domain", {{"type", "box"}, {"lower", json::array({0, 0, 0, 0, 0, 0})},
                                       {"upper", json::array({1, 1, 1, 1, 1, 1})}}},
                           {"seed", 1},
-                          {"stop", {{"max_samples", 20'000'000}}}};
-      overhead("integration (6-D expression)", heavy, ca, cb, rounds, pids_a, pids_b);
+                          {"stop", {{"max_samples", 100'000'000}}}};
+      overhead("integration (6-D expression, 1e8 samples)", heavy, ca, cb, rounds, pids_a, pids_b);
     }
     std::ifstream in(std::string(TALLY_SOURCE_DIR) + "/examples/lecture_lighting_image.json");
     json image = json::parse(in);
