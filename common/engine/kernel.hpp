@@ -25,6 +25,7 @@ struct Block {
   uint64_t first_sample = 0;
   uint64_t sample_count = 0;
   uint32_t partition = 0;  // kernel-defined, e.g. an image tile; 0 for dense kernels
+  bool operator==(const Block&) const = default;
 };
 
 struct BlockResult {

@@ -48,15 +48,7 @@ struct PassWork {
 
 // Same pass number, blocks and input: results computed for one belong to the other.
 inline bool same_plan(const PassWork& a, const PassWork& b) {
-  if (a.pass != b.pass || a.pass_input != b.pass_input || a.blocks.size() != b.blocks.size()) return false;
-  for (size_t i = 0; i < a.blocks.size(); ++i) {
-    const Block &x = a.blocks[i], &y = b.blocks[i];
-    if (x.index != y.index || x.first_sample != y.first_sample || x.sample_count != y.sample_count ||
-        x.partition != y.partition) {
-      return false;
-    }
-  }
-  return true;
+  return a.pass == b.pass && a.pass_input == b.pass_input && a.blocks == b.blocks;
 }
 
 struct ExecutorCallbacks {

@@ -80,17 +80,6 @@ std::vector<BlockResult> run_blocks(const Kernel& k, const std::vector<Block>& b
   return out;
 }
 
-bool same_blocks(const std::vector<Block>& a, const std::vector<Block>& b) {
-  if (a.size() != b.size()) return false;
-  for (size_t i = 0; i < a.size(); ++i) {
-    if (a[i].index != b[i].index || a[i].first_sample != b[i].first_sample || a[i].sample_count != b[i].sample_count ||
-        a[i].partition != b[i].partition) {
-      return false;
-    }
-  }
-  return true;
-}
-
 // A cluster publishes the pass plan_ahead gives before the pass before it is merged:
 // it must be exactly the pass plan_pass returns after that commit, and there must be
 // none when the job stops there.
@@ -109,7 +98,7 @@ TEST(JobRunner, PlanAheadIsThePassPlannedAfterTheCommit) {
       pass = r.plan_pass();
       if (ahead) {
         ++ahead_count;
-        EXPECT_TRUE(same_blocks(*ahead, pass)) << "max " << max << ", after pass " << passes;
+        EXPECT_TRUE(*ahead == pass) << "max " << max << ", after pass " << passes;
       } else {
         EXPECT_TRUE(pass.empty()) << "max " << max << ": nothing planned ahead, yet pass " << passes + 1 << " came";
       }
