@@ -242,6 +242,7 @@
       this.lastEventId = null;
       this.lastPass = 0;
       this.ended = false;
+      this.endStatus = false;  // the status read at the end has arrived
       this.progress = null;
       this.points = [];          // convergence: [compute_seconds, error]
       this.tiles = new Map();    // tile -> {x, y, w, h, mean, se, samples, pass}
@@ -317,17 +318,22 @@
       }
       if (!w || !h) { $('image-box').hidden = true; this.image = null; return; }
       $('image-box').hidden = false;
-      if (this.image && this.image.w === w && this.image.h === h) return;
-      this.image = { w, h, tileSize: img ? img.tile_size : (s.spec.query.tile_size || 32),
-                     tileCount: img ? img.tiles : null };
-      this.canvas.width = w;
-      this.canvas.height = h;
-      this.ctx.fillStyle = '#000';
-      this.ctx.fillRect(0, 0, w, h);
-      // Draw whatever the job already has: every tile once.
+      if (!this.image || this.image.w !== w || this.image.h !== h) {
+        this.image = { w, h, tileSize: img ? img.tile_size : (s.spec.query.tile_size || 32),
+                       tileCount: img ? img.tiles : null };
+        this.canvas.width = w;
+        this.canvas.height = h;
+        this.ctx.fillStyle = '#000';
+        this.ctx.fillRect(0, 0, w, h);
+      }
+      // Draw whatever the job already has: every tile once, unless tile events have
+      // announced tiles already. Also at the end: a job that ended before the event
+      // stream connected sends a snapshot without tile events.
       const ts = this.image.tileSize;
       const count = this.image.tileCount || Math.ceil(w / ts) * Math.ceil(h / ts);
-      if ((s.passes || 0) > 0) for (let t = 0; t < count; ++t) this.dirty.set(t, s.passes);
+      if ((s.passes || 0) > 0 && this.tiles.size === 0 && this.dirty.size === 0 && this.inflight === 0) {
+        for (let t = 0; t < count; ++t) this.dirty.set(t, s.passes);
+      }
     }
 
     hasErrorTarget() {
@@ -449,7 +455,9 @@
       }
       this.lastFlush = 0;  // draw the final tiles now
       this.render();
-      this.loadStatus();
+      // Not settled before the final status is in (it may announce every tile).
+      this.endStatus = false;
+      this.loadStatus().finally(() => { this.endStatus = true; this.tick(); });
       refreshJobs();
     }
 
@@ -469,7 +477,7 @@
       if (this.dirty.size > 0 && this.inflight === 0 && now - this.lastFlush >= (this.ended ? 0 : this.interval())) {
         this.flush();
       }
-      hook.settled = this.ended && this.dirty.size === 0 && this.inflight === 0;
+      hook.settled = this.ended && this.endStatus && this.dirty.size === 0 && this.inflight === 0;
     }
 
     flush() {

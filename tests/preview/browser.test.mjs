@@ -159,6 +159,52 @@ describe('preview page', { concurrency: 1 }, () => {
     await page.close();
   });
 
+  test('a job that ends before the event stream connects is drawn from its final status', async () => {
+    // The race a loaded machine hits: the page reads the status while the job has no pass
+    // yet, the job ends, and only then the event stream connects; it gets a snapshot
+    // without tile events. The page must still draw every tile (from the status it reads
+    // at the end). Forced here: the first status read is answered as "no pass yet" and
+    // the event stream is held until the job has ended.
+    const page = await browser.context.newPage();
+    const errors = [];
+    page.on('pageerror', (e) => errors.push(String(e)));
+    let statusReads = 0;
+    await page.route(/\/v1\/jobs\/[0-9a-f]+$/, async (route) => {
+      if (route.request().method() !== 'GET' || statusReads++ > 0) return route.continue();
+      const real = await route.fetch();
+      const body = await real.json();
+      Object.assign(body, { state: 'running', stop_reason: 'none', passes: 0, samples: 0 });
+      return route.fulfill({ response: real, json: body });
+    });
+    await page.route(/\/v1\/jobs\/[0-9a-f]+\/events/, async (route) => {
+      const id = /\/v1\/jobs\/([0-9a-f]+)\/events/.exec(route.request().url())[1];
+      await waitFor(async () => (await (await fetch(`${server.url}/v1/jobs/${id}`)).json()).state === 'succeeded',
+        { what: 'the job to end before its stream connects', timeout: 60000 });
+      return route.continue();
+    });
+    const id = await submitExample(page, server.url, (spec) => {
+      spec.query.max_pass_spp = 4;
+      spec.stop = { max_samples: 16 };
+    });
+    await page.waitForFunction(() => window.tallyPreview.settled, null, { timeout: 60000 });
+    const h = await hook(page);
+    assert.ok(statusReads >= 2, `the status is read again at the end (${statusReads} reads)`);
+    assert.equal(h.tileEvents, 0, 'the snapshot of an ended job has no tile events');
+    assert.ok(h.tileFetches >= 12, `every tile is fetched once (${h.tileFetches} fetches)`);
+    const png = decodePng(Buffer.from(await (await fetch(`${server.url}/v1/jobs/${id}/image.png`)).arrayBuffer()));
+    const canvas = await page.evaluate(() => {
+      const c = document.getElementById('image');
+      return Array.from(c.getContext('2d').getImageData(0, 0, c.width, c.height).data);
+    });
+    let worst = 0;
+    for (let i = 0; i < png.data.length; i += 4) {
+      for (let c = 0; c < 3; ++c) worst = Math.max(worst, Math.abs(canvas[i + c] - png.data[i + c]));
+    }
+    assert.ok(worst <= 1, `canvas differs from the server's PNG by ${worst} levels`);
+    assert.deepEqual(errors, []);
+    await page.close();
+  });
+
   test('a cut connection and a dropped EventSource resume with no lost or duplicated pass', async () => {
     const proxy = await startProxy(server.port);
     const page = await browser.context.newPage();
