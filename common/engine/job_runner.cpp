@@ -127,6 +127,7 @@ std::vector<Block> JobRunner::plan_pass() {
   const uint64_t n = next_pass_samples(state_);
   pass_input_ = kernel_->pass_input(state_);
   pending_ = blocks_after(state_, n);
+  groups_ = tally::result_groups(pending_, kernel_->schedule().group_blocks);
   pending_samples_ = n;
   if (pending_.empty()) {
     // Nothing left to refine (adaptive sampling converged everywhere).
@@ -135,25 +136,43 @@ std::vector<Block> JobRunner::plan_pass() {
   return pending_;
 }
 
-std::optional<std::vector<Block>> JobRunner::plan_ahead() const {
+std::optional<JobState> JobRunner::counts_after(const JobState& s, const std::vector<Block>& pass,
+                                                uint64_t samples) const {
+  JobState next;
+  next.passes = s.passes + 1;
+  next.samples = s.samples + samples;
+  next.partition_samples = s.partition_samples;
+  for (const Block& b : pass) next.partition_samples.at(b.partition) += b.sample_count;
+  // evaluate_stop's rules that counts decide: the job ends after this pass.
+  if (rule_.max_samples > 0 && next.samples >= rule_.max_samples) return std::nullopt;
+  if (next.samples >= caps_.max_samples) return std::nullopt;
+  return next;
+}
+
+std::optional<std::vector<Block>> JobRunner::plan_ahead(bool* followed) const {
+  if (followed) *followed = false;
   if (finished() || pending_.empty() || !kernel_->plans_from_counts()) return std::nullopt;
   if (rule_.has_error_target() || rule_.time_budget_s > 0) return std::nullopt;
   // The counts the pending pass leaves (commit_pass adds exactly these).
-  JobState next;
-  next.passes = state_.passes + 1;
-  next.samples = state_.samples + pending_samples_;
-  next.partition_samples = state_.partition_samples;
-  for (const Block& b : pending_) next.partition_samples.at(b.partition) += b.sample_count;
-  // evaluate_stop's rules that counts decide: the job ends after the pending pass.
-  if (rule_.max_samples > 0 && next.samples >= rule_.max_samples) return std::nullopt;
-  if (next.samples >= caps_.max_samples) return std::nullopt;
-  std::vector<Block> blocks = blocks_after(next, next_pass_samples(next));
+  const std::optional<JobState> next = counts_after(state_, pending_, pending_samples_);
+  if (!next) return std::nullopt;
+  const uint64_t n = next_pass_samples(*next);
+  std::vector<Block> blocks = blocks_after(*next, n);
   if (blocks.empty()) return std::nullopt;
+  if (followed) {
+    const std::optional<JobState> after = counts_after(*next, blocks, n);
+    *followed = after && !blocks_after(*after, next_pass_samples(*after)).empty();
+  }
   return blocks;
 }
 
 void JobRunner::commit_pass(std::vector<BlockResult>&& results, double wall_seconds) {
   TALLY_CHECK_EQ(results.size(), pending_.size());  // one result per planned block
+  commit_groups(combine_groups(std::move(results), groups_), wall_seconds);
+}
+
+void JobRunner::commit_groups(std::vector<BlockResult>&& results, double wall_seconds) {
+  TALLY_CHECK_EQ(results.size(), groups_.size());  // one result per result group
   for (const BlockResult& r : results) {
     TALLY_CHECK_LE(r.counters.values.size(), state_.counter_names.size());  // only ids the kernel declared
   }
@@ -167,12 +186,16 @@ void JobRunner::commit_pass(std::vector<BlockResult>&& results, double wall_seco
     state_.tail.merge(r.tail);
     state_.weights.merge(r.weights);
     if (r.fault && !state_.fault) state_.fault = std::move(r.fault);
-    state_.partition_samples[pending_[i].partition] += pending_[i].sample_count;
+    const ResultGroup& g = groups_[i];
+    for (size_t b = g.first; b < g.first + g.count; ++b) {
+      state_.partition_samples[pending_[b].partition] += pending_[b].sample_count;
+    }
   }
   state_.samples += pending_samples_;
   state_.passes += 1;
   state_.compute_seconds += wall_seconds;
   pending_.clear();
+  groups_.clear();
   pending_samples_ = 0;
   push_trace();
   evaluate_stop();
@@ -218,12 +241,14 @@ void JobRunner::evaluate_stop() {
 void JobRunner::cancel() {
   if (!finished()) reason_ = StopReason::cancelled;
   pending_.clear();
+  groups_.clear();
 }
 
 void JobRunner::fail(std::string message) {
   reason_ = StopReason::failed;
   error_ = std::move(message);
   pending_.clear();
+  groups_.clear();
 }
 
 void JobRunner::extend(const StopRule& rule) {
@@ -231,6 +256,7 @@ void JobRunner::extend(const StopRule& rule) {
   rule_ = rule;
   reason_ = StopReason::none;
   pending_.clear();
+  groups_.clear();
   evaluate_stop();
 }
 

@@ -1,7 +1,7 @@
 #pragma once
 // Drives one job through progressive passes: plans each pass as a list of blocks,
-// merges their results in block order (so any thread count or chunking gives the
-// same bits), keeps the convergence trace and decides when to stop. It runs no
+// merges their results in block order, by result group (Kernel's PassSchedule::
+// group_blocks; so any thread count, chunking or machine gives the same bits), keeps the convergence trace and decides when to stop. It runs no
 // threads itself: the local executor (common/engine/local_executor.hpp) and the
 // server's scheduler both call plan_pass / commit_pass.
 #include <memory>
@@ -58,9 +58,17 @@ class JobRunner {
   // Else nullopt. An executor may compute it early (PassWork::ahead) and must use what
   // it computed only if the pass planned after the commit is equal: a stop the counts do
   // not foresee (a fault, the compute-time cap, a cancel) leaves it unused.
-  std::optional<std::vector<Block>> plan_ahead() const;
-  // `results[i]` belongs to the i-th planned block. `wall_seconds`: the pass's duration.
+  // `followed` (if given): whether the counts plan yet another pass after that one.
+  std::optional<std::vector<Block>> plan_ahead(bool* followed = nullptr) const;
+  // The pass just planned cut into result groups (result_groups with the kernel's
+  // group_blocks): commit_groups takes one combined result per group.
+  const std::vector<ResultGroup>& result_groups() const { return groups_; }
+  // `results[i]` belongs to the i-th planned block: combined by result group, then
+  // committed as commit_groups. `wall_seconds`: the pass's duration.
   void commit_pass(std::vector<BlockResult>&& results, double wall_seconds);
+  // `results[g]` is result group g's blocks combined in block order (combine_results),
+  // wherever that happened: the same bits as commit_pass of the blocks' results.
+  void commit_groups(std::vector<BlockResult>&& results, double wall_seconds);
 
   bool finished() const { return reason_ != StopReason::none; }
   StopReason stop_reason() const { return reason_; }
@@ -94,6 +102,9 @@ class JobRunner {
   // Samples of the pass after state `s` (the runner's, or plan_ahead's counts-only one).
   uint64_t next_pass_samples(const JobState& s) const;
   std::vector<Block> blocks_after(const JobState& s, uint64_t samples) const;
+  // The counts after `pass` (of `samples`) is committed to `s`; nullopt when the job
+  // ends there by its counts (its sample limit or cap).
+  std::optional<JobState> counts_after(const JobState& s, const std::vector<Block>& pass, uint64_t samples) const;
   void evaluate_stop();
   void push_trace();
 
@@ -104,6 +115,7 @@ class JobRunner {
   StopReason reason_ = StopReason::none;
   std::optional<std::string> error_;
   std::vector<Block> pending_;
+  std::vector<ResultGroup> groups_;
   std::string pass_input_;
   uint64_t pending_samples_ = 0;
 };

@@ -1,13 +1,55 @@
 #include "common/engine/kernel.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <fmt/format.h>
 #include <numeric>
+
+#include "common/engine/check.hpp"
 
 #include "common/engine/job_state.hpp"
 #include "common/stats/confidence.hpp"
 
 namespace tally {
+
+std::vector<ResultGroup> result_groups(std::span<const Block> blocks, uint64_t group_blocks) {
+  const uint64_t g = std::max<uint64_t>(1, group_blocks);
+  std::vector<ResultGroup> out;
+  for (size_t i = 0; i < blocks.size(); ++i) {
+    if (out.empty() || out.back().count >= g || blocks[i].partition != blocks[out.back().first].partition) {
+      out.push_back({i, 0});
+    }
+    out.back().count++;
+  }
+  return out;
+}
+
+void combine_results(BlockResult& acc, const BlockResult& next) {
+  TALLY_CHECK_EQ(acc.first_channel, next.first_channel);
+  TALLY_CHECK_EQ(acc.tallies.size(), next.tallies.size());
+  TALLY_CHECK_MSG(acc.aux.empty() && next.aux.empty(), "results with kernel accumulators (aux) are never combined");
+  for (size_t c = 0; c < acc.tallies.size(); ++c) acc.tallies[c].merge(next.tallies[c]);
+  acc.counters.merge(next.counters);
+  acc.tail.merge(next.tail);
+  acc.weights.merge(next.weights);
+  if (!acc.fault && next.fault) acc.fault = next.fault;
+}
+
+std::vector<BlockResult> combine_groups(std::vector<BlockResult>&& per_block, std::span<const ResultGroup> groups) {
+  size_t covered = 0;
+  for (const ResultGroup& g : groups) covered += g.count;
+  TALLY_CHECK_MSG(covered == per_block.size(), "{} result groups cover {} blocks, the pass has {}", groups.size(), covered,
+                  per_block.size());
+  if (groups.size() == per_block.size()) return std::move(per_block);  // every group is one block
+  std::vector<BlockResult> out;
+  out.reserve(groups.size());
+  for (const ResultGroup& g : groups) {
+    TALLY_CHECK_LE(g.first + g.count, per_block.size());
+    out.push_back(std::move(per_block[g.first]));
+    for (size_t i = g.first + 1; i < g.first + g.count; ++i) combine_results(out.back(), per_block[i]);
+  }
+  return out;
+}
 
 std::vector<uint32_t> Kernel::active_partitions(const JobState&) const {
   std::vector<uint32_t> all(partition_count());

@@ -19,7 +19,8 @@ namespace tally {
 struct JobState;
 
 // A unit of work: samples [first_sample, first_sample + sample_count) of one
-// partition. Blocks are merged in `index` order, whatever thread ran them.
+// partition. Blocks are merged in `index` order (by result group, below), whatever
+// thread or machine ran them.
 struct Block {
   uint64_t index = 0;
   uint64_t first_sample = 0;
@@ -65,7 +66,34 @@ struct PassSchedule {
   // Pass sizes are rounded up to a multiple of this (unless a sample limit forbids), e.g.
   // K so that K randomized-QMC replicates grow together.
   uint64_t sample_quantum = 1;
+  // The results of up to this many consecutive blocks of one partition are combined
+  // (combine_results, in block order) before they merge into the job's state: a pass
+  // merges by result group (result_groups), so the bits do not depend on where the
+  // combining happened, and an executor may combine where the blocks ran (a cluster
+  // worker sends one result per group, not per block). 1: every block merges alone.
+  // Kernels with BlockResult::aux (read by fold_pass) keep 1.
+  uint64_t group_blocks = 1;
 };
+
+// Consecutive blocks of a pass whose results combine before they merge: slots
+// [first, first + count) of the pass's block list.
+struct ResultGroup {
+  size_t first = 0;
+  size_t count = 0;
+  bool operator==(const ResultGroup&) const = default;
+};
+
+// A pass's blocks cut into result groups: a group ends after `group_blocks` blocks or
+// where the partition changes. Cutting any run of whole groups (e.g. a stream entry
+// that starts where a group starts and ends where one ends) gives the same groups.
+std::vector<ResultGroup> result_groups(std::span<const Block> blocks, uint64_t group_blocks);
+
+// Adds the result of the block after those `acc` holds (same partition, same channel
+// range, no aux) to `acc`: tallies, counters, tail and weights merge; the first fault in
+// block order stays. `acc` keeps its block_index (the group's first block).
+void combine_results(BlockResult& acc, const BlockResult& next);
+// One result per group from one result per block (moved from): what a pass merges.
+std::vector<BlockResult> combine_groups(std::vector<BlockResult>&& per_block, std::span<const ResultGroup> groups);
 
 class Kernel {
  public:
@@ -93,7 +121,8 @@ class Kernel {
     run_block(block, out);
   }
   // Adaptive kernels: fold a finished pass's results (in block order, before the
-  // runner merges them) into state.kernel_state, which the next pass_input reads.
+  // runner merges them; one per result group, i.e. per block for group_blocks 1) into
+  // state.kernel_state, which the next pass_input reads.
   // Must be deterministic in (pass_input, results, state). Default: nothing.
   virtual void fold_pass(std::string_view /*pass_input*/, const std::vector<BlockResult>& /*results*/,
                          JobState& /*state*/) const {}

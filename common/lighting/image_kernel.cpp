@@ -73,6 +73,10 @@ PassSchedule ImageKernel::schedule() const {
     s.block_samples = std::max<uint64_t>(1, s.block_samples / k_) * k_;
     s.sample_quantum = k_;
   }
+  // A tile's blocks of one pass merge 4 at a time (PassSchedule::group_blocks): a
+  // cluster worker sends a quarter of the per-pixel tallies, and a pass with 8 blocks
+  // per tile still has 2 groups per tile to spread over workers.
+  s.group_blocks = 4;
   return s;
 }
 

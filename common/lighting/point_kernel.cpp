@@ -41,6 +41,7 @@ PassSchedule PointKernel::schedule() const {
   }
   s.first_pass_samples = s.block_samples;
   s.max_pass_samples = s.block_samples * 512;
+  s.group_blocks = 16;  // results merge 16 blocks at a time (PassSchedule::group_blocks)
   return s;
 }
 

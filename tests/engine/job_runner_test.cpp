@@ -2,6 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
+
+#include "common/engine/checkpoint.hpp"
 #include "common/engine/local_executor.hpp"
 #include "common/rng/counter_rng.hpp"
 
@@ -92,14 +95,18 @@ TEST(JobRunner, PlanAheadIsThePassPlannedAfterTheCommit) {
     std::vector<Block> pass = r.plan_pass();
     size_t passes = 0, ahead_count = 0;
     while (!pass.empty()) {
-      const std::optional<std::vector<Block>> ahead = r.plan_ahead();
+      bool followed = true;
+      const std::optional<std::vector<Block>> ahead = r.plan_ahead(&followed);
       r.commit_pass(run_blocks(*kernel, pass), 0.01);
       ++passes;
       pass = r.plan_pass();
       if (ahead) {
         ++ahead_count;
         EXPECT_TRUE(*ahead == pass) << "max " << max << ", after pass " << passes;
+        // `followed` foretells whether the pass after this one can be planned ahead too.
+        EXPECT_EQ(followed, r.plan_ahead().has_value()) << "max " << max << ", after pass " << passes;
       } else {
+        EXPECT_FALSE(followed);
         EXPECT_TRUE(pass.empty()) << "max " << max << ": nothing planned ahead, yet pass " << passes + 1 << " came";
       }
     }
@@ -131,6 +138,96 @@ TEST(JobRunner, NothingIsPlannedAheadWhenResultsCanChangeThePlan) {
   EXPECT_FALSE(d.plan_ahead()) << "no pass planned yet";
   d.plan_pass();
   EXPECT_TRUE(d.plan_ahead());
+}
+
+// Three tiles of two channels whose values span magnitudes (so the order of merging
+// shows in the last bits), results combined 3 blocks at a time.
+class GroupedTiles final : public Kernel {
+ public:
+  size_t channel_count() const override { return 6; }
+  uint32_t partition_count() const override { return 3; }
+  PassSchedule schedule() const override {
+    PassSchedule s{250, 4000, 100};
+    s.group_blocks = 3;
+    return s;
+  }
+  bool plans_from_counts() const override { return true; }
+  void run_block(const Block& b, BlockResult& out) const override {
+    const uint64_t key = stream_key(11, b.partition);
+    out.first_channel = 2 * b.partition;
+    out.tallies.assign(2, Tally{});
+    for (uint64_t i = 0; i < b.sample_count; ++i) {
+      SampleRng rng(key, b.first_sample + i);
+      const double v = std::exp(8.0 * rng.uniform(0)) * (1.0 + b.partition);
+      out.tallies[0].add(v);
+      out.tallies[1].add(1.0 / v);
+      out.tail.offer(v);
+      out.weights.add(rng.uniform(1));
+    }
+  }
+};
+
+TEST(ResultGroups, CutAtTheGroupSizeAndWherePartitionsChange) {
+  std::vector<Block> blocks;
+  for (uint32_t p : {0u, 0u, 0u, 0u, 0u, 1u, 1u, 2u, 2u, 2u, 2u, 2u, 2u, 2u, 2u, 2u}) {
+    blocks.push_back(Block{blocks.size(), 0, 1, p});
+  }
+  const std::vector<ResultGroup> want = {{0, 4}, {4, 1}, {5, 2}, {7, 4}, {11, 4}, {15, 1}};
+  EXPECT_EQ(result_groups(blocks, 4), want);
+  EXPECT_EQ(result_groups(blocks, 1).size(), blocks.size());
+  EXPECT_EQ(result_groups(blocks, 0).size(), blocks.size()) << "0 means 1";
+  // A run of whole groups (a cluster entry) cut alone gives the same groups.
+  for (size_t a = 0; a < want.size(); ++a) {
+    for (size_t b = a + 1; b <= want.size(); ++b) {
+      const size_t first = want[a].first, end = want[b - 1].first + want[b - 1].count;
+      const std::vector<ResultGroup> part =
+          result_groups(std::span<const Block>(blocks).subspan(first, end - first), 4);
+      ASSERT_EQ(part.size(), b - a);
+      for (size_t i = 0; i < part.size(); ++i) {
+        EXPECT_EQ(part[i].first + first, want[a + i].first);
+        EXPECT_EQ(part[i].count, want[a + i].count);
+      }
+    }
+  }
+}
+
+TEST(JobRunner, ResultsCombinedWhereTheBlocksRanGiveTheSameBits) {
+  // What a cluster worker does (combine each group's results, send one per group) and
+  // what commit_pass does with per-block results must be the same arithmetic.
+  auto kernel = std::make_shared<GroupedTiles>();
+  StopRule rule;
+  rule.max_samples = 9000;
+  JobRunner a(kernel, rule, JobCaps{}), b(kernel, rule, JobCaps{});
+  Tally per_block;  // channel 0 merged block by block, as before result groups
+  size_t passes = 0, grouped = 0;
+  for (std::vector<Block> pass = a.plan_pass(); !pass.empty(); pass = a.plan_pass()) {
+    ASSERT_EQ(b.plan_pass(), pass);
+    ASSERT_EQ(a.result_groups(), b.result_groups());
+    std::vector<BlockResult> results = run_blocks(*kernel, pass);
+    for (size_t i = 0; i < pass.size(); ++i) {
+      if (pass[i].partition == 0) per_block.merge(results[i].tallies[0]);
+    }
+    std::vector<BlockResult> combined;
+    for (const ResultGroup& g : b.result_groups()) {
+      BlockResult acc = results[g.first];
+      for (size_t i = g.first + 1; i < g.first + g.count; ++i) combine_results(acc, results[i]);
+      EXPECT_EQ(acc.block_index, pass[g.first].index);
+      combined.push_back(std::move(acc));
+      grouped += g.count > 1;
+    }
+    a.commit_pass(std::move(results), 0.01);
+    b.commit_groups(std::move(combined), 0.01);
+    ++passes;
+  }
+  EXPECT_GT(passes, 3u);
+  EXPECT_GT(grouped, 10u) << "most groups hold several blocks";
+  EXPECT_EQ(a.state().samples, 9000u);
+  EXPECT_EQ(encode_checkpoint(a.state()), encode_checkpoint(b.state())) << "bit-identical states";
+  // The grouping is in effect: merging block by block rounds differently.
+  const Tally& t = a.state().channels[0];
+  EXPECT_EQ(t.n, per_block.n);
+  EXPECT_NEAR(t.mean, per_block.mean, 1e-12 * std::fabs(t.mean));
+  EXPECT_FALSE(t == per_block) << "groups of 3 combine before they merge";
 }
 
 TEST(JobRunner, MaxSamplesStopsExactly) {
