@@ -168,6 +168,7 @@ void ceiling(const std::string& url, size_t max_entry_blocks, size_t passes, siz
     PassWork w;
     w.pass = pass;
     for (size_t i = 0; i < blocks_per_pass; ++i) w.blocks.push_back(Block{i, pass * blocks_per_pass + i, 1, 0});
+    w.groups = result_groups(w.blocks, 1);  // every block's result travels alone: the worst case
     return w;
   };
   ExecutorCallbacks cb;

@@ -8,7 +8,9 @@
 //   tally:s:{id}:{run}:{pass}       stream of the pass's blocks, k consecutive ones per
 //                                   entry (b = blocks, s = first slot), consumer group "w"
 //   tally:p:{id}:{run}:{pass}       hash: n (blocks in the pass), e (entries in the pass),
-//                                   input (pass input bytes), done (blocks stored)
+//                                   input (pass input bytes), g (result group size: an
+//                                   entry's results are one per result_groups(its
+//                                   blocks, g)), done (blocks stored)
 //   tally:r:{id}:{run}:{pass}       hash: first slot of an entry -> the entry's results
 //                                   (append_entry_result, one field per entry; first wins)
 //   tally:d:{id}:{run}:{pass}       hash: first slot of an entry -> sha1 of its first
@@ -17,7 +19,7 @@
 //   tally:f:{id}:{run}:{pass}       hash: slot -> failed deliveries
 //   tally:active                    set of the stream keys workers read
 //   tally:wake                      stream the coordinator appends to when work appears
-//   tally:notify                    list of job ids whose pass is complete
+//   tally:notify                    list of job ids whose pass is complete (and kWakeMarker)
 //   tally:counters                  hash: first, dup_equal, dup_differ, stale, failures
 //   tally:workers                   zset name -> last heartbeat (unix s)
 //   tally:worker:{name}             hash: name, host, threads, heartbeat, blocks_done, current_job
@@ -34,6 +36,8 @@ inline constexpr std::string_view kGroup = "w";
 inline constexpr std::string_view kActive = "tally:active";
 inline constexpr std::string_view kWake = "tally:wake";
 inline constexpr std::string_view kNotify = "tally:notify";
+// Pushed to kNotify by the coordinator's own waker (a job was added or cancelled): not a job id.
+inline constexpr std::string_view kWakeMarker = "~wake";
 inline constexpr std::string_view kCounters = "tally:counters";
 inline constexpr std::string_view kWorkers = "tally:workers";
 
@@ -53,7 +57,8 @@ inline std::string worker_key(std::string_view name) { return "tally:worker:" + 
 inline std::string asset_key(std::string_view sha) { return "tally:asset:" + std::string(sha); }
 
 // An entry of a pass stream holds k consecutive blocks (fields b = k encoded blocks,
-// s = slot of the first): the coordinator sizes k so an entry takes ~20 ms to compute,
+// s = slot of the first), whole result groups (PassWork::groups), whose results the
+// worker combines and stores one per group: the coordinator sizes k so an entry takes ~20 ms to compute,
 // and a pass keeps its partition into entries when it is published again (after a
 // reconnect or a Redis restart), so an entry's first slot names the same blocks in every
 // delivery.

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <set>
 
+#include "common/engine/check.hpp"
 #include "common/log/log.hpp"
 #include "server/cluster/protocol.hpp"
 #include "server/cluster/wire.hpp"
@@ -34,6 +35,35 @@ RedisExecutor::RedisExecutor(RedisExecutorConfig config, ExecutorCallbacks callb
     : cfg_(std::move(config)), cb_(std::move(callbacks)) {
   not_ready_ = fmt::format("connecting to redis at {}", cfg_.url.display());
   thread_ = std::thread([this] { loop(); });
+  waker_ = std::thread([this] { wake_loop(); });
+}
+
+void RedisExecutor::wake() {
+  {
+    std::lock_guard lock(mu_);
+    wake_ = true;
+  }
+  wake_cv_.notify_all();
+}
+
+void RedisExecutor::wake_loop() {
+  std::unique_ptr<RedisConn> conn;
+  for (;;) {
+    {
+      std::unique_lock lock(mu_);
+      wake_cv_.wait(lock, [&] { return stopping_ || wake_; });
+      if (stopping_) return;
+      wake_ = false;
+    }
+    try {
+      if (!conn) conn = std::make_unique<RedisConn>(cfg_.url, std::chrono::milliseconds(1000));
+      conn->cmd({"RPUSH", kNotify, kWakeMarker});
+    } catch (const std::exception& e) {
+      // Harmless: the coordinator's wait ends by its timeout (<= 50 ms) anyway.
+      conn.reset();
+      log::write(log::Level::debug, "", fmt::format("cluster waker: {}", e.what()));
+    }
+  }
 }
 
 RedisExecutor::~RedisExecutor() { stop(); }
@@ -44,7 +74,9 @@ void RedisExecutor::stop() {
     stopping_ = true;
   }
   cv_.notify_all();
+  wake_cv_.notify_all();
   if (thread_.joinable()) thread_.join();
+  if (waker_.joinable()) waker_.join();
   std::lock_guard lock(mu_);
   jobs_.clear();
 }
@@ -82,6 +114,7 @@ void RedisExecutor::add(ExecutorJob ej, PassWork first_pass) {
     jobs_[id] = std::move(job);
   }
   cv_.notify_all();
+  wake();
 }
 
 RedisExecutor::Job* RedisExecutor::find(const std::string& id) const {
@@ -98,6 +131,7 @@ bool RedisExecutor::cancel(const std::string& id) {
     it->second->cancel_requested = true;
   }
   cv_.notify_all();
+  wake();
   return true;
 }
 
@@ -238,12 +272,14 @@ void RedisExecutor::step() {
   std::vector<std::string> notified;
   const RValue r = conn_->cmd({"BLPOP", kNotify, running || !to_publish.empty() ? "0.01" : "0.05"});
   notified_at_ = Clock::now();
+  bool woken = false;  // by the waker (add, cancel) or a pass
   if (r.is_array() && r.elems.size() == 2) {
-    notified.push_back(r.elems[1].str);
+    woken = true;
+    if (r.elems[1].str != kWakeMarker) notified.push_back(r.elems[1].str);
     for (int i = 0; i < 1000; ++i) {
       const RValue more = conn_->cmd({"LPOP", kNotify});
       if (more.is_nil()) break;
-      notified.push_back(more.str);
+      if (more.str != kWakeMarker) notified.push_back(more.str);
     }
   }
   const auto now = Clock::now();
@@ -253,7 +289,7 @@ void RedisExecutor::step() {
   } else if (!notified.empty()) {
     poll(notified);
   }
-  if (notified.empty()) prefetch();
+  if (!woken) prefetch();
   if (now - last_refresh_ >= std::chrono::milliseconds(500)) {
     last_refresh_ = now;
     refresh();
@@ -323,7 +359,8 @@ void RedisExecutor::publish_pass(Job& job, PassRun& pass) {
   }
   // The whole pass in one round trip (workers without work wait until this lands).
   const std::string n_s = std::to_string(n), e_s = std::to_string(pass.entries.size());
-  conn_->append({"HSET", p, "n", n_s, "e", e_s, "input", pass.work.pass_input});
+  const std::string g_s = std::to_string(pass.group_blocks);
+  conn_->append({"HSET", p, "n", n_s, "e", e_s, "input", pass.work.pass_input, "g", g_s});
   conn_->append({"DEL", s});
   conn_->append({"XGROUP", "CREATE", s, kGroup, "$", "MKSTREAM"});
   for (const auto& [first, bytes] : entries) conn_->append({"XADD", s, "*", "b", bytes, "s", first});
@@ -346,7 +383,11 @@ void RedisExecutor::plan_entries(const Job& job, PassRun& pass) {
   // Entry sizes by guided self-scheduling: each entry takes 1/(2T) of what is left (T:
   // live worker threads), at most ~20 ms and at least ~2 ms of work (from the workers'
   // measured time per block), so a pass starts with few big entries and ends with
-  // small ones, and the last worker to finish waits for little.
+  // small ones, and the last worker to finish waits for little. A pass with another
+  // planned after it (PassWork::followed) needs no small tail (workers go on with the
+  // next pass): its entries are equal, 1/(2T) of the pass (within the same bounds),
+  // so there are fewer round trips per block. Entries end where a result group ends: a
+  // worker combines each group's blocks and sends one result.
   size_t k_max = 1, k_min = 1, threads = 1;
   {
     std::lock_guard lock(mu_);
@@ -360,18 +401,35 @@ void RedisExecutor::plan_entries(const Job& job, PassRun& pass) {
     k_max = std::clamp<size_t>(k_max, 1, std::max<size_t>(1, cfg_.max_entry_blocks));
     k_min = std::min(k_min, k_max);
   }
+  const std::vector<ResultGroup>& groups = pass.work.groups;
   const size_t n = pass.work.blocks.size();
+  // The groups are the ones result_groups cuts with their largest size: a worker cuts
+  // its entry's blocks the same way from that one number (the pass hash's "g").
+  size_t g = 1, covered = 0;
+  for (const ResultGroup& r : groups) {
+    g = std::max(g, r.count);
+    covered += r.count;
+  }
+  TALLY_CHECK_MSG(covered == n && result_groups(pass.work.blocks, g) == groups,
+                  "pass {} of job {}: its result groups are not result_groups(blocks, {})", pass.work.pass, job.ej.id, g);
   std::vector<std::pair<size_t, size_t>> entries;
+  std::vector<size_t> entry_groups;
   size_t largest = 1;
-  for (size_t first = 0; first < n;) {
+  for (size_t gi = 0; gi < groups.size();) {
+    const size_t first = groups[gi].first;
     const size_t left = n - first;
-    const size_t k = std::min(left, std::clamp((left + 2 * threads - 1) / (2 * threads), k_min, k_max));
+    const size_t share = pass.work.followed ? n : left;  // of the pass, or of what is left
+    const size_t want = std::min(left, std::clamp((share + 2 * threads - 1) / (2 * threads), k_min, k_max));
+    size_t k = 0;
+    entry_groups.push_back(gi);
+    while (gi < groups.size() && (k == 0 || k + groups[gi].count <= want)) k += groups[gi++].count;
     entries.emplace_back(first, k);
     largest = std::max(largest, k);
-    first += k;
   }
   std::lock_guard lock(mu_);
   pass.entries = std::move(entries);
+  pass.entry_groups = std::move(entry_groups);
+  pass.group_blocks = g;
   pass.entry_blocks = largest;
 }
 
@@ -461,9 +519,9 @@ void RedisExecutor::poll(const std::vector<std::string>& ids) {
 
 std::string RedisExecutor::read_results(Job& job, PassRun& run, bool prefetch, size_t& bytes) {
   const PassWork& pass = run.work;
-  const size_t n = pass.blocks.size();
-  if (run.got.size() != n) {
-    run.got.assign(n, std::nullopt);
+  const size_t ng = pass.groups.size();
+  if (run.got.size() != ng) {
+    run.got.assign(ng, std::nullopt);
     run.got_count = 0;
   }
   const std::string r = pass_key('r', job.ej.id, job.run, pass.pass);
@@ -484,11 +542,11 @@ std::string RedisExecutor::read_results(Job& job, PassRun& run, bool prefetch, s
       }
       const auto e = entry_at(first);
       if (!e) return fmt::format("result field {} is not the first slot of an entry of the pass", first);
-      if (!run.got[first]) want.push_back(*e);
+      if (!run.got[run.entry_groups[*e]]) want.push_back(*e);
     }
   } else {
     for (size_t e = 0; e < run.entries.size(); ++e) {
-      if (!run.got[run.entries[e].first]) want.push_back(e);
+      if (!run.got[run.entry_groups[e]]) want.push_back(e);
     }
   }
   if (want.empty()) return {};
@@ -500,25 +558,30 @@ std::string RedisExecutor::read_results(Job& job, PassRun& run, bool prefetch, s
   if (v.type == RValue::Type::error) throw RedisReplyError("HMGET: " + v.str);
   for (size_t i = 0; i < want.size() && i < v.elems.size(); ++i) {
     if (v.elems[i].is_nil()) continue;
-    const auto [first, count] = run.entries[want[i]];
+    const size_t e = want[i];
+    const size_t first = run.entries[e].first;
+    const size_t g0 = run.entry_groups[e];
+    const size_t g1 = e + 1 < run.entry_groups.size() ? run.entry_groups[e + 1] : ng;
     std::vector<BlockResult> res;
     try {
       res = decode_entry_results(v.elems[i].str);
-    } catch (const WireError& e) {
-      return fmt::format("the results of the entry at block slot {} cannot be decoded: {}", first, e.what());
+    } catch (const WireError& err) {
+      return fmt::format("the results of the entry at block slot {} cannot be decoded: {}", first, err.what());
     }
-    if (res.size() != count) {
-      return fmt::format("the entry at block slot {} has {} results, expected {}", first, res.size(), count);
+    if (res.size() != g1 - g0) {
+      return fmt::format("the entry at block slot {} has {} results, expected {} (one per result group)", first,
+                         res.size(), g1 - g0);
     }
-    for (size_t j = 0; j < count; ++j) {
-      if (res[j].block_index != pass.blocks[first + j].index) {
-        return fmt::format("the result in slot {} belongs to block {}, expected {}", first + j, res[j].block_index,
-                           pass.blocks[first + j].index);
+    for (size_t j = 0; j < res.size(); ++j) {
+      const size_t slot = pass.groups[g0 + j].first;
+      if (res[j].block_index != pass.blocks[slot].index) {
+        return fmt::format("the result in slot {} belongs to block {}, expected {}", slot, res[j].block_index,
+                           pass.blocks[slot].index);
       }
     }
     bytes += v.elems[i].str.size();
-    for (size_t j = 0; j < count; ++j) run.got[first + j] = std::move(res[j]);
-    run.got_count += count;
+    for (size_t j = 0; j < res.size(); ++j) run.got[g0 + j] = std::move(res[j]);
+    run.got_count += res.size();
   }
   return {};
 }
@@ -558,8 +621,9 @@ void RedisExecutor::merge(const std::string& id) {
   PassRun& run = job->cur;
   const PassWork& pass = run.work;
   const size_t n = pass.blocks.size();
+  const size_t ng = pass.groups.size();
   const auto t_read = Clock::now();
-  const size_t had = run.got.size() == n ? run.got_count : 0;
+  const size_t had = run.got.size() == ng ? run.got_count : 0;
   size_t result_bytes = 0;
   const std::string error = read_results(*job, run, false, result_bytes);
   if (!error.empty()) {
@@ -567,12 +631,12 @@ void RedisExecutor::merge(const std::string& id) {
     leave(id, true, error);
     return;
   }
-  if (run.got_count < n) return;  // not complete yet
+  if (run.got_count < ng) return;  // not complete yet
   const double read_ms = ms_since(t_read);
   const RValue m = conn_->cmd({"HMGET", job_key(id), "compute_s", "computed"});
   const auto t_decode = Clock::now();
-  std::vector<BlockResult> results(n);
-  for (size_t i = 0; i < n; ++i) results[i] = std::move(*run.got[i]);
+  std::vector<BlockResult> results(ng);
+  for (size_t i = 0; i < ng; ++i) results[i] = std::move(*run.got[i]);
   run.got.clear();
   run.got_count = 0;
   const double decode_ms = ms_since(t_decode);
@@ -673,10 +737,11 @@ void RedisExecutor::merge(const std::string& id) {
   if (adopted) conn_->cmd({"RPUSH", kNotify, id});
   // One line per pass boundary: where the coordinator's serial time goes.
   log::job(log::Level::debug, id,
-           "pass {} ({} blocks, {} read before the end, {} result bytes read at the end): noticed {:.3f} ms after "
+           "pass {} ({} blocks, {} result groups, {} read before the end, {} result bytes read at the end): noticed "
+           "{:.3f} ms after "
            "BLPOP returned, read + decode {:.3f} ms, collect {:.3f} ms, merge {:.3f} ms, publish {:.3f} ms ({} "
            "entries{}), boundary {:.3f} ms; at unix {:.6f}",
-           pass_no, n, had, result_bytes, std::chrono::duration<double, std::milli>(t_read - notified_at_).count(),
+           pass_no, n, ng, had, result_bytes, std::chrono::duration<double, std::milli>(t_read - notified_at_).count(),
            read_ms, decode_ms, merge_ms, ms_since(t_publish), job->cur.entries.size(),
            adopted ? ", published ahead" : "",
            std::chrono::duration<double, std::milli>(Clock::now() - notified_at_).count(), unix_seconds());

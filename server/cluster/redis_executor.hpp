@@ -80,10 +80,14 @@ class RedisExecutor final : public Executor {
     // its first publication and kept when it is published again, so a late result of an
     // entry from before a reconnect covers exactly the blocks of an entry published
     // after it (protocol.hpp).
+    // Entries hold whole result groups (PassWork::groups): entry e's results are groups
+    // [entry_groups[e], entry_groups[e + 1]), one combined result each.
     std::vector<std::pair<size_t, size_t>> entries;
+    std::vector<size_t> entry_groups;
+    size_t group_blocks = 1;  // the group size the groups were cut with (result_groups)
     size_t entry_blocks = 1;  // blocks in the largest entry
-    // Results read and decoded so far (slot order). They are read while the pass runs,
-    // so the pass boundary reads only the last entries.
+    // Results read and decoded so far, one per result group in order. They are read
+    // while the pass runs, so the pass boundary reads only the last entries.
     std::vector<std::optional<BlockResult>> got;
     size_t got_count = 0;
     bool published = false;      // in Redis now
@@ -108,11 +112,16 @@ class RedisExecutor final : public Executor {
 
   void loop();
   void step();
+  // The waker thread: on add/cancel it pushes kWakeMarker to the notify list the
+  // coordinator blocks on (BLPOP cannot be interrupted otherwise), so a new job is
+  // published at once, not when the wait times out. Its own connection.
+  void wake_loop();
+  void wake();
   bool connect();
   // Publishes the job's passes that are not in Redis (the current one, then the one ahead).
   void publish(Job& job);
   void publish_pass(Job& job, PassRun& pass);
-  // Cuts a pass into stream entries (PassRun::entries).
+  // Cuts a pass into stream entries of whole result groups (PassRun::entries).
   void plan_entries(const Job& job, PassRun& pass);
   // Deletes a pass's keys (stream, inputs, results, failures, digests).
   void delete_pass_keys(const Job& job, uint64_t pass);
@@ -154,7 +163,9 @@ class RedisExecutor final : public Executor {
   ClusterCounters counters_;
   uint64_t samples_done_ = 0;
   bool stopping_ = false;
-  std::thread thread_;
+  bool wake_ = false;
+  std::condition_variable wake_cv_;
+  std::thread thread_, waker_;
 };
 
 }  // namespace tally::cluster

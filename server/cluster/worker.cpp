@@ -50,6 +50,7 @@ struct Compiled {
 struct PassMeta {
   uint64_t entries = 0;  // stream entries the pass is cut into (its result fields)
   std::string input;
+  uint64_t group_blocks = 1;  // result groups: result_groups(an entry's blocks, this)
 };
 
 struct StreamKey {
@@ -342,11 +343,12 @@ class Worker {
       std::lock_guard lock(mu_);
       if (auto it = metas_.find(p); it != metas_.end()) return it->second;
     }
-    const RValue h = conn.cmd({"HMGET", p, "e", "input"});
-    if (h.elems.size() != 2 || h.elems[0].is_nil()) return std::nullopt;
+    const RValue h = conn.cmd({"HMGET", p, "e", "input", "g"});
+    if (h.elems.size() != 3 || h.elems[0].is_nil()) return std::nullopt;
     PassMeta m;
     m.entries = static_cast<uint64_t>(h.elems[0].as_int());
     m.input = h.elems[1].str;
+    if (!h.elems[2].is_nil()) m.group_blocks = static_cast<uint64_t>(std::max<long long>(1, h.elems[2].as_int()));
     std::lock_guard lock(mu_);
     metas_[p] = m;
     meta_order_.push_back(p);
@@ -415,7 +417,7 @@ class Worker {
       held_[t] = Held{stream, entry_id, consumer, sk->id};
     }
     std::string results;  // the entry's results, one hash field (append_entry_result)
-    size_t result_count = 0;
+    size_t block_count = 0;
     std::string error;
     uint64_t block_index = 0;
     const auto t0 = Clock::now();
@@ -423,14 +425,24 @@ class Worker {
     try {
       const std::vector<Block> blocks = decode_blocks(block_bytes);
       if (!c.error.empty()) throw std::runtime_error(c.error);
-      for (const Block& block : blocks) {
-        block_index = block.index;
-        BlockResult out;
-        out.block_index = block.index;
-        c.kernel->run_block_with(block, meta->input, out);
-        append_entry_result(results, encode_result(out));
-        ++result_count;
+      // One result per result group: its blocks combined in block order, as the
+      // coordinator's JobRunner would combine them (the same bits as in process).
+      for (const ResultGroup& g : result_groups(blocks, meta->group_blocks)) {
+        BlockResult group;
+        for (size_t i = g.first; i < g.first + g.count; ++i) {
+          block_index = blocks[i].index;
+          BlockResult out;
+          out.block_index = blocks[i].index;
+          c.kernel->run_block_with(blocks[i], meta->input, out);
+          if (i == g.first) {
+            group = std::move(out);
+          } else {
+            combine_results(group, out);
+          }
+        }
+        append_entry_result(results, encode_result(group));
       }
+      block_count = blocks.size();
     } catch (const std::exception& e) {
       error = fmt::format("block {} (slot {}) of job {} failed on worker {}: {}", block_index, slot, sk->id, cfg_.name,
                           e.what());
@@ -449,7 +461,7 @@ class Worker {
     }
     const std::string entries = std::to_string(meta->entries);
     const std::string secs_s = fmt::format("{:.9f}", secs);
-    const std::string k = std::to_string(result_count);
+    const std::string k = std::to_string(block_count);
     const std::string digest = result_digest(results);
     const size_t bytes = results.size();
     const std::vector<std::string_view> args = {slot, entry_id, sk->run, entries, sk->id, secs_s, k, results, digest};
@@ -460,7 +472,7 @@ class Worker {
                                     pass_key('p', sk->id, sk->run, sk->pass)},
                                    args);
     const double store_ms = std::chrono::duration<double, std::milli>(Clock::now() - t_store).count();
-    blocks_done_.fetch_add(result_count);
+    blocks_done_.fetch_add(block_count);
     if (r.elems.size() == 4) {
       if (r.elems[1].integer > 0) {
         log(fmt::format("duplicate result for {} block(s) from slot {} of job {} pass {}: compared, identical",
@@ -473,7 +485,7 @@ class Worker {
       if (cfg_.verbose) {
         log(fmt::format("entry {} of job {} pass {}: first {} stale {}; {} blocks, {} result bytes; got at unix {:.6f}, "
                         "prepare {:.3f} ms, compute {:.3f} ms, store {:.3f} ms",
-                        slot, sk->id, sk->pass, r.elems[0].integer, r.elems[3].integer, result_count, bytes, unix_got,
+                        slot, sk->id, sk->pass, r.elems[0].integer, r.elems[3].integer, block_count, bytes, unix_got,
                         prep_ms, secs * 1e3, store_ms));
       }
     }

@@ -1,8 +1,9 @@
 #pragma once
 // The seam between job management and computation. The manager hands an executor the
 // blocks of one pass of a job; the executor computes them wherever it likes (threads in
-// this process, workers behind Redis) and hands the whole pass back, results in block
-// order, through ExecutorCallbacks::pass_done. Merge order, checkpoints, events and the
+// this process, workers behind Redis) and hands the whole pass back, one result per
+// result group in block order (the blocks of a group combined, combine_results),
+// through ExecutorCallbacks::pass_done. Merge order, checkpoints, events and the
 // stop rule live above this seam and never know which executor ran.
 //
 // Implementations: InProcessExecutor (server/executor/in_process_executor.hpp, the
@@ -37,23 +38,32 @@ struct ExecutorJob {
 struct PassWork {
   uint64_t pass = 0;  // JobState::passes when the pass was planned: with (job, epoch) it keys results
   std::vector<Block> blocks;
+  // `blocks` cut into result groups (JobRunner::result_groups): pass_done takes one
+  // combined result per group.
+  std::vector<ResultGroup> groups;
   std::string pass_input;
   // The pass after this one, when it can be planned before this one's results are merged
   // (JobRunner::plan_ahead), else null. An executor may start computing it early; it
   // uses those results only if the pass pass_done returns for this one is the same
   // (same_plan), and drops them otherwise.
   std::shared_ptr<const PassWork> ahead;
+  // Another pass is planned after this one before this one is merged (for the current
+  // pass: `ahead` is set; for a pass ahead: JobRunner::plan_ahead's `followed`). Then
+  // nothing waits for this pass's last block, and an executor need not cut its end into
+  // small pieces to balance it (a cluster cuts it into equal entries).
+  bool followed = false;
   bool empty() const { return blocks.empty(); }
 };
 
 // Same pass number, blocks and input: results computed for one belong to the other.
 inline bool same_plan(const PassWork& a, const PassWork& b) {
-  return a.pass == b.pass && a.pass_input == b.pass_input && a.blocks == b.blocks;
+  return a.pass == b.pass && a.pass_input == b.pass_input && a.blocks == b.blocks && a.groups == b.groups;
 }
 
 struct ExecutorCallbacks {
-  // Every block of `done` has a result (results[i] belongs to done.blocks[i]): commit
-  // them and return the job's next pass (empty: the job leaves the executor).
+  // Every block of `done` has a result: results[g] is result group done.groups[g], its
+  // blocks' results combined in block order (combine_results). Commit them and return
+  // the job's next pass (empty: the job leaves the executor).
   std::function<PassWork(const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
                          double wall_seconds)>
       pass_done;

@@ -223,7 +223,7 @@ void InProcessExecutor::worker_loop() {
     const auto t_merge = std::chrono::steady_clock::now();
     const uint64_t pass_no = pass_done.pass;
     const size_t pass_blocks = pass_done.blocks.size();
-    PassWork next = cb_.pass_done(id, pass_done, std::move(results_done), wall);
+    PassWork next = cb_.pass_done(id, pass_done, combine_groups(std::move(results_done), pass_done.groups), wall);
     // The in-process side of a pass boundary, to compare with the cluster's (debug level).
     log::job(log::Level::debug, id, "pass {} ({} blocks): merge {:.3f} ms", pass_no, pass_blocks,
              std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_merge).count());

@@ -39,12 +39,17 @@ PassWork plan_next(JobRunner& r) {
   PassWork w;
   w.pass = r.state().passes;
   w.blocks = r.plan_pass();
+  w.groups = r.result_groups();
   w.pass_input = r.pass_input();
   if (w.empty()) return w;
-  if (auto blocks = r.plan_ahead()) {
+  bool ahead_followed = false;
+  if (auto blocks = r.plan_ahead(&ahead_followed)) {
     auto ahead = std::make_shared<PassWork>();
     ahead->pass = w.pass + 1;
+    ahead->followed = ahead_followed;
+    w.followed = true;
     ahead->blocks = std::move(*blocks);
+    ahead->groups = result_groups(ahead->blocks, r.kernel().schedule().group_blocks);
     w.ahead = std::move(ahead);
   }
   return w;
@@ -431,7 +436,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     std::lock_guard lock(job->mu_);
     JobRunner& r = *job->runner_;
     try {
-      r.commit_pass(std::move(results), wall);
+      r.commit_groups(std::move(results), wall);
     } catch (const std::exception& e) {
       log::job(log::Level::error, job->id(), "committing pass {} failed: {}", done.pass, e.what());
       r.fail(fmt::format("internal error committing a pass: {}", e.what()));

@@ -160,7 +160,9 @@ ImageReference in_process_image(const fs::path& tmp, const json& spec) {
 TEST(Cluster, ThreeWorkersMatchInProcessBitsAndPixels) {
   TempDir tmp;
   const json integ = disk_spec(120'000'000, 7);
-  const json image = lighting_image_spec(32);
+  // 64 spp: the 32-spp pass gives each tile 2 blocks of 16 spp, one result group that
+  // the worker combines (PassSchedule::group_blocks), as the unit-disk passes' groups of 16.
+  const json image = lighting_image_spec(64);
   const json expected_integ = local_bits(integ);
   const ImageReference expected = in_process_image(tmp.path, image);
 

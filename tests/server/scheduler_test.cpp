@@ -97,8 +97,12 @@ TEST(Scheduler, DirectUseCommitsInBlockOrder) {
   auto job = compile_fake_job(fake_spec(1000), {});
   ExecutorCallbacks cb;
   cb.pass_done = [&](const std::string&, const PassWork& done, std::vector<BlockResult>&& results, double) {
-    EXPECT_EQ(done.blocks.size(), results.size());
-    for (size_t i = 0; i < results.size(); ++i) EXPECT_EQ(results[i].block_index, done.blocks[i].index);
+    // One result per result group, carrying the index of the group's first block.
+    EXPECT_EQ(done.groups.size(), results.size());
+    EXPECT_EQ(results.size(), 13u);  // 50 blocks in groups of 4: 12 of 4 and one of 2
+    for (size_t i = 0; i < results.size() && i < done.groups.size(); ++i) {
+      EXPECT_EQ(results[i].block_index, done.blocks[done.groups[i].first].index);
+    }
     std::lock_guard lock(mu);
     ++passes;
     cv.notify_all();
@@ -107,6 +111,7 @@ TEST(Scheduler, DirectUseCommitsInBlockOrder) {
   InProcessExecutor s(3, cb);
   PassWork pass;
   for (uint64_t i = 0; i < 50; ++i) pass.blocks.push_back(Block{i, i * 100, 100, 0});
+  pass.groups = result_groups(pass.blocks, 4);
   s.add(ExecutorJob{"a", job->kernel(), "", 1, 0, ""}, pass);
   s.add(ExecutorJob{"b", job->kernel(), "", 1, 0, ""}, pass);
   std::unique_lock lock(mu);
@@ -126,6 +131,7 @@ TEST(Scheduler, JobReaddedWhileItsLastPassCommitsRunsToTheEnd) {
   auto job = compile_fake_job(fake_spec(1000), {});
   PassWork pass;
   for (uint64_t i = 0; i < 4; ++i) pass.blocks.push_back(Block{i, i * 100, 100, 0});
+  pass.groups = result_groups(pass.blocks, 1);
   InProcessExecutor* executor = nullptr;
   ExecutorCallbacks cb;
   cb.pass_done = [&](const std::string&, const PassWork&, std::vector<BlockResult>&&, double) {
