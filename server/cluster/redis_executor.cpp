@@ -15,6 +15,9 @@ namespace tally::cluster {
 
 namespace {
 
+// Passes whose results came to at least this many bytes are read while they run.
+constexpr size_t kPrefetchBytes = 256 * 1024;
+
 using Clock = std::chrono::steady_clock;
 
 double unix_seconds() {
@@ -247,7 +250,11 @@ void RedisExecutor::step() {
   clean_finished();
   // Cancels first: their keys go, so no worker starts another of their blocks.
   std::vector<std::string> to_cancel, to_publish;
-  bool running = false;  // a pass is out: its results are read as they arrive
+  // A pass with large results is out: they are read as they arrive (every 10 ms), so
+  // the boundary reads only the last ones. Small results (an integral's pass: tens of
+  // KB) are read at the end; waking every 10 ms for them cost Redis and the
+  // coordinator ~5 % of a core each.
+  bool running = false;
   {
     std::lock_guard lock(mu_);
     for (auto& [id, j] : jobs_) {
@@ -255,7 +262,7 @@ void RedisExecutor::step() {
         to_cancel.push_back(id);
       } else if (!j->all_published()) {
         to_publish.push_back(id);
-      } else {
+      } else if (j->last_pass_bytes >= kPrefetchBytes) {
         running = true;
       }
     }
@@ -268,7 +275,7 @@ void RedisExecutor::step() {
   }
 
   // Wait briefly for a completed pass (the store script pushes the job id); while passes
-  // run, wake every 10 ms to read the entries stored meanwhile.
+  // with large results run, wake every 10 ms to read the entries stored meanwhile.
   std::vector<std::string> notified;
   const RValue r = conn_->cmd({"BLPOP", kNotify, running || !to_publish.empty() ? "0.01" : "0.05"});
   notified_at_ = Clock::now();
@@ -580,6 +587,7 @@ std::string RedisExecutor::read_results(Job& job, PassRun& run, bool prefetch, s
       }
     }
     bytes += v.elems[i].str.size();
+    run.bytes_read += v.elems[i].str.size();
     for (size_t j = 0; j < res.size(); ++j) run.got[g0 + j] = std::move(res[j]);
     run.got_count += res.size();
   }
@@ -626,6 +634,7 @@ void RedisExecutor::merge(const std::string& id) {
   const size_t had = run.got.size() == ng ? run.got_count : 0;
   size_t result_bytes = 0;
   const std::string error = read_results(*job, run, false, result_bytes);
+  if (!error.empty() || run.got_count >= run.work.groups.size()) job->last_pass_bytes = run.bytes_read;
   if (!error.empty()) {
     log::job(log::Level::error, id, "{}", error);
     leave(id, true, error);

@@ -93,6 +93,7 @@ class RedisExecutor final : public Executor {
     bool published = false;      // in Redis now
     bool was_published = false;  // published before (a republish)
     std::chrono::steady_clock::time_point start{};
+    size_t bytes_read = 0;  // result bytes read so far
   };
   struct Job {
     ExecutorJob ej;
@@ -107,6 +108,9 @@ class RedisExecutor final : public Executor {
     std::deque<uint64_t> digest_passes;
     ExecutorStats::JobBlocks blocks;
     double block_seconds = 0;  // workers' measured compute time per block
+    // Result bytes of the job's last merged pass (SIZE_MAX before the first): passes
+    // with large results are read while they run (every 10 ms), others at the end.
+    size_t last_pass_bytes = SIZE_MAX;
     bool all_published() const { return cur.published && (!ahead || ahead->published); }
   };
 
