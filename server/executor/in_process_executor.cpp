@@ -223,7 +223,15 @@ void InProcessExecutor::worker_loop() {
     const auto t_merge = std::chrono::steady_clock::now();
     const uint64_t pass_no = pass_done.pass;
     const size_t pass_blocks = pass_done.blocks.size();
-    PassWork next = cb_.pass_done(id, pass_done, combine_groups(std::move(results_done), pass_done.groups), wall);
+    std::vector<BlockResult> grouped;
+    try {
+      grouped = combine_groups(std::move(results_done), pass_done.groups);
+    } catch (const std::exception& e) {
+      // A kernel bug (results that do not combine): pass_done's commit then refuses the
+      // empty pass and fails the job with an internal error, the server stays up.
+      log::job(log::Level::error, id, "combining pass {}'s results failed: {}", pass_done.pass, e.what());
+    }
+    PassWork next = cb_.pass_done(id, pass_done, std::move(grouped), wall);
     // The in-process side of a pass boundary, to compare with the cluster's (debug level).
     log::job(log::Level::debug, id, "pass {} ({} blocks): merge {:.3f} ms", pass_no, pass_blocks,
              std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_merge).count());

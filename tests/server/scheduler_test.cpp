@@ -3,6 +3,7 @@
 // chunk boundaries.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <bit>
 
 #include "server/executor/in_process_executor.hpp"
@@ -118,6 +119,44 @@ TEST(Scheduler, DirectUseCommitsInBlockOrder) {
   ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(20), [&] { return passes == 2; }));
   lock.unlock();
   EXPECT_TRUE(wait_until([&] { return s.scheduled_jobs() == 0; }, 5));
+}
+
+// A kernel bug: its blocks of one partition write different channel ranges, so their
+// results cannot be combined into a group.
+class MismatchedChannels final : public Kernel {
+ public:
+  size_t channel_count() const override { return 4; }
+  void run_block(const Block& b, BlockResult& out) const override {
+    out.first_channel = static_cast<uint32_t>(b.index % 2);
+    out.tallies.assign(2, Tally{});
+    out.tallies[0].add(1.0);
+  }
+};
+
+TEST(Scheduler, ResultsThatDoNotCombineReachPassDoneAsNoneAndTheExecutorLives) {
+  // pass_done gets no results (so the manager's commit refuses the pass and fails the
+  // job with an internal error); the executor's threads survive and run the next job.
+  std::mutex mu;
+  std::condition_variable cv;
+  std::vector<size_t> sizes;
+  ExecutorCallbacks cb;
+  cb.pass_done = [&](const std::string&, const PassWork&, std::vector<BlockResult>&& results, double) {
+    std::lock_guard lock(mu);
+    sizes.push_back(results.size());
+    cv.notify_all();
+    return PassWork{};
+  };
+  InProcessExecutor s(2, cb);
+  PassWork pass;
+  for (uint64_t i = 0; i < 4; ++i) pass.blocks.push_back(Block{i, i * 10, 10, 0});
+  pass.groups = result_groups(pass.blocks, 2);
+  s.add(ExecutorJob{"bad", std::make_shared<MismatchedChannels>(), "", 1, 0, ""}, pass);
+  auto good = compile_fake_job(fake_spec(1000), {});
+  s.add(ExecutorJob{"good", good->kernel(), "", 1, 0, ""}, pass);
+  std::unique_lock lock(mu);
+  ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(20), [&] { return sizes.size() == 2; }));
+  std::sort(sizes.begin(), sizes.end());
+  EXPECT_EQ(sizes, (std::vector<size_t>{0, 2}));
 }
 
 TEST(Scheduler, JobReaddedWhileItsLastPassCommitsRunsToTheEnd) {
