@@ -97,6 +97,13 @@ RunFacts run_facts_light(const JobRunner& r) {
 }
 }  // namespace
 
+RunFacts live_run_facts(const JobRunner& r) {
+  RunFacts f = run_facts_light(r);
+  f.rule = r.rule();
+  f.compute_seconds = r.state().compute_seconds;
+  return f;
+}
+
 RunFacts run_facts(const JobRunner& r) {
   RunFacts f = run_facts_light(r);
   const JobState& s = r.state();

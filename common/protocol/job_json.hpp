@@ -29,6 +29,9 @@ nlohmann::json state_event_json(JobStatus status, const RunFacts* facts, const s
 
 // What the views need of a runner once its state is released (or before it exists).
 RunFacts run_facts(const JobRunner& runner);
+// run_facts without the progress event (and target_met): what the status and list
+// documents of a running job show, built at its pass boundary (JobManager::snapshot).
+RunFacts live_run_facts(const JobRunner& runner);
 RunFacts fresh_run_facts(const StopRule& rule);  // a job that has not started
 // Stored beside a finished job (the store's `facts` column), without the rule (stored
 // on its own). parse_run_facts throws std::exception on a malformed document.

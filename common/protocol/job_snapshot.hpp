@@ -55,7 +55,9 @@ struct JobSnapshot {
   std::string error;
   uint64_t version = 0;                          // bumped on every change of the job
   std::shared_ptr<const JobDefinition> def;      // null if the stored spec no longer compiles
-  std::shared_ptr<const JobRunner> runner;       // at the last pass boundary; null if not in memory
+  // At the last pass boundary; null if not in memory, or not asked for (a snapshot for
+  // the views: JobManager::SnapshotOf).
+  std::shared_ptr<const JobRunner> runner;
   std::shared_ptr<const RunFacts> facts;         // when runner is null: what it would show (null: unknown)
   std::shared_ptr<const nlohmann::json> final_result;  // engine part of a finished job's status
   // Engine part of a running job's status at `version`, built once per pass off the

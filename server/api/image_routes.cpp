@@ -22,7 +22,7 @@ const ImageSource& image_of(const JobSnapshot& s) {
 }  // namespace
 
 HttpResponse RequestHandler::job_tile(const HttpRequest& req, const PathParams& p) {
-  const JobSnapshot s = visible_snapshot(req, p.at("id"));
+  const JobSnapshot s = visible_snapshot(req, p.at("id"), JobManager::SnapshotOf::state);
   const auto n = parse_u64(p.at("n"));
   const ImageSource& img = image_of(s);
   if (!n || *n >= img.tile_count()) {
@@ -41,7 +41,7 @@ HttpResponse RequestHandler::job_tile(const HttpRequest& req, const PathParams& 
 }
 
 HttpResponse RequestHandler::job_image(const HttpRequest& req, const PathParams& p, bool exr) {
-  const JobSnapshot s = visible_snapshot(req, p.at("id"));
+  const JobSnapshot s = visible_snapshot(req, p.at("id"), JobManager::SnapshotOf::state);
   const ImageSource& img = image_of(s);
   if ((exr && !config_.images.exr) || (!exr && !config_.images.png)) {
     throw HttpError(501, "image encoding is not available in this build");

@@ -45,8 +45,9 @@ std::shared_ptr<Job> RequestHandler::visible_job(const HttpRequest& req, const s
   return job;
 }
 
-JobSnapshot RequestHandler::visible_snapshot(const HttpRequest& req, const std::string& id) const {
-  return manager_.snapshot(*visible_job(req, id));
+JobSnapshot RequestHandler::visible_snapshot(const HttpRequest& req, const std::string& id,
+                                             JobManager::SnapshotOf of) const {
+  return manager_.snapshot(*visible_job(req, id), of);
 }
 
 Submitter RequestHandler::submitter(const HttpRequest& req) const {

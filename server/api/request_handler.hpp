@@ -91,7 +91,8 @@ class RequestHandler {
   // The one lookup of every job route: the job if the caller may see it, else 404
   // (another tenant's job is indistinguishable from a missing one).
   std::shared_ptr<Job> visible_job(const HttpRequest& request, const std::string& id) const;
-  JobSnapshot visible_snapshot(const HttpRequest& request, const std::string& id) const;
+  JobSnapshot visible_snapshot(const HttpRequest& request, const std::string& id,
+                               JobManager::SnapshotOf of = JobManager::SnapshotOf::views) const;
   // The server's limits tightened by the caller's quotas.
   Submitter submitter(const HttpRequest& request) const;
 

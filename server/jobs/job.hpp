@@ -18,6 +18,14 @@
 
 namespace tally {
 
+// What a finished job's documents show, built from its runner without the job's lock
+// (each part is a pass over every pixel of an image): JobManager::finish_locked.
+struct FinishViews {
+  std::shared_ptr<const nlohmann::json> final_result;  // engine_json
+  std::shared_ptr<const RunFacts> facts;              // run_facts
+  std::shared_ptr<const std::string> progress;        // the last progress event's data ("" fields: no pass ran)
+};
+
 class Job : public std::enable_shared_from_this<Job> {
  public:
   Job(std::string id, int64_t seq, nlohmann::json spec, int priority, double created_at, uint64_t epoch,
@@ -39,8 +47,9 @@ class Job : public std::enable_shared_from_this<Job> {
   friend class JobManager;
   friend class JobRecorder;
 
-  // The picture routes read; call under mu_.
-  JobSnapshot snapshot_locked() const;
+  // The picture routes read; call under mu_. `with_runner`: also a copy of the runner
+  // (else one is made only when the views built at the pass boundary are missing).
+  JobSnapshot snapshot_locked(bool with_runner) const;
 
   const std::string id_;
   const int64_t seq_;
@@ -86,6 +95,9 @@ class Job : public std::enable_shared_from_this<Job> {
   // boundary on the worker thread (a status GET then does no pass over every pixel).
   std::shared_ptr<const nlohmann::json> engine_;
   uint64_t engine_version_ = 0;
+  // The runner's figures the documents show (run_facts without the rule and progress
+  // event), built with engine_: a snapshot for the views then copies no runner.
+  std::shared_ptr<const RunFacts> live_facts_;
   std::chrono::steady_clock::time_point last_checkpoint_{};
   bool cancel_requested_ = false;
 

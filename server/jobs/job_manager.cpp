@@ -66,7 +66,7 @@ JobStatus status_of(const JobRunner& r) {
 
 }  // namespace
 
-JobSnapshot Job::snapshot_locked() const {
+JobSnapshot Job::snapshot_locked(bool with_runner) const {
   JobSnapshot s;
   s.id = id_;
   s.seq = seq_;
@@ -80,20 +80,37 @@ JobSnapshot Job::snapshot_locked() const {
   s.error = error_;
   s.version = version_;
   s.def = def_;
-  // The runner changes in place at pass boundaries: readers get a copy made once
-  // per version, which no one mutates afterwards.
-  if (runner_ && published_version_ != version_) {
-    published_ = std::make_shared<const JobRunner>(*runner_);
-    published_version_ = version_;
-  }
-  if (!runner_) published_.reset();
-  s.runner = published_;
-  if (!runner_) s.facts = facts_;
   s.final_result = final_result_;
   // A running job's status may lag its runner by the pass being published (built
   // without the lock in on_pass_done) rather than be rebuilt here, on an I/O thread.
   if (engine_ && (engine_version_ == version_ || status_ == JobStatus::running)) s.engine = engine_;
   s.last_event_id = events_.last_id();
+  if (!runner_) {
+    published_.reset();
+    s.facts = facts_;
+    return s;
+  }
+  // The documents need only the runner's figures: a running job's come from its pass
+  // boundary's views, a finished one's from what finish kept (facts_, final_result_).
+  if (!with_runner) {
+    if (status_ == JobStatus::running && s.engine && live_facts_) {
+      auto f = std::make_shared<RunFacts>(*live_facts_);
+      f->rule = runner_->rule();  // extend changes it between passes
+      s.facts = std::move(f);
+      return s;
+    }
+    if (is_terminal(status_) && facts_ && final_result_) {
+      s.facts = facts_;
+      return s;
+    }
+  }
+  // The runner changes in place at pass boundaries: readers get a copy made once
+  // per version, which no one mutates afterwards.
+  if (published_version_ != version_) {
+    published_ = std::make_shared<const JobRunner>(*runner_);
+    published_version_ = version_;
+  }
+  s.runner = published_;
   return s;
 }
 
@@ -129,7 +146,7 @@ std::optional<std::string> JobManager::not_ready_reason() const {
 
 // ---------------------------------------------------------------- snapshots
 
-JobSnapshot JobManager::snapshot(const Job& job) const {
+JobSnapshot JobManager::snapshot(const Job& job, SnapshotOf of) const {
   // What the executor says about the job (cluster mode: why it waits, blocks pending /
   // in flight), asked before taking the job's lock (executor locks are never nested in it).
   ExecutorNote note;
@@ -142,15 +159,15 @@ JobSnapshot JobManager::snapshot(const Job& job) const {
     note.redelivered = b.redelivered;
   }
   std::lock_guard lock(job.mu_);
-  JobSnapshot s = job.snapshot_locked();
+  JobSnapshot s = job.snapshot_locked(of == SnapshotOf::state);
   s.executor = std::move(note);
   return s;
 }
 
-JobSnapshot JobManager::snapshot(const std::string& id) const {
+JobSnapshot JobManager::snapshot(const std::string& id, SnapshotOf of) const {
   const std::shared_ptr<Job> job = find(id);
   if (!job) throw JobError(JobError::Kind::not_found, fmt::format("no job with id \"{}\"", id));
-  return snapshot(*job);
+  return snapshot(*job, of);
 }
 
 std::vector<JobSnapshot> JobManager::snapshots() const {
@@ -214,20 +231,32 @@ void JobManager::publish_state_locked(Job& job) {
                      dump(state_event_of(job.status_, job.runner_.get(), job.facts_.get(), job.error_, false)));
 }
 
-void JobManager::finish_locked(Job& job, double now, std::optional<JobStatus> status) {
+void JobManager::finish_locked(Job& job, double now, std::optional<JobStatus> status, const FinishViews* views) {
   job.status_ = status ? *status : job.runner_ ? status_of(*job.runner_) : JobStatus::failed;
   if (job.status_ == JobStatus::running) job.status_ = JobStatus::succeeded;  // plan_pass had nothing left
   if (job.runner_ && job.runner_->error_message() && job.error_.empty()) job.error_ = *job.runner_->error_message();
   job.finished_at_ = now;
-  job.final_result_ = job.runner_ && job.def_ ? std::make_shared<const json>(engine_json(*job.def_, *job.runner_))
-                                              : std::make_shared<const json>(json::object());
-  // What the views show once the state leaves memory (release_state).
-  if (job.runner_) job.facts_ = std::make_shared<const RunFacts>(run_facts(*job.runner_));
+  if (views && job.runner_) {
+    job.final_result_ = views->final_result;
+    job.facts_ = views->facts;
+  } else {
+    job.final_result_ = job.runner_ && job.def_ ? std::make_shared<const json>(engine_json(*job.def_, *job.runner_))
+                                                : std::make_shared<const json>(json::object());
+    // What the views show once the state leaves memory (release_state).
+    if (job.runner_) job.facts_ = std::make_shared<const RunFacts>(run_facts(*job.runner_));
+  }
+  job.live_facts_.reset();
   job.version_++;
-  if (job.runner_ && job.runner_->state().passes > 0) watch_progress_locked(job);
-  publish_state_locked(job);
-  job.events_.append("end",
-                     dump(state_event_of(job.status_, job.runner_.get(), job.facts_.get(), job.error_, true)));
+  if (views && job.runner_ && job.runner_->state().passes > 0) {
+    job.watch_progress_ = views->progress;
+    job.watch_progress_version_ = job.version_;
+  } else if (job.runner_ && job.runner_->state().passes > 0) {
+    watch_progress_locked(job);
+  }
+  // With views, the events read the facts built from the runner (the same figures).
+  const JobRunner* runner = views ? nullptr : job.runner_.get();
+  job.events_.append("state", dump(state_event_of(job.status_, runner, job.facts_.get(), job.error_, false)));
+  job.events_.append("end", dump(state_event_of(job.status_, runner, job.facts_.get(), job.error_, true)));
   log::job(job.status_ == JobStatus::failed ? log::Level::warn : log::Level::info, job.id_, "{}{}{}",
            job_status_name(job.status_),
            job.runner_ ? fmt::format(" ({}, {} samples)", stop_reason_name(job.runner_->stop_reason()),
@@ -333,6 +362,14 @@ void JobManager::start_queued_locked() {
       if (job->started_at_ <= 0) job->started_at_ = unix_now();
       job->version_++;
       publish_state_locked(*job);
+      if (job->runner_->state().passes == 0) {
+        // The documents' views of a fresh state (no pass over data: cheap), so status
+        // reads copy no runner before the first pass either. A job resumed from a
+        // checkpoint has them from its first pass on (until then a read copies it).
+        job->engine_ = std::make_shared<const json>(engine_json(*job->def_, *job->runner_));
+        job->engine_version_ = job->version_;
+        job->live_facts_ = std::make_shared<const RunFacts>(live_run_facts(*job->runner_));
+      }
       pass = plan_next(*job->runner_);
       if (pass.empty()) {
         finish_locked(*job, unix_now());
@@ -430,7 +467,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
   if (!job) return {};
   const std::vector<Block>& blocks = done.blocks;
   PassWork next;
-  bool finished = false, checkpoint = false;
+  bool finished = false, checkpoint = false, cancel_now = false;
   uint64_t version = 0;
   {
     std::lock_guard lock(job->mu_);
@@ -444,47 +481,58 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     job->version_++;
     version = job->version_;
     job->publishing_ = true;  // until this pass's progress event is in the log (below)
-    const bool cancel_now = job->cancel_requested_ && !r.finished();
+    cancel_now = job->cancel_requested_ && !r.finished();
     if (!cancel_now && !r.finished()) next = plan_next(r);
-    if (cancel_now || r.finished() || next.empty()) {
-      // The last pass: its events, then state and end, all under the lock (once per job).
-      auto progress = std::make_shared<const std::string>(dump(progress_event_json(r)));
-      job->events_.append("progress", *progress);
-      job->watch_progress_ = progress;
-      job->watch_progress_version_ = job->version_;
-      for (std::string& t : tile_events(job->def_->image(), blocks, r.state().passes)) {
-        job->events_.append("tile", std::move(t));
-      }
-      job->publishing_ = false;
-      if (cancel_now) r.cancel();  // takes effect at this boundary
-      finish_locked(*job, unix_now());
-      finished = true;
-      next = PassWork{};
-    }
+    finished = cancel_now || r.finished() || next.empty();
+    if (finished) next = PassWork{};
     const auto now = std::chrono::steady_clock::now();
     if (finished || now - job->last_checkpoint_ >= std::chrono::duration<double>(config_.checkpoint_interval_s)) {
       job->last_checkpoint_ = now;
       checkpoint = true;
     }
   }
-  if (!finished) {
-    // The heavy views of the pass (progress event, status JSON, tile events: passes over
-    // every pixel of an image) are built here without the job's lock, so status GETs and
-    // watchers never wait for them. The runner is not mutated meanwhile: only this
-    // callback, at a pass boundary, changes it, and the executors call cancelled/failed
-    // for a job only once its pass_done has returned (the next pass starts after that).
-    const JobRunner& r = *job->runner_;
-    auto progress = std::make_shared<const std::string>(dump(progress_event_json(r)));
-    auto engine = job->def_ ? std::make_shared<const json>(engine_json(*job->def_, r)) : nullptr;
-    std::vector<std::string> tiles = tile_events(job->def_->image(), blocks, r.state().passes);
+  // The heavy views of the pass (progress event, status JSON, tile events, and for the
+  // last pass the final result and facts: passes over every pixel of an image) are built
+  // here without the job's lock, so status GETs and watchers never wait for them. The
+  // runner is not mutated meanwhile: only this callback, at a pass boundary, changes it
+  // (the cancel below under the lock), and the executors call cancelled/failed for a
+  // job only once its pass_done has returned (the next pass starts after that).
+  const JobRunner& r = *job->runner_;
+  auto progress = std::make_shared<const std::string>(dump(progress_event_json(r)));
+  std::vector<std::string> tiles = tile_events(job->def_->image(), blocks, r.state().passes);
+  std::shared_ptr<const json> engine;
+  std::shared_ptr<const RunFacts> live;
+  FinishViews views;
+  if (finished) {
+    if (cancel_now) {
+      std::lock_guard lock(job->mu_);
+      job->runner_->cancel();  // takes effect at this boundary
+    }
+    views.progress = cancel_now ? std::make_shared<const std::string>(dump(progress_event_json(r))) : progress;
+    views.final_result = std::make_shared<const json>(job->def_ ? engine_json(*job->def_, r) : json::object());
+    RunFacts f = live_run_facts(r);
+    f.target_met = r.target_met();
+    if (r.state().passes > 0) f.progress_event = *views.progress;
+    views.facts = std::make_shared<const RunFacts>(std::move(f));
+  } else {
+    engine = job->def_ ? std::make_shared<const json>(engine_json(*job->def_, r)) : nullptr;
+    live = std::make_shared<const RunFacts>(live_run_facts(r));
+  }
+  {
     std::lock_guard lock(job->mu_);
     job->events_.append("progress", *progress);
     for (std::string& t : tiles) job->events_.append("tile", std::move(t));
     job->watch_progress_ = std::move(progress);
     job->watch_progress_version_ = version;
     job->publishing_ = false;
-    job->engine_ = std::move(engine);
-    job->engine_version_ = version;
+    if (finished) {
+      // Its events, then state and end, all under one lock (once per job).
+      finish_locked(*job, unix_now(), std::nullopt, &views);
+    } else {
+      job->engine_ = std::move(engine);
+      job->engine_version_ = version;
+      job->live_facts_ = std::move(live);
+    }
   }
   // The last save is written before the state can leave memory; a periodic checkpoint
   // is written on the recorder's thread while the next pass runs.
@@ -579,7 +627,7 @@ std::shared_ptr<Job> JobManager::extend(const std::string& id, const StopRule& r
   if (!job) throw JobError(JobError::Kind::not_found, fmt::format("no job with id \"{}\"", id));
   // A finished job's state is on disk: read it back (outside the locks) to go on.
   std::unique_ptr<JobRunner> loaded;
-  if (const JobSnapshot s = snapshot(*job);
+  if (const JobSnapshot s = snapshot(*job, SnapshotOf::state);
       is_terminal(s.status) && s.status != JobStatus::failed && !s.runner && s.def && s.facts) {
     std::optional<std::string> cp;
     try {
@@ -630,6 +678,7 @@ std::shared_ptr<Job> JobManager::extend(const std::string& id, const StopRule& r
     job->finished_at_ = 0;
     job->final_result_.reset();
     job->engine_.reset();
+    job->live_facts_.reset();
     job->version_++;
     publish_state_locked(*job);
   }

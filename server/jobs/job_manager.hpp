@@ -105,9 +105,15 @@ class JobManager {
   std::shared_ptr<Job> find(const std::string& id) const;  // null if unknown
   std::vector<std::shared_ptr<Job>> list() const;           // in submission order
   // The job as it is now, taken under its lock (JobError not_found if unknown).
-  JobSnapshot snapshot(const std::string& id) const;
-  JobSnapshot snapshot(const Job& job) const;
-  std::vector<JobSnapshot> snapshots() const;  // every job, in submission order
+  // `views` (what the status and list documents need): the runner's figures come from
+  // the views built at its last pass boundary, and no runner is copied: a running
+  // image's state can be hundreds of MB, and this runs on I/O threads. `state` also
+  // gives JobSnapshot::runner (a copy made once per version) while it is in memory:
+  // the image routes read its channels.
+  enum class SnapshotOf { views, state };
+  JobSnapshot snapshot(const std::string& id, SnapshotOf of = SnapshotOf::views) const;
+  JobSnapshot snapshot(const Job& job, SnapshotOf of = SnapshotOf::views) const;
+  std::vector<JobSnapshot> snapshots() const;  // every job, in submission order (views)
   // What a new or lagging watcher starts with: state, progress (once a pass ran)
   // and end (finished), all with the id of the log's last event. Cheap: copies no
   // runner; the progress part is built once per job version by the pass-done and
@@ -157,7 +163,10 @@ class JobManager {
   void job_left_scheduler(const Job& job);
   // Under job.mu_: marks the job finished from its runner (or `status` for a job that
   // never started), keeps its facts, publishes state + end.
-  void finish_locked(Job& job, double now, std::optional<JobStatus> status = std::nullopt);
+  // Ends the job. `views`: its last views, built without the lock (on_pass_done); null:
+  // built here (a cancel or failure, whose runner has not changed since its last pass).
+  void finish_locked(Job& job, double now, std::optional<JobStatus> status = std::nullopt,
+                     const FinishViews* views = nullptr);
   void publish_state_locked(Job& job);
   // Under job.mu_: the progress event data for the job's current version.
   static std::shared_ptr<const std::string> watch_progress_locked(const Job& job);
