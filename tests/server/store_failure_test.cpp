@@ -195,7 +195,7 @@ TEST(Snapshot, DocumentsCopyNoRunnerAndReadAsFromTheRunner) {
     GatedStore* s;
     ~OpenAtExit() { s->open(); }
   } open_at_exit{store};
-  const std::string id = h.submit(fake_spec(400'000, 20, 3, true));  // an image, several passes
+  const std::string id = h.submit(fake_spec(1'000'000, 20, 3, true));  // an image, ~20 passes
   const json links = json::object();
   // Both snapshots at the same version (the job moves on between them: try again).
   auto compare = [&](JobStatus want) {
