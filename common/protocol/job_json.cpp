@@ -104,13 +104,13 @@ RunFacts live_run_facts(const JobRunner& r) {
   return f;
 }
 
-RunFacts run_facts(const JobRunner& r) {
-  RunFacts f = run_facts_light(r);
-  const JobState& s = r.state();
+RunFacts run_facts(const JobRunner& r, const std::string* progress_event) {
+  RunFacts f = live_run_facts(r);
   f.target_met = r.target_met();
-  f.rule = r.rule();
-  f.compute_seconds = s.compute_seconds;
-  if (s.passes > 0) f.progress_event = progress_event_json(r).dump(-1, ' ', false, json::error_handler_t::replace);
+  if (r.state().passes > 0) {
+    f.progress_event = progress_event ? *progress_event
+                                      : progress_event_json(r).dump(-1, ' ', false, json::error_handler_t::replace);
+  }
   return f;
 }
 

@@ -28,7 +28,8 @@ nlohmann::json state_event_json(JobStatus status, const JobRunner* runner, const
 nlohmann::json state_event_json(JobStatus status, const RunFacts* facts, const std::string& error, bool end);
 
 // What the views need of a runner once its state is released (or before it exists).
-RunFacts run_facts(const JobRunner& runner);
+// `progress_event`: its data already built (progress_event_json, dumped), else built here.
+RunFacts run_facts(const JobRunner& runner, const std::string* progress_event = nullptr);
 // run_facts without the progress event (and target_met): what the status and list
 // documents of a running job show, built at its pass boundary (JobManager::snapshot).
 RunFacts live_run_facts(const JobRunner& runner);

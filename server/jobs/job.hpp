@@ -23,7 +23,7 @@ namespace tally {
 struct FinishViews {
   std::shared_ptr<const nlohmann::json> final_result;  // engine_json
   std::shared_ptr<const RunFacts> facts;              // run_facts
-  std::shared_ptr<const std::string> progress;        // the last progress event's data ("" fields: no pass ran)
+  std::shared_ptr<const std::string> progress;        // the last progress event's data (watchers' snapshot)
 };
 
 class Job : public std::enable_shared_from_this<Job> {
@@ -95,8 +95,9 @@ class Job : public std::enable_shared_from_this<Job> {
   // boundary on the worker thread (a status GET then does no pass over every pixel).
   std::shared_ptr<const nlohmann::json> engine_;
   uint64_t engine_version_ = 0;
-  // The runner's figures the documents show (run_facts without the rule and progress
-  // event), built with engine_: a snapshot for the views then copies no runner.
+  // The runner's figures the documents show (live_run_facts), built with engine_: a
+  // snapshot for the views then copies no runner (it takes the rule from the runner,
+  // since extend changes it between passes).
   std::shared_ptr<const RunFacts> live_facts_;
   std::chrono::steady_clock::time_point last_checkpoint_{};
   bool cancel_requested_ = false;

@@ -510,10 +510,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     }
     views.progress = cancel_now ? std::make_shared<const std::string>(dump(progress_event_json(r))) : progress;
     views.final_result = std::make_shared<const json>(job->def_ ? engine_json(*job->def_, r) : json::object());
-    RunFacts f = live_run_facts(r);
-    f.target_met = r.target_met();
-    if (r.state().passes > 0) f.progress_event = *views.progress;
-    views.facts = std::make_shared<const RunFacts>(std::move(f));
+    views.facts = std::make_shared<const RunFacts>(run_facts(r, views.progress.get()));
   } else {
     engine = job->def_ ? std::make_shared<const json>(engine_json(*job->def_, r)) : nullptr;
     live = std::make_shared<const RunFacts>(live_run_facts(r));
