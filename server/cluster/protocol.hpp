@@ -11,8 +11,12 @@
 //                                   input (pass input bytes), g (result group size: an
 //                                   entry's results are one per result_groups(its
 //                                   blocks, g)), done (blocks stored)
-//   tally:r:{id}:{run}:{pass}       hash: first slot of an entry -> the entry's results
-//                                   (append_entry_result, one field per entry; first wins)
+//   tally:r:{id}:{run}:{pass}       hash: first slot of an entry -> "1" once its results are
+//                                   stored (one field per entry; first wins; HLEN = entries done)
+//   tally:v:{id}:{run}:{pass}:{slot} string: the results of the entry at first slot `slot`
+//                                   (append_entry_result), deleted with the pass's other keys
+//   tally:upload:{consumer}         string: the results a worker thread is about to store
+//                                   (SET with a TTL, then moved by the store script)
 //   tally:d:{id}:{run}:{pass}       hash: first slot of an entry -> sha1 of its first
 //                                   results, kept a few passes longer so late duplicates
 //                                   are still compared
@@ -27,6 +31,7 @@
 //
 // run = "{epoch}.{generation}": a new one each time a job enters the coordinator, so
 // nothing of an older epoch, an earlier cancelled run or a previous pass is ever merged.
+#include <cstdint>
 #include <string>
 #include <string_view>
 
@@ -53,6 +58,17 @@ inline std::string pass_key(char kind, std::string_view id, std::string_view run
   k += std::to_string(pass);
   return k;
 }
+// Where the results of the entry whose first slot is `slot` live.
+inline std::string value_key(std::string_view id, std::string_view run, uint64_t pass, std::string_view slot) {
+  std::string k = pass_key('v', id, run, pass);
+  k += ':';
+  k += slot;
+  return k;
+}
+// One per worker thread (consumer name "{worker}/{thread}"): a thread stores one entry at a time.
+inline std::string upload_key(std::string_view consumer) { return "tally:upload:" + std::string(consumer); }
+// How long an upload lives if its store script never runs (the worker died between them).
+inline constexpr std::string_view kUploadTtlMs = "300000";
 inline std::string worker_key(std::string_view name) { return "tally:worker:" + std::string(name); }
 inline std::string asset_key(std::string_view sha) { return "tally:asset:" + std::string(sha); }
 
@@ -63,22 +79,32 @@ inline std::string asset_key(std::string_view sha) { return "tally:asset:" + std
 // reconnect or a Redis restart), so an entry's first slot names the same blocks in every
 // delivery.
 //
-// Stores an entry's results as one hash field (its first slot): the first delivery's
-// results win (HSETNX), the entry is acked in the same atomic step; a duplicate is
-// compared byte for byte while the pass is open, by SHA-1 digest once it is merged. The
-// worker sends the digest (result_digest, the hex of what redis.sha1hex would compute)
-// so Redis does not hash the results. One field per entry, not per block: Redis does a
-// few operations per entry whatever its length. Returns {first, duplicate equal,
-// duplicate different, stale}, counted in blocks; a difference marks the job
-// (non-determinism). Stale: the job was cancelled, belongs to another run, or its pass
-// is gone without a digest.
-// KEYS: results, stream, job, digests, counters, notify, pass
+// Stores an entry's results: the worker first SETs them at its upload key (with a TTL),
+// then runs this script, which moves them (RENAME: O(1), the bytes are not copied) to
+// the entry's value key if this delivery is the first (HSETNX on the index hash), and
+// acks the entry in the same atomic step. The results never pass through Lua: for an
+// image tile (~200 KB) that halves Redis's CPU per result (copies into and out of Lua
+// strings). A duplicate is compared byte for byte while the pass is open (the one Lua
+// copy, on a rare path), by SHA-1 digest once it is merged. The worker sends the digest
+// (result_digest, the hex of what redis.sha1hex would compute) so Redis does not hash
+// the results. One key per entry, not per block: Redis does a few operations per entry
+// whatever its length. Returns {first, duplicate equal, duplicate different, stale},
+// counted in blocks; a difference marks the job (non-determinism). Stale: the job was
+// cancelled, belongs to another run, or its pass is gone without a digest. The upload
+// is gone afterwards in every case. An error reply starting with kUploadMissing: the
+// upload was not there (Redis restarted between the two commands): upload again.
+// KEYS: results index, stream, job, digests, counters, notify, pass, upload, value
 // ARGV: first slot, entry id, run, entry count of the pass, job id, compute seconds,
-//       blocks in the entry, the entry's results, their digest
+//       blocks in the entry, digest of the results
+inline constexpr std::string_view kUploadMissing = "TALLYUPLOAD";
 inline constexpr std::string_view kStoreScript = R"lua(
+if redis.call('EXISTS', KEYS[8]) == 0 then
+  return redis.error_reply('TALLYUPLOAD the results to store are not at ' .. KEYS[8])
+end
 local k = tonumber(ARGV[7])
 local run = redis.call('HGET', KEYS[3], 'run')
 if run ~= ARGV[3] or redis.call('HGET', KEYS[3], 'cancelled') == '1' then
+  redis.call('DEL', KEYS[8])
   redis.call('HINCRBY', KEYS[5], 'stale', k)
   return {0, 0, 0, k}
 end
@@ -88,22 +114,25 @@ local open = redis.call('EXISTS', KEYS[2]) == 1
 if open then redis.call('XACK', KEYS[2], 'w', ARGV[2]) end
 local slot = ARGV[1]
 local first, eq, diff, stale = 0, 0, 0, 0
-if open and redis.call('HSETNX', KEYS[1], slot, ARGV[8]) == 1 then
-  redis.call('HSET', KEYS[4], slot, ARGV[9])
+if open and redis.call('HSETNX', KEYS[1], slot, '1') == 1 then
+  redis.call('RENAME', KEYS[8], KEYS[9])
+  redis.call('PERSIST', KEYS[9])
+  redis.call('HSET', KEYS[4], slot, ARGV[8])
   redis.call('HINCRBY', KEYS[7], 'done', k)
   first = k
 elseif open and redis.call('HEXISTS', KEYS[1], slot) == 1 then
-  if redis.call('HGET', KEYS[1], slot) == ARGV[8] then eq = k else diff = k end
+  if redis.call('GET', KEYS[9]) == redis.call('GET', KEYS[8]) then eq = k else diff = k end
 else
   local d = redis.call('HGET', KEYS[4], slot)
   if not d then
     stale = k
-  elseif d == ARGV[9] then
+  elseif d == ARGV[8] then
     eq = k
   else
     diff = k
   end
 end
+redis.call('DEL', KEYS[8])
 if first > 0 then redis.call('HINCRBY', KEYS[5], 'first', first) end
 if eq > 0 then redis.call('HINCRBY', KEYS[5], 'dup_equal', eq) end
 if stale > 0 then redis.call('HINCRBY', KEYS[5], 'stale', stale) end

@@ -557,12 +557,12 @@ std::string RedisExecutor::read_results(Job& job, PassRun& run, bool prefetch, s
     }
   }
   if (want.empty()) return {};
-  std::vector<std::string> fields;
-  for (size_t e : want) fields.push_back(std::to_string(run.entries[e].first));
-  std::vector<std::string_view> argv = {"HMGET", r};
-  for (const auto& f : fields) argv.push_back(f);
+  std::vector<std::string> keys;
+  for (size_t e : want) keys.push_back(value_key(job.ej.id, job.run, pass.pass, std::to_string(run.entries[e].first)));
+  std::vector<std::string_view> argv = {"MGET"};
+  for (const auto& k : keys) argv.push_back(k);
   const RValue v = conn_->cmd(argv);
-  if (v.type == RValue::Type::error) throw RedisReplyError("HMGET: " + v.str);
+  if (v.type == RValue::Type::error) throw RedisReplyError("MGET: " + v.str);
   for (size_t i = 0; i < want.size() && i < v.elems.size(); ++i) {
     if (v.elems[i].is_nil()) continue;
     const size_t e = want[i];
@@ -664,8 +664,17 @@ void RedisExecutor::merge(const std::string& id) {
   const std::string s = pass_key('s', id, job->run, pass.pass);
   size_t replies = 2;
   conn_->append({"SREM", kActive, s});
-  conn_->append({"DEL", s, pass_key('p', id, job->run, pass.pass), pass_key('r', id, job->run, pass.pass),
-                 pass_key('f', id, job->run, pass.pass)});
+  {
+    // One DEL: the index and the values go together (a store sees both or neither).
+    std::vector<std::string> keys = {s, pass_key('p', id, job->run, pass.pass), pass_key('r', id, job->run, pass.pass),
+                                     pass_key('f', id, job->run, pass.pass)};
+    for (const auto& [first, count] : run.entries) {
+      keys.push_back(value_key(id, job->run, pass.pass, std::to_string(first)));
+    }
+    std::vector<std::string_view> argv = {"DEL"};
+    for (const auto& k : keys) argv.push_back(k);
+    conn_->append(argv);
+  }
   job->digest_passes.push_back(pass.pass);
   while (job->digest_passes.size() > cfg_.digest_passes) {
     conn_->append({"DEL", pass_key('d', id, job->run, job->digest_passes.front())});
@@ -767,8 +776,14 @@ void RedisExecutor::delete_pass_keys(const Job& job, uint64_t pass) {
   const std::string& id = job.ej.id;
   const std::string s = pass_key('s', id, job.run, pass);
   conn_->cmd({"SREM", kActive, s});
-  conn_->cmd({"DEL", s, pass_key('p', id, job.run, pass), pass_key('r', id, job.run, pass), pass_key('f', id, job.run, pass),
-              pass_key('d', id, job.run, pass)});
+  // The job is marked cancelled before this runs: no store adds a value after the HKEYS.
+  const std::string r = pass_key('r', id, job.run, pass);
+  std::vector<std::string> keys = {s, pass_key('p', id, job.run, pass), r, pass_key('f', id, job.run, pass),
+                                   pass_key('d', id, job.run, pass)};
+  for (const RValue& slot : conn_->cmd({"HKEYS", r}).elems) keys.push_back(value_key(id, job.run, pass, slot.str));
+  std::vector<std::string_view> argv = {"DEL"};
+  for (const auto& k : keys) argv.push_back(k);
+  conn_->cmd(argv);
 }
 
 void RedisExecutor::delete_job_keys(Job& job) {

@@ -204,7 +204,9 @@ TEST(Cluster, ThreeWorkersMatchInProcessBitsAndPixels) {
 
   // Per-pass streams and results are deleted once merged: nothing of the jobs is left.
   auto rc = cl.redis.connect();
-  EXPECT_EQ(rc.cmd({"KEYS", "tally:[sprfd]:*"}).elems.size(), 0u);
+  EXPECT_EQ(rc.cmd({"KEYS", "tally:[sprfdv]:*"}).elems.size(), 0u);
+  // Every upload was moved into place or deleted by the store script.
+  EXPECT_EQ(rc.cmd({"KEYS", "tally:upload:*"}).elems.size(), 0u);
   EXPECT_EQ(rc.cmd({"KEYS", "tally:job:*"}).elems.size(), 0u);
   EXPECT_EQ(rc.cmd({"SCARD", "tally:active"}).as_int(), 0);
 }
@@ -350,7 +352,7 @@ TEST(Cluster, CancelAndExtendAcrossTheCluster) {
   ASSERT_TRUE(cancel_big == 202 || cancel_big == 200) << cancel_big;  // 200: nothing was in flight
   const json cancelled = wait_state(c, big, "cancelled", 10);
   auto rc = cl.redis.connect();
-  wait_until([&] { return rc.cmd({"KEYS", "tally:[sprf]:" + big + ":*"}).elems.empty(); }, 5, "the job's keys to go");
+  wait_until([&] { return rc.cmd({"KEYS", "tally:[sprfv]:" + big + ":*"}).elems.empty(); }, 5, "the job's keys to go");
   const uint64_t samples = cancelled.at("samples").get<uint64_t>();
   std::this_thread::sleep_for(500ms);
   EXPECT_EQ(get_json(c, "/v1/jobs/" + big).at("samples").get<uint64_t>(), samples);  // no late merge
@@ -567,17 +569,17 @@ TEST(Cluster, DifferingDuplicateFailsTheJobLoudly) {
   const std::string id = submit(c, disk_spec(4096ull * 1023, 17));
   auto rc = cl.redis.connect();
   // An entry's results already stored in an open pass of at least 8 entries.
-  std::string rkey, slot, stored;
+  std::string rest, slot, stored;  // rest = {id}:{run}:{pass}
   wait_until([&] {
     for (const auto& k : rc.cmd({"KEYS", "tally:r:" + id + ":*"}).elems) {
-      const auto all = rc.cmd({"HGETALL", k.str});
+      const auto slots = rc.cmd({"HKEYS", k.str});
       const std::string pkey = "tally:p:" + k.str.substr(8);
       const long long e = rc.cmd({"HGET", pkey, "e"}).to_int().value_or(0);
-      if (e >= 8 && all.elems.size() >= 2 && static_cast<long long>(all.elems.size() / 2) < e) {
-        rkey = k.str;
-        slot = all.elems[0].str;
-        stored = all.elems[1].str;
-        return true;
+      if (e >= 8 && !slots.elems.empty() && static_cast<long long>(slots.elems.size()) < e) {
+        rest = k.str.substr(8);
+        slot = slots.elems[0].str;
+        stored = rc.cmd({"GET", "tally:v:" + rest + ":" + slot}).str;
+        return !stored.empty();
       }
     }
     return false;
@@ -589,16 +591,19 @@ TEST(Cluster, DifferingDuplicateFailsTheJobLoudly) {
   std::string bytes;
   for (const BlockResult& res : results) cluster::append_entry_result(bytes, cluster::encode_result(res));
   ASSERT_NE(bytes, stored);
-  // tally:r:{id}:{run}:{pass}: store it as a worker would, through the store script.
-  const std::string rest = rkey.substr(8);  // {id}:{run}:{pass}
+  // Store it as a worker would: upload, then the store script.
   const size_t c1 = rest.find(':'), c2 = rest.find(':', c1 + 1);
   const std::string run = rest.substr(c1 + 1, c2 - c1 - 1);
   const std::string e = rc.cmd({"HGET", "tally:p:" + rest, "e"}).str;
-  const auto r = rc.cmd({"EVAL", cluster::kStoreScript, "7", rkey, "tally:s:" + rest, "tally:job:" + id,
-                         "tally:d:" + rest, "tally:counters", "tally:notify", "tally:p:" + rest, slot, "0-1", run, e, id,
-                         "0", std::to_string(results.size()), bytes, cluster::result_digest(bytes)});
+  const std::string upload = cluster::upload_key("test/0");
+  rc.cmd({"SET", upload, bytes});
+  const auto r = rc.cmd({"EVAL", cluster::kStoreScript, "9", "tally:r:" + rest, "tally:s:" + rest, "tally:job:" + id,
+                         "tally:d:" + rest, "tally:counters", "tally:notify", "tally:p:" + rest, upload,
+                         "tally:v:" + rest + ":" + slot, slot, "0-1", run, e, id, "0", std::to_string(results.size()),
+                         cluster::result_digest(bytes)});
   ASSERT_EQ(r.elems.size(), 4u);
   EXPECT_EQ(r.elems[2].integer, static_cast<long long>(results.size())) << "the script did not see the difference";
+  EXPECT_EQ(rc.cmd({"EXISTS", upload}).as_int(), 0) << "the upload outlived its store";
   const json s = wait_state(c, id, "failed", 30);
   const std::string msg = s.value("error_message", "");
   EXPECT_NE(msg.find("non-determinism"), std::string::npos) << msg;
@@ -607,7 +612,61 @@ TEST(Cluster, DifferingDuplicateFailsTheJobLoudly) {
   wait_until([&] { return metrics_counts(c).at("duplicates_different").get<uint64_t>() >= 1; }, 30,
              "duplicates_different to count the differing duplicate");
   // The failed job's keys are gone: no worker keeps computing it.
-  wait_until([&] { return rc.cmd({"KEYS", "tally:[sprf]:" + id + ":*"}).elems.empty(); }, 5, "the job's keys to go");
+  wait_until([&] { return rc.cmd({"KEYS", "tally:[sprfv]:" + id + ":*"}).elems.empty(); }, 5, "the job's keys to go");
+}
+
+// The store script alone, against a real Redis: the results move from the upload key to
+// the entry's value key (first wins), never through Lua; duplicates are compared byte
+// for byte while the pass is open and by digest after; every path removes the upload.
+TEST(Cluster, StoreScriptMovesUploadsFirstWinsAndComparesDuplicates) {
+  TempDir tmp;
+  RedisServer redis(tmp.path);
+  auto rc = redis.connect();
+  const std::string id = "j1", run = "1.1", rest = id + ":" + run + ":0";
+  const std::string rk = "tally:r:" + rest, sk = "tally:s:" + rest, jk = "tally:job:" + id, dk = "tally:d:" + rest;
+  const std::string pk = "tally:p:" + rest, vk = "tally:v:" + rest + ":0", up = cluster::upload_key("w/0");
+  rc.cmd({"HSET", jk, "run", run, "cancelled", "0"});
+  rc.cmd({"XGROUP", "CREATE", sk, "w", "$", "MKSTREAM"});
+  const std::string entry = rc.cmd({"XADD", sk, "*", "b", "x", "s", "0"}).str;
+  rc.cmd({"XREADGROUP", "GROUP", "w", "w/0", "COUNT", "1", "STREAMS", sk, ">"});
+  const std::string a(300'000, 'a'), b = std::string(299'999, 'a') + "b";
+  // entries in the pass = 2, so the first store does not complete it.
+  auto store = [&](const std::string& bytes) {
+    rc.cmd({"SET", up, bytes, "PX", cluster::kUploadTtlMs});
+    const auto r = rc.cmd({"EVAL", cluster::kStoreScript, "9", rk, sk, jk, dk, "tally:counters", "tally:notify", pk, up,
+                           vk, "0", entry, run, "2", id, "0.5", "4", cluster::result_digest(bytes)});
+    EXPECT_EQ(rc.cmd({"EXISTS", up}).as_int(), 0) << "the upload outlived its store";
+    std::vector<long long> out;
+    for (const auto& e : r.elems) out.push_back(e.integer);
+    return out;
+  };
+  EXPECT_EQ(store(a), (std::vector<long long>{4, 0, 0, 0}));
+  EXPECT_EQ(rc.cmd({"GET", vk}).str, a);
+  EXPECT_EQ(rc.cmd({"TTL", vk}).as_int(), -1) << "the value kept the upload's TTL";
+  EXPECT_EQ(rc.cmd({"HGET", rk, "0"}).str, "1");
+  EXPECT_EQ(rc.cmd({"HGET", pk, "done"}).as_int(), 4);
+  EXPECT_EQ(rc.cmd({"XPENDING", sk, "w"}).elems.at(0).as_int(), 0) << "the entry was not acked";
+  EXPECT_EQ(store(a), (std::vector<long long>{0, 4, 0, 0}));  // open pass: byte for byte
+  EXPECT_EQ(store(b), (std::vector<long long>{0, 0, 4, 0}));
+  EXPECT_EQ(rc.cmd({"GET", vk}).str, a) << "a duplicate replaced the first results";
+  EXPECT_EQ(rc.cmd({"HGET", jk, "mismatch"}).str, "0");
+  // The pass merged (its keys gone, digests kept): duplicates compared by digest.
+  rc.cmd({"DEL", sk, rk, pk, vk});
+  EXPECT_EQ(store(a), (std::vector<long long>{0, 4, 0, 0}));
+  EXPECT_EQ(store(b), (std::vector<long long>{0, 0, 4, 0}));
+  EXPECT_EQ(rc.cmd({"EXISTS", vk}).as_int(), 0) << "a store after the merge left a value behind";
+  // Cancelled: stale, nothing stored.
+  rc.cmd({"HSET", jk, "cancelled", "1"});
+  EXPECT_EQ(store(a), (std::vector<long long>{0, 0, 0, 4}));
+  EXPECT_EQ(rc.cmd({"EXISTS", vk}).as_int(), 0);
+  // No upload (Redis restarted between the two commands): an error the worker retries on.
+  try {
+    rc.cmd({"EVAL", cluster::kStoreScript, "9", rk, sk, jk, dk, "tally:counters", "tally:notify", pk, up, vk, "0", entry,
+            run, "2", id, "0.5", "4", cluster::result_digest(a)});
+    ADD_FAILURE() << "a store without an upload succeeded";
+  } catch (const cluster::RedisReplyError& e) {
+    EXPECT_TRUE(std::string_view(e.what()).starts_with(cluster::kUploadMissing)) << e.what();
+  }
 }
 
 TEST(Cluster, CrashLoopFailsTheJobAfterNDeliveries) {
@@ -782,7 +841,7 @@ TEST(Cluster, CancelStopsWithinAboutOneBlockPerThread) {
   // The blocks in flight finish (one per thread); a thread that finished just before the
   // cancel reached Redis may start one more. Never the rest of the pass.
   EXPECT_LE(after, 2 * kThreads);
-  EXPECT_TRUE(rc.cmd({"KEYS", "tally:[sprf]:" + id + ":*"}).elems.empty());
+  EXPECT_TRUE(rc.cmd({"KEYS", "tally:[sprfv]:" + id + ":*"}).elems.empty());
 }
 
 }  // namespace
