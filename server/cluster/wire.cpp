@@ -16,8 +16,9 @@ namespace tally::cluster {
 namespace {
 
 // 2: BlockResult::aux (adaptive kernels); 3: as many counters as the kernel declares
-// (Kernel::counter_names), no longer a fixed list; 4: compact tallies (below).
-constexpr unsigned char kResultVersion = 4;
+// (Kernel::counter_names), no longer a fixed list; 4: compact tallies (below); 5: a
+// tally equal to the one before it is one byte.
+constexpr unsigned char kResultVersion = 5;
 
 using Writer = ByteWriter;
 
@@ -27,14 +28,17 @@ class Reader : public ByteReader<WireError> {
   explicit Reader(std::string_view in) : ByteReader<WireError>(in, "result") {}
 };
 
-constexpr uint64_t kBigN = 63;
-
 // Image jobs send one tally per pixel channel per block: most of them have n of 0, 1 or 2
-// and an M2 of exactly +0 (a single sample), so a result is mostly zero bytes. A tally is
-// one head byte (bit 0: mean follows, bit 1: M2 follows, bits 2-7: n, 63 = 63 + a LEB128
-// varint), then the doubles whose bits are not all zero, as raw little-endian bits: the
-// decoded tally is bit-identical (a +0.0 left out decodes as +0.0; -0.0 has a bit set and
-// travels). Written and read with plain pointers: this is the bulk of an image result.
+// and an M2 of exactly +0 (a single sample), so a result is mostly zero bytes; and in a
+// grey (achromatic) scene, or wherever a pixel is black, a pixel's R, G and B tallies are
+// equal bit for bit. A tally is one head byte: bits 2-7 are 0-61 (n), 62 (n is 62 + a
+// LEB128 varint that follows) or 63 (kRepeat: the tally before it again; the whole byte is
+// 0xfc); bit 0: mean follows, bit 1: M2 follows. The doubles whose bits are not all zero
+// follow as raw little-endian bits: the decoded tally is bit-identical (a +0.0 left out
+// decodes as +0.0; -0.0 has a bit set and travels). Written and read with plain
+// pointers: this is the bulk of an image result.
+constexpr uint64_t kBigN = 62;
+constexpr unsigned char kRepeat = 63u << 2;
 constexpr size_t kMaxTallyBytes = 1 + 10 + 8 + 8;
 
 char* put_le(char* p, uint64_t v) {
@@ -59,8 +63,14 @@ void put_tallies(std::string& out, const std::vector<Tally>& tallies) {
   const size_t start = out.size();
   out.resize(start + tallies.size() * kMaxTallyBytes);
   char* p = out.data() + start;
+  const Tally* prev = nullptr;
   for (const Tally& t : tallies) {
     const uint64_t mean = std::bit_cast<uint64_t>(t.mean), m2 = std::bit_cast<uint64_t>(t.m2);
+    if (prev && prev->n == t.n && std::bit_cast<uint64_t>(prev->mean) == mean && std::bit_cast<uint64_t>(prev->m2) == m2) {
+      *p++ = static_cast<char>(kRepeat);
+      continue;
+    }
+    prev = &t;
     const uint64_t small = std::min<uint64_t>(t.n, kBigN);
     *p++ = static_cast<char>((small << 2) | (m2 != 0 ? 2u : 0u) | (mean != 0 ? 1u : 0u));
     if (small == kBigN) {
@@ -81,9 +91,16 @@ size_t get_tallies(std::string_view in, std::vector<Tally>& tallies) {
   auto truncated = [&] {
     return WireError(fmt::format("result is truncated in tally data at byte {}", p - in.data()));
   };
-  for (Tally& t : tallies) {
+  for (size_t i = 0; i < tallies.size(); ++i) {
+    Tally& t = tallies[i];
     if (p == end) throw truncated();
     const auto head = static_cast<unsigned char>(*p++);
+    if ((head & ~3u) == kRepeat) {
+      if (head != kRepeat) throw WireError(fmt::format("result: tally head byte {:#04x} is not defined", head));
+      if (i == 0) throw WireError("result: the first tally repeats the one before it");
+      t = tallies[i - 1];
+      continue;
+    }
     t.n = head >> 2;
     if (t.n == kBigN) {
       uint64_t more = 0;

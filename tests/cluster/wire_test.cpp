@@ -62,16 +62,30 @@ TEST(ClusterWire, CompactTalliesAreBitExactAndSmall) {
     EXPECT_EQ(std::bit_cast<uint64_t>(d.tallies[i].mean), std::bit_cast<uint64_t>(r.tallies[i].mean)) << i;
     EXPECT_EQ(std::bit_cast<uint64_t>(d.tallies[i].m2), std::bit_cast<uint64_t>(r.tallies[i].m2)) << i;
   }
-  // A pixel seen once in a block (n 1, M2 exactly +0) costs 9 bytes instead of 24, an
-  // unseen one 1 byte, one seen twice 17.
+  // A pixel channel seen once in a block (n 1, M2 exactly +0) costs 9 bytes instead of
+  // 24, an unseen one 1 byte, one seen twice 17; a tally equal to the one before it (a
+  // grey pixel's G and B, a black pixel) 1 byte.
   BlockResult image;
-  image.tallies.assign(1000, Tally{1, 0.25, 0.0});
+  for (int i = 0; i < 1000; ++i) image.tallies.push_back({1, 0.25 + i, 0.0});
   const size_t base = encode_result(BlockResult{}).size();
   EXPECT_EQ(encode_result(image).size(), base + 1000 * 9);
   image.tallies.assign(1000, Tally{});
   EXPECT_EQ(encode_result(image).size(), base + 1000);
-  image.tallies.assign(1000, Tally{2, 0.25, 0.5});
+  image.tallies.clear();
+  for (int i = 0; i < 1000; ++i) image.tallies.push_back({2, 0.25 + i, 0.5});
   EXPECT_EQ(encode_result(image).size(), base + 1000 * 17);
+  image.tallies.clear();
+  for (int i = 0; i < 1000; ++i) image.tallies.insert(image.tallies.end(), 3, Tally{2, 0.25 + i, 0.5});
+  EXPECT_EQ(encode_result(image).size(), base + 1000 * (17 + 1 + 1));
+  // Equal in value is not enough: -0.0 differs from +0.0, and a NaN's payload counts.
+  image.tallies = {{1, 0.0, 0.0}, {1, -0.0, 0.0}, {1, nan, 0.0}, {1, std::bit_cast<double>(0x7ff8000000000124ULL), 0.0},
+                   {1, std::bit_cast<double>(0x7ff8000000000124ULL), 0.0}};
+  const BlockResult g = decode_result(encode_result(image));
+  ASSERT_EQ(g.tallies.size(), 5u);
+  for (size_t i = 0; i < 5; ++i) {
+    EXPECT_EQ(std::bit_cast<uint64_t>(g.tallies[i].mean), std::bit_cast<uint64_t>(image.tallies[i].mean)) << i;
+  }
+  EXPECT_EQ(encode_result(image).size(), base + 1 + 9 + 9 + 9 + 1);
 }
 
 TEST(ClusterWire, ResultDigestIsTheSha1Hex) {
@@ -92,12 +106,28 @@ TEST(ClusterWire, CorruptInputIsRejected) {
   big.tallies = {{UINT64_MAX, 0.0, 0.0}};
   std::string over = encode_result(big);
   const size_t head = over.size() - 8 /*counters*/ - 16 /*tail*/ - 16 /*weights*/ - 1 /*fault*/ - 8 /*aux*/ - 11;
-  ASSERT_EQ(static_cast<unsigned char>(over[head]), 63u << 2);
+  ASSERT_EQ(static_cast<unsigned char>(over[head]), 62u << 2);
   over[head + 10] = 2;  // the varint's last byte: bit 64 set
   EXPECT_THROW(decode_result(over), WireError);
   std::string bad = bytes;
   bad[0] = 9;  // version
   EXPECT_THROW(decode_result(bad), WireError);
+  // The repeat code (head 0xfc) with nothing before it, and the head bytes 0xfd-0xff.
+  BlockResult two;
+  two.tallies = {{1, 2.0, 0.0}, {1, 2.0, 0.0}};
+  const std::string rep = encode_result(two);
+  const size_t at = rep.size() - 8 - 16 - 16 - 1 - 8 - 10;  // first head, 8 bytes of mean, repeat
+  ASSERT_EQ(static_cast<unsigned char>(rep[at + 9]), 0xfcu);
+  EXPECT_EQ(decode_result(rep).tallies.at(1).mean, 2.0);
+  std::string first_repeats = rep;
+  first_repeats.erase(at, 9);  // the literal goes: the repeat comes first
+  first_repeats[17] = 1;       // one tally
+  EXPECT_THROW(decode_result(first_repeats), WireError);
+  for (unsigned h : {0xfdu, 0xfeu, 0xffu}) {
+    std::string undefined = rep;
+    undefined[at + 9] = static_cast<char>(h);
+    EXPECT_THROW(decode_result(undefined), WireError) << h;
+  }
   EXPECT_THROW(decode_blocks(std::string(33, '\0')), WireError);
   EXPECT_THROW(decode_blocks(""), WireError);
 }
