@@ -381,18 +381,33 @@ class Worker {
   }
 
   // Stores an entry's results: SET them at this thread's upload key, then run the store
-  // script, which moves them into place (protocol.hpp). Two round trips on purpose: the
-  // same bytes pipelined in one write measured slower. Reconnects like eval_retrying;
+  // script, which moves them into place (protocol.hpp); both in one round trip (a
+  // pipeline). Reconnects like eval_retrying;
   // uploads again if Redis lost the upload between the two commands (a restart).
   RValue store_retrying(std::unique_ptr<RedisConn>& conn, const std::string& sha, const std::string& upload,
                         std::string_view results, const std::vector<std::string_view>& keys,
                         const std::vector<std::string_view>& args) {
     const auto deadline = Clock::now() + 5s;
+    bool reloaded = false;
     for (;;) {
       try {
         if (!conn) conn = std::make_unique<RedisConn>(cfg_.url);
-        conn->cmd({"SET", upload, results, "PX", kUploadTtlMs});
-        return conn->evalsha(sha, kStoreScript, keys, args);
+        const std::string nkeys = std::to_string(keys.size());
+        std::vector<std::string_view> argv = {"EVALSHA", sha, nkeys};
+        argv.insert(argv.end(), keys.begin(), keys.end());
+        argv.insert(argv.end(), args.begin(), args.end());
+        conn->append({"SET", upload, results, "PX", kUploadTtlMs});
+        conn->append(argv);
+        const RValue set = conn->get_reply();
+        RValue r = conn->get_reply();
+        if (set.type == RValue::Type::error) throw RedisReplyError("SET: " + set.str);
+        if (r.type == RValue::Type::error && r.str.find("NOSCRIPT") != std::string::npos && !reloaded) {
+          conn->load_script(kStoreScript);  // Redis restarted and forgot it: same source, same SHA1
+          reloaded = true;
+          continue;
+        }
+        if (r.type == RValue::Type::error) throw RedisReplyError(r.str);
+        return r;
       } catch (const RedisIoError& e) {
         conn.reset();
         if (stop_ || Clock::now() >= deadline) throw;
