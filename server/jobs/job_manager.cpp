@@ -360,6 +360,11 @@ void JobManager::start_queued_locked() {
       }
       job->status_ = JobStatus::running;
       if (job->started_at_ <= 0) job->started_at_ = unix_now();
+      // Where the job starts is durable already (its spec, or the checkpoint it resumes
+      // from): the first checkpoint is due one interval from now, not at the first pass
+      // boundary, where it would save little and copy the whole state (an image's every
+      // pixel) on the thread that publishes the next pass.
+      job->last_checkpoint_ = std::chrono::steady_clock::now();
       job->version_++;
       publish_state_locked(*job);
       if (job->runner_->state().passes == 0) {
@@ -469,8 +474,12 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
   PassWork next;
   bool finished = false, checkpoint = false, cancel_now = false;
   uint64_t version = 0;
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
+  Clock::time_point t_locked, t_committed;
   {
     std::lock_guard lock(job->mu_);
+    t_locked = Clock::now();
     JobRunner& r = *job->runner_;
     try {
       r.commit_groups(std::move(results), wall);
@@ -478,6 +487,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
       log::job(log::Level::error, job->id(), "committing pass {} failed: {}", done.pass, e.what());
       r.fail(fmt::format("internal error committing a pass: {}", e.what()));
     }
+    t_committed = Clock::now();
     job->version_++;
     version = job->version_;
     job->publishing_ = true;  // until this pass's progress event is in the log (below)
@@ -498,6 +508,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
   // (the cancel below under the lock), and the executors call cancelled/failed for a
   // job only once its pass_done has returned (the next pass starts after that).
   const JobRunner& r = *job->runner_;
+  const auto t_views = Clock::now();
   auto progress = std::make_shared<const std::string>(dump(progress_event_json(r)));
   std::vector<std::string> tiles = tile_events(job->def_->image(), blocks, r.state().passes);
   std::shared_ptr<const json> engine;
@@ -515,6 +526,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     engine = job->def_ ? std::make_shared<const json>(engine_json(*job->def_, r)) : nullptr;
     live = std::make_shared<const RunFacts>(live_run_facts(r));
   }
+  const auto t_publish = Clock::now();
   {
     std::lock_guard lock(job->mu_);
     job->events_.append("progress", *progress);
@@ -533,6 +545,12 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
   }
   // The last save is written before the state can leave memory; a periodic checkpoint
   // is written on the recorder's thread while the next pass runs.
+  const auto t_published = Clock::now();
+  auto ms = [](Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
+  log::job(log::Level::debug, job->id(),
+           "pass {} boundary: lock wait {:.3f} ms, commit {:.3f} ms, plan {:.3f} ms, views {:.3f} ms, publish {:.3f} ms",
+           done.pass, ms(t0, t_locked), ms(t_locked, t_committed), ms(t_committed, t_views), ms(t_views, t_publish),
+           ms(t_publish, t_published));
   const bool stored = checkpoint && finished && recorder_.persist(*job, true);
   if (checkpoint && !finished) recorder_.checkpoint_later(job);
   if (finished) {
