@@ -380,9 +380,9 @@ class Worker {
     }
   }
 
-  // Stores an entry's results: SET them at this thread's upload key, then run the store
-  // script, which moves them into place (protocol.hpp); both in one round trip (a
-  // pipeline). Reconnects like eval_retrying;
+  // Stores an entry's results with the store script (protocol.hpp): inline below
+  // kUploadBytes, else SET at this thread's upload key first, in the same round trip (a
+  // pipeline), for the script to move into place. Reconnects like eval_retrying;
   // uploads again if Redis lost the upload between the two commands (a restart).
   RValue store_retrying(std::unique_ptr<RedisConn>& conn, const std::string& sha, const std::string& upload,
                         std::string_view results, const std::vector<std::string_view>& keys,
@@ -392,13 +392,18 @@ class Worker {
     for (;;) {
       try {
         if (!conn) conn = std::make_unique<RedisConn>(cfg_.url);
+        const bool inline_results = results.size() < kUploadBytes;
         const std::string nkeys = std::to_string(keys.size());
         std::vector<std::string_view> argv = {"EVALSHA", sha, nkeys};
         argv.insert(argv.end(), keys.begin(), keys.end());
         argv.insert(argv.end(), args.begin(), args.end());
-        conn->append({"SET", upload, results, "PX", kUploadTtlMs});
+        if (inline_results) {
+          argv.push_back(results);
+        } else {
+          conn->append({"SET", upload, results, "PX", kUploadTtlMs});
+        }
         conn->append(argv);
-        const RValue set = conn->get_reply();
+        const RValue set = inline_results ? RValue{} : conn->get_reply();
         RValue r = conn->get_reply();
         if (set.type == RValue::Type::error) throw RedisReplyError("SET: " + set.str);
         if (r.type == RValue::Type::error && r.str.find("NOSCRIPT") != std::string::npos && !reloaded) {

@@ -650,8 +650,24 @@ TEST(Cluster, StoreScriptMovesUploadsFirstWinsAndComparesDuplicates) {
   EXPECT_EQ(store(b), (std::vector<long long>{0, 0, 4, 0}));
   EXPECT_EQ(rc.cmd({"GET", vk}).str, a) << "a duplicate replaced the first results";
   EXPECT_EQ(rc.cmd({"HGET", jk, "mismatch"}).str, "0");
+  // Small results travel inline (the last argument): same outcomes, no upload involved.
+  const std::string vk1 = "tally:v:" + rest + ":1", small = "small results", other = "other results";
+  auto store_inline = [&](const std::string& bytes) {
+    const auto r = rc.cmd({"EVAL", cluster::kStoreScript, "9", rk, sk, jk, dk, "tally:counters", "tally:notify", pk, up,
+                           vk1, "1", entry, run, "2", id, "0.5", "4", cluster::result_digest(bytes), bytes});
+    std::vector<long long> out;
+    for (const auto& e : r.elems) out.push_back(e.integer);
+    return out;
+  };
+  EXPECT_EQ(store_inline(small), (std::vector<long long>{4, 0, 0, 0}));
+  EXPECT_EQ(rc.cmd({"GET", vk1}).str, small);
+  EXPECT_EQ(rc.cmd({"HLEN", rk}).as_int(), 2);
+  EXPECT_EQ(rc.cmd({"LPOP", "tally:notify"}).str, id) << "the pass's last entry did not announce it";
+  EXPECT_EQ(store_inline(small), (std::vector<long long>{0, 4, 0, 0}));
+  EXPECT_EQ(store_inline(other), (std::vector<long long>{0, 0, 4, 0}));
+  EXPECT_EQ(rc.cmd({"GET", vk1}).str, small);
   // The pass merged (its keys gone, digests kept): duplicates compared by digest.
-  rc.cmd({"DEL", sk, rk, pk, vk});
+  rc.cmd({"DEL", sk, rk, pk, vk, vk1});
   EXPECT_EQ(store(a), (std::vector<long long>{0, 4, 0, 0}));
   EXPECT_EQ(store(b), (std::vector<long long>{0, 0, 4, 0}));
   EXPECT_EQ(rc.cmd({"EXISTS", vk}).as_int(), 0) << "a store after the merge left a value behind";
