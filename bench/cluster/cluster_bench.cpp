@@ -4,7 +4,8 @@
 //     on tally-server --redis with one tally-worker --threads 2, interleaved A B B A ...
 //     (argv[1] pairs, default 9); the median of the pairs' ratios with its spread and the
 //     load average (goal: Redis <= 1.03x). Integration (the unit disk, ~30 us per block;
-//     a 6-D expression, ~20x the work per block) and the lighting image.
+//     a 6-D expression, ~20x the work per block) and the lighting image, grey as in
+//     examples/ and in colour.
 //  2. Coordinator ceiling: a RedisExecutor driven directly with one-sample blocks (trivial
 //     work) and 2 worker threads: blocks/s published and merged, with one block per entry
 //     (worst case) and with the default entry sizing.
@@ -214,7 +215,7 @@ void ceiling(const std::string& url, size_t max_entry_blocks, size_t passes, siz
 
 int main(int argc, char** argv) {
   const int rounds = argc > 1 ? std::atoi(argv[1]) : 9;
-  // "reclaim": part 3 alone; "lighting" / "integration" / "heavy": that overhead alone.
+  // "reclaim": part 3 alone; "lighting" / "colour" / "integration" / "heavy": that overhead alone.
   const std::string only = argc > 2 ? argv[2] : "";
   TempDir tmp;
   const fs::path sock = tmp.path / "r.sock";
@@ -226,7 +227,8 @@ int main(int argc, char** argv) {
   int rc = 0;
   std::vector<pid_t> pids;
   try {
-    if (only.empty() || only == "lighting" || only == "integration" || only == "heavy") {
+    const bool one_overhead = only == "lighting" || only == "colour" || only == "integration" || only == "heavy";
+    if (only.empty() || one_overhead) {
     // 1. Overhead at equal cores.
     ServerProcess in_process(tmp.path / "a", {"--checkpoint-interval", "0.5"});
     ServerProcess cluster(tmp.path / "b", {"--redis", url, "--checkpoint-interval", "0.5"});
@@ -258,6 +260,15 @@ int main(int argc, char** argv) {
     if (only.empty() || only == "lighting") {
       overhead("lighting image (128x96, 256 spp)", image, ca, cb, rounds, pids_a, pids_b);
     }
+    if (only.empty() || only == "colour") {
+      // The same scene in colour: a pixel's R, G and B tallies differ, so the wire
+      // format's repeat code (a tally equal to the one before it) saves only black pixels.
+      json colour = image;
+      colour["scene"]["materials"]["white"]["albedo"] = json::array({0.8, 0.5, 0.3});
+      colour["scene"]["materials"]["grey"]["albedo"] = json::array({0.2, 0.4, 0.3});
+      colour["scene"]["materials"]["lamp"]["radiance"] = json::array({5, 4, 3});
+      overhead("lighting image in colour (128x96, 256 spp)", colour, ca, cb, rounds, pids_a, pids_b);
+    }
     in_process.terminate();
     cluster.terminate();
     reap(pids.back());
@@ -272,7 +283,7 @@ int main(int argc, char** argv) {
     reap(pids.back());
     pids.pop_back();
     }
-    if (only == "lighting" || only == "integration" || only == "heavy") {
+    if (one_overhead) {
       for (pid_t p : pids) reap(p);
       reap(redis);
       return 0;
