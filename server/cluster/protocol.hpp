@@ -15,8 +15,9 @@
 //                                   stored (one field per entry; first wins; HLEN = entries done)
 //   tally:v:{id}:{run}:{pass}:{slot} string: the results of the entry at first slot `slot`
 //                                   (append_entry_result), deleted with the pass's other keys
-//   tally:upload:{consumer}         string: the results a worker thread is about to store
-//                                   (SET with a TTL, then moved by the store script)
+//   tally:upload:{consumer}         string: large results (>= kUploadBytes) a worker thread
+//                                   is about to store (SET with a TTL, then moved into place
+//                                   or deleted by the store script)
 //   tally:d:{id}:{run}:{pass}       hash: first slot of an entry -> sha1 of its first
 //                                   results, kept a few passes longer so late duplicates
 //                                   are still compared
