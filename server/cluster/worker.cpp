@@ -366,53 +366,50 @@ class Worker {
   // is still pending.
   RValue eval_retrying(std::unique_ptr<RedisConn>& conn, const std::string& sha, std::string_view source,
                        const std::vector<std::string_view>& keys, const std::vector<std::string_view>& args) {
-    const auto deadline = Clock::now() + 5s;
-    for (;;) {
-      try {
-        if (!conn) conn = std::make_unique<RedisConn>(cfg_.url);
-        return conn->evalsha(sha, source, keys, args);
-      } catch (const RedisIoError& e) {
-        conn.reset();
-        if (stop_ || Clock::now() >= deadline) throw;
-        log(fmt::format("storing results: {}; reconnecting to store them", e.what()));
-        std::this_thread::sleep_for(100ms);
-      }
-    }
+    return retrying(conn, [&](RedisConn& c) { return c.evalsha(sha, source, keys, args); });
   }
 
   // Stores an entry's results with the store script (protocol.hpp): inline below
   // kUploadBytes, else SET at this thread's upload key first, in the same round trip (a
-  // pipeline), for the script to move into place. Reconnects like eval_retrying;
-  // uploads again if Redis lost the upload between the two commands (a restart).
+  // pipeline), for the script to move into place. Retried as eval_retrying; uploads
+  // again if Redis lost the upload between the two commands (a restart).
   RValue store_retrying(std::unique_ptr<RedisConn>& conn, const std::string& sha, const std::string& upload,
                         std::string_view results, const std::vector<std::string_view>& keys,
                         const std::vector<std::string_view>& args) {
-    const auto deadline = Clock::now() + 5s;
+    const bool inline_results = results.size() < kUploadBytes;
+    const std::string nkeys = std::to_string(keys.size());
+    std::vector<std::string_view> argv = {"EVALSHA", sha, nkeys};
+    argv.insert(argv.end(), keys.begin(), keys.end());
+    argv.insert(argv.end(), args.begin(), args.end());
+    if (inline_results) argv.push_back(results);
     bool reloaded = false;
-    for (;;) {
-      try {
-        if (!conn) conn = std::make_unique<RedisConn>(cfg_.url);
-        const bool inline_results = results.size() < kUploadBytes;
-        const std::string nkeys = std::to_string(keys.size());
-        std::vector<std::string_view> argv = {"EVALSHA", sha, nkeys};
-        argv.insert(argv.end(), keys.begin(), keys.end());
-        argv.insert(argv.end(), args.begin(), args.end());
-        if (inline_results) {
-          argv.push_back(results);
-        } else {
-          conn->append({"SET", upload, results, "PX", kUploadTtlMs});
-        }
-        conn->append(argv);
-        const RValue set = inline_results ? RValue{} : conn->get_reply();
-        RValue r = conn->get_reply();
+    return retrying(conn, [&](RedisConn& c) {
+      for (;;) {
+        if (!inline_results) c.append({"SET", upload, results, "PX", kUploadTtlMs});
+        c.append(argv);
+        const RValue set = inline_results ? RValue{} : c.get_reply();
+        RValue r = c.get_reply();
         if (set.type == RValue::Type::error) throw RedisReplyError("SET: " + set.str);
         if (r.type == RValue::Type::error && r.str.find("NOSCRIPT") != std::string::npos && !reloaded) {
-          conn->load_script(kStoreScript);  // Redis restarted and forgot it: same source, same SHA1
+          c.load_script(kStoreScript);  // Redis restarted and forgot it: same source, same SHA1
           reloaded = true;
           continue;
         }
         if (r.type == RValue::Type::error) throw RedisReplyError(r.str);
         return r;
+      }
+    });
+  }
+
+  // Runs `call` on the connection, reconnecting (for up to 5 s, unless stopping) when
+  // the connection is lost, and again when the store script says its upload is missing.
+  template <class Call>
+  RValue retrying(std::unique_ptr<RedisConn>& conn, Call&& call) {
+    const auto deadline = Clock::now() + 5s;
+    for (;;) {
+      try {
+        if (!conn) conn = std::make_unique<RedisConn>(cfg_.url);
+        return call(*conn);
       } catch (const RedisIoError& e) {
         conn.reset();
         if (stop_ || Clock::now() >= deadline) throw;

@@ -543,14 +543,14 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
       job->live_facts_ = std::move(live);
     }
   }
-  // The last save is written before the state can leave memory; a periodic checkpoint
-  // is written on the recorder's thread while the next pass runs.
   const auto t_published = Clock::now();
   auto ms = [](Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
   log::job(log::Level::debug, job->id(),
            "pass {} boundary: lock wait {:.3f} ms, commit {:.3f} ms, plan {:.3f} ms, views {:.3f} ms, publish {:.3f} ms",
            done.pass, ms(t0, t_locked), ms(t_locked, t_committed), ms(t_committed, t_views), ms(t_views, t_publish),
            ms(t_publish, t_published));
+  // The last save is written before the state can leave memory; a periodic checkpoint
+  // is written on the recorder's thread while the next pass runs.
   const bool stored = checkpoint && finished && recorder_.persist(*job, true);
   if (checkpoint && !finished) recorder_.checkpoint_later(job);
   if (finished) {
