@@ -54,6 +54,7 @@ JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCap
   state_.partition_samples.assign(kernel_->partition_count(), 0);
   state_.counter_names = names_of(*kernel_);
   state_.counters.values.assign(state_.counter_names.size(), 0);
+  summarize_error();
 }
 
 JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCaps caps,
@@ -67,6 +68,7 @@ JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCap
         kernel_->partition_count()));
   }
   adopt_counter_layout(state_, names_of(*kernel_));
+  summarize_error();
   if (state_.fault) {
     reason_ = StopReason::failed;
     error_ = state_.fault->message;
@@ -197,12 +199,13 @@ void JobRunner::commit_groups(std::vector<BlockResult>&& results, double wall_se
   pending_.clear();
   groups_.clear();
   pending_samples_ = 0;
+  summarize_error();
   push_trace();
   evaluate_stop();
 }
 
 void JobRunner::push_trace() {
-  const ErrorSummary e = error();
+  const ErrorSummary& e = error();
   const Tally& t0 = state_.channels.empty() ? Tally{} : state_.channels[0];
   TracePoint p{state_.compute_seconds, state_.samples, state_.channels.size() == 1 ? t0.mean : e.mean,
                state_.channels.size() == 1 ? t0.std_error() : e.sigma / std::sqrt(std::max<double>(1.0, static_cast<double>(state_.samples)))};
@@ -257,6 +260,7 @@ void JobRunner::extend(const StopRule& rule) {
   reason_ = StopReason::none;
   pending_.clear();
   groups_.clear();
+  summarize_error();  // the confidence may have changed
   evaluate_stop();
 }
 

@@ -86,7 +86,10 @@ class JobRunner {
   Estimate estimate(size_t channel = 0) const;
   // What progress shows: the kernel's headline (e.g. an image's mean) or channel 0.
   Estimate headline() const;
-  ErrorSummary error() const { return kernel_->error_summary(state_, rule_.confidence); }
+  // The kernel's error summary of the state (Kernel::error_summary), computed once per
+  // state and rule (at construction, commit and extend: for an image it is a pass over
+  // every pixel, and progress, status, the stop rule and forecasts all ask for it).
+  const ErrorSummary& error() const { return error_summary_; }
   double samples_per_second() const;
   bool target_met() const;
   std::optional<double> tail_alpha() const;
@@ -107,6 +110,7 @@ class JobRunner {
   std::optional<JobState> counts_after(const JobState& s, const std::vector<Block>& pass, uint64_t samples) const;
   void evaluate_stop();
   void push_trace();
+  void summarize_error() { error_summary_ = kernel_->error_summary(state_, rule_.confidence); }
 
   std::shared_ptr<const Kernel> kernel_;
   StopRule rule_;
@@ -114,6 +118,7 @@ class JobRunner {
   JobState state_;
   StopReason reason_ = StopReason::none;
   std::optional<std::string> error_;
+  ErrorSummary error_summary_;  // of state_ under rule_.confidence (error())
   std::vector<Block> pending_;
   std::vector<ResultGroup> groups_;
   std::string pass_input_;

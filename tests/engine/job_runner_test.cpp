@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <bit>
 #include <cmath>
 
 #include "common/engine/checkpoint.hpp"
@@ -228,6 +229,42 @@ TEST(JobRunner, ResultsCombinedWhereTheBlocksRanGiveTheSameBits) {
   EXPECT_EQ(t.n, per_block.n);
   EXPECT_NEAR(t.mean, per_block.mean, 1e-12 * std::fabs(t.mean));
   EXPECT_FALSE(t == per_block) << "groups of 3 combine before they merge";
+}
+
+// error() is computed once per state and rule, not per call: it must equal the kernel's
+// summary of the current state at the current confidence after construction, every
+// commit, an extend that changes the confidence, and a resume from a checkpoint.
+TEST(JobRunner, CachedErrorSummaryIsTheKernelsOfTheCurrentState) {
+  auto kernel = std::make_shared<UniformValues>();
+  auto same = [&](const JobRunner& r) {
+    const ErrorSummary want = kernel->error_summary(r.state(), r.rule().confidence);
+    const ErrorSummary& got = r.error();
+    return std::bit_cast<uint64_t>(got.abs_error) == std::bit_cast<uint64_t>(want.abs_error) &&
+           std::bit_cast<uint64_t>(got.rel_error) == std::bit_cast<uint64_t>(want.rel_error) &&
+           std::bit_cast<uint64_t>(got.sigma) == std::bit_cast<uint64_t>(want.sigma) &&
+           std::bit_cast<uint64_t>(got.mean) == std::bit_cast<uint64_t>(want.mean);
+  };
+  StopRule rule;
+  rule.max_samples = 20000;
+  rule.confidence = 0.95;
+  JobRunner r(kernel, rule, JobCaps{});
+  EXPECT_TRUE(same(r));
+  size_t passes = 0;
+  for (std::vector<Block> pass = r.plan_pass(); !pass.empty(); pass = r.plan_pass()) {
+    r.commit_pass(run_blocks(*kernel, pass), 0.01);
+    EXPECT_TRUE(same(r)) << "after pass " << passes;
+    ++passes;
+  }
+  EXPECT_GT(passes, 2u);
+  const double half_width_95 = r.error().abs_error;
+  StopRule wider = rule;
+  wider.max_samples = 40000;
+  wider.confidence = 0.99;
+  r.extend(wider);
+  EXPECT_TRUE(same(r));
+  EXPECT_GT(r.error().abs_error, half_width_95) << "a 99% interval is wider than a 95% one";
+  JobRunner resumed(kernel, wider, JobCaps{}, r.state());
+  EXPECT_TRUE(same(resumed));
 }
 
 TEST(JobRunner, MaxSamplesStopsExactly) {
