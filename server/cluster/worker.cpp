@@ -99,6 +99,28 @@ std::vector<std::string> reading_order(const std::vector<std::string>& streams, 
   return order;
 }
 
+// Whether every active stream belongs to one job.
+bool one_job_only(const std::vector<std::string>& streams) {
+  std::optional<std::string> job;
+  for (const std::string& s : streams) {
+    const auto sk = parse_stream_key(s);
+    if (!sk || (job && *job != sk->id)) return false;
+    job = sk->id;
+  }
+  return true;
+}
+
+// The entry an XREADGROUP ... COUNT 1 reply hands out, or null (none, an error reply:
+// the stream or its group is gone).
+const RValue* entry_of(const RValue& r) {
+  if (!r.is_array() || r.elems.empty() || !r.elems[0].is_array() || r.elems[0].elems.size() != 2 ||
+      r.elems[0].elems[1].elems.empty()) {
+    return nullptr;
+  }
+  const RValue& e = r.elems[0].elems[1].elems[0];
+  return e.is_array() && e.elems.size() == 2 && e.elems[1].is_array() ? &e : nullptr;
+}
+
 double unix_seconds() {
   return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
@@ -142,7 +164,7 @@ class Worker {
       }
       const auto period = std::clamp(lease() / 3, std::chrono::milliseconds(100), std::chrono::milliseconds(1000));
       const auto until = Clock::now() + period;
-      while (!stop_ && Clock::now() < until) std::this_thread::sleep_for(20ms);
+      while (!stop_ && Clock::now() < until) std::this_thread::sleep_for(100ms);  // a stop is seen within 0.1 s
     }
     // Leave the registry at once so the coordinator stops counting this worker.
     try {
@@ -234,11 +256,23 @@ class Worker {
         }
         if (!worked) {
           const std::vector<std::string> order = reading_order(streams, rotate);
+          // One job's passes alone: the stream an entry came from is read on with each
+          // store (one round trip per entry, not two) until it has no entry left (a
+          // pass gets no entries after its publication, so its earlier pass is drained
+          // already). With several jobs, each entry is read in the rotating order (jobs
+          // share the threads).
+          const bool one_job = one_job_only(streams);
           for (size_t i = 0; i < order.size() && !worked; ++i) {
             const std::string& s = order[i];
             const RValue r = try_cmd(*conn, {"XREADGROUP", "GROUP", kGroup, consumer, "COUNT", "1", "STREAMS", s, ">"});
-            if (r.is_array() && !r.elems.empty() && r.elems[0].elems.size() == 2 && !r.elems[0].elems[1].elems.empty()) {
-              process(conn, t, consumer, s, r.elems[0].elems[1].elems[0], false, store_sha, fail_sha);
+            if (entry_of(r)) {
+              std::optional<RValue> next;
+              process(conn, t, consumer, s, *entry_of(r), false, store_sha, fail_sha, one_job ? &next : nullptr);
+              while (next) {  // claimed: computed even when stopping
+                const RValue e = std::move(*next);
+                next.reset();
+                process(conn, t, consumer, s, e, false, store_sha, fail_sha, &next, true);
+              }
               worked = true;
             }
           }
@@ -328,10 +362,17 @@ class Worker {
         return it->second.max_failures;
       }
     }
-    const RValue st = conn.cmd({"HMGET", jk, "run", "cancelled", "max_failures"});
-    if (st.elems.size() != 3 || st.elems[0].str != run || st.elems[1].str == "1") return std::nullopt;
-    LiveRun l{run, st.elems[2].is_nil() ? std::string("3") : st.elems[2].str, Clock::now()};
+    return note_live(jk, run, conn.cmd({"HMGET", jk, "run", "cancelled", "max_failures"}));
+  }
+  // What live_run answers from the reply `st` to HMGET jk run cancelled max_failures,
+  // remembered (a yes) or forgotten (a no).
+  std::optional<std::string> note_live(const std::string& jk, const std::string& run, const RValue& st) {
     std::lock_guard lock(mu_);
+    if (st.elems.size() != 3 || st.elems[0].str != run || st.elems[1].str == "1") {
+      live_.erase(jk);
+      return std::nullopt;
+    }
+    LiveRun l{run, st.elems[2].is_nil() ? std::string("3") : st.elems[2].str, Clock::now()};
     if (live_.size() > 64) live_.clear();
     live_[jk] = l;
     return l.max_failures;
@@ -373,9 +414,18 @@ class Worker {
   // kUploadBytes, else SET at this thread's upload key first, in the same round trip (a
   // pipeline), for the script to move into place. Retried as eval_retrying; uploads
   // again if Redis lost the upload between the two commands (a restart).
+  //
+  // `next` (if given): the same round trip also reads the next entry of `next->stream`
+  // for this consumer (XREADGROUP after the script), set if there is one (at most one is
+  // read over the retries), and whether the job is still live (live_run's question,
+  // answered for the next entry's live_run).
+  struct ReadNext {
+    std::string_view stream, consumer, job_key, run;
+    std::optional<RValue> entry;
+  };
   RValue store_retrying(std::unique_ptr<RedisConn>& conn, const std::string& sha, const std::string& upload,
                         std::string_view results, const std::vector<std::string_view>& keys,
-                        const std::vector<std::string_view>& args) {
+                        const std::vector<std::string_view>& args, ReadNext* next = nullptr) {
     const bool inline_results = results.size() < kUploadBytes;
     const std::string nkeys = std::to_string(keys.size());
     std::vector<std::string_view> argv = {"EVALSHA", sha, nkeys};
@@ -387,8 +437,18 @@ class Worker {
       for (;;) {
         if (!inline_results) c.append({"SET", upload, results, "PX", kUploadTtlMs});
         c.append(argv);
+        const bool read_next = next && !next->entry;
+        if (read_next) {
+          c.append({"XREADGROUP", "GROUP", kGroup, next->consumer, "COUNT", "1", "STREAMS", next->stream, ">"});
+          c.append({"HMGET", next->job_key, "run", "cancelled", "max_failures"});
+        }
         const RValue set = inline_results ? RValue{} : c.get_reply();
         RValue r = c.get_reply();
+        if (read_next) {
+          const RValue x = c.get_reply();  // an error reply (the pass is gone) reads nothing
+          if (const RValue* e = entry_of(x)) next->entry = *e;
+          note_live(std::string(next->job_key), std::string(next->run), c.get_reply());
+        }
         if (set.type == RValue::Type::error) throw RedisReplyError("SET: " + set.str);
         if (r.type == RValue::Type::error && r.str.find("NOSCRIPT") != std::string::npos && !reloaded) {
           c.load_script(kStoreScript);  // Redis restarted and forgot it: same source, same SHA1
@@ -422,9 +482,12 @@ class Worker {
     }
   }
 
+  // Computes and stores one entry. `next` (if given and not stopping): the store also
+  // reads the stream's next entry for this thread (store_retrying). `read_on`: this
+  // entry was read so, by the store before it (the verbose log says so).
   void process(std::unique_ptr<RedisConn>& conn_owner, unsigned t, const std::string& consumer,
                const std::string& stream, const RValue& entry, bool redelivered, const std::string& store_sha,
-               const std::string& fail_sha) {
+               const std::string& fail_sha, std::optional<RValue>* next = nullptr, bool read_on = false) {
     RedisConn& conn = *conn_owner;
     const auto t_got = Clock::now();
     const double unix_got = unix_seconds();
@@ -508,13 +571,15 @@ class Worker {
     const size_t bytes = results.size();
     const std::vector<std::string_view> args = {slot, entry_id, sk->run, entries, sk->id, secs_s, k, digest};
     const std::string upload = upload_key(consumer);
+    ReadNext read_next{stream, consumer, jk, sk->run, std::nullopt};
     const auto t_store = Clock::now();
     const RValue r = store_retrying(conn_owner, store_sha, upload, results,
                                     {pass_key('r', sk->id, sk->run, sk->pass), stream, jk,
                                      pass_key('d', sk->id, sk->run, sk->pass), kCounters, kNotify,
                                      pass_key('p', sk->id, sk->run, sk->pass), upload,
                                      value_key(sk->id, sk->run, sk->pass, slot)},
-                                    args);
+                                    args, stop_ || !next ? nullptr : &read_next);
+    if (read_next.entry) *next = std::move(read_next.entry);
     const double store_ms = std::chrono::duration<double, std::milli>(Clock::now() - t_store).count();
     blocks_done_.fetch_add(block_count);
     if (r.elems.size() == 4) {
@@ -527,10 +592,10 @@ class Worker {
                         sk->id, sk->pass));
       }
       if (cfg_.verbose) {
-        log(fmt::format("entry {} of job {} pass {}: first {} stale {}; {} blocks, {} result bytes; got at unix {:.6f}, "
-                        "prepare {:.3f} ms, compute {:.3f} ms, store {:.3f} ms",
+        log(fmt::format("entry {} of job {} pass {}: first {} stale {}; {} blocks, {} result bytes; got at unix {:.6f} "
+                        "{}, prepare {:.3f} ms, compute {:.3f} ms, store {:.3f} ms",
                         slot, sk->id, sk->pass, r.elems[0].integer, r.elems[3].integer, block_count, bytes, unix_got,
-                        prep_ms, secs * 1e3, store_ms));
+                        read_on ? "with the store before" : "by a read of its own", prep_ms, secs * 1e3, store_ms));
       }
     }
   }

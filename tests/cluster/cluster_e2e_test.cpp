@@ -211,6 +211,36 @@ TEST(Cluster, ThreeWorkersMatchInProcessBitsAndPixels) {
   EXPECT_EQ(rc.cmd({"SCARD", "tally:active"}).as_int(), 0);
 }
 
+// A worker alone on one job reads each pass's next entry with the store of the entry
+// before (one round trip per entry, not two): only the first entry of each pass, per
+// thread, is read on its own. Counted from the worker's --verbose lines; the bits stay
+// those of an in-process run.
+TEST(Cluster, AWorkerAloneOnAJobReadsTheNextEntryWithEachStore) {
+  TempDir tmp;
+  const json integ = disk_spec(120'000'000, 7);
+  const json expected = local_bits(integ);
+  TestCluster cl(tmp.path, {{"w0", 2, {"--verbose"}}});
+  const std::string id = submit(cl.c, integ);
+  const json st = wait_state(cl.c, id, "succeeded", 120);
+  EXPECT_EQ(st.at("bits"), expected);
+  const uint64_t passes = st.at("passes").get<uint64_t>();
+  EXPECT_EQ(cl.worker(0).terminate(), 0);
+  const std::string log = cl.worker(0).log();
+  size_t read_on = 0, alone = 0;
+  for (size_t at = 0; (at = log.find("got at unix", at)) != std::string::npos; ++at) {
+    const size_t eol = log.find('\n', at);
+    const std::string line = log.substr(at, eol - at);
+    if (line.find("with the store before") != std::string::npos) ++read_on;
+    if (line.find("by a read of its own") != std::string::npos) ++alone;
+  }
+  // A read of its own starts a chain that ends only when that pass's stream has no entry
+  // left (no entry is added to a pass's stream after it is published), so each thread
+  // reads at most one entry of each pass on its own (no worker died here: no reclaims).
+  // Without reading on, every entry would be read on its own.
+  ASSERT_GT(read_on + alone, 2 * passes) << "too few entries per pass for the test to tell";
+  EXPECT_LE(alone, 2 * passes) << "read on " << read_on << ", passes " << passes;
+}
+
 // Which consumer of `prefix` holds a pending entry of an active stream, if any.
 bool holds_entry(cluster::RedisConn& rc, const std::string& worker) {
   for (const auto& s : rc.cmd({"SMEMBERS", "tally:active"}).elems) {
