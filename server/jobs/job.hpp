@@ -26,6 +26,17 @@ struct FinishViews {
   std::shared_ptr<const std::string> progress;        // the last progress event's data (watchers' snapshot)
 };
 
+// What a job's end sets (JobManager::finish_locked), worked out before it is published:
+// a job that ends at a pass boundary is stored with it first (JobRecorder::take), and
+// reads as finished only once that save is done.
+struct JobEnding {
+  JobStatus status = JobStatus::failed;
+  std::string error;
+  double finished_at = 0;
+  std::shared_ptr<const nlohmann::json> final_result;
+  std::shared_ptr<const RunFacts> facts;
+};
+
 class Job : public std::enable_shared_from_this<Job> {
  public:
   Job(std::string id, int64_t seq, nlohmann::json spec, int priority, double created_at, uint64_t epoch,
@@ -101,6 +112,9 @@ class Job : public std::enable_shared_from_this<Job> {
   std::shared_ptr<const RunFacts> live_facts_;
   std::chrono::steady_clock::time_point last_checkpoint_{};
   bool cancel_requested_ = false;
+  // Its last pass is merged and its ending is being stored (JobManager::on_pass_done):
+  // it still reads as running, and nothing else may end it.
+  bool finishing_ = false;
 
   // Serialises store writes of this job; a save older than the last one is skipped.
   std::mutex save_mu_;

@@ -128,9 +128,14 @@ JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compil
 }
 
 JobManager::~JobManager() {
+  {
+    std::lock_guard lock(mu_);
+    shutting_down_ = true;  // a final save's release_state starts no queued job now
+  }
   retention_.request_stop();
   if (retention_.joinable()) retention_.join();
   executor_->stop();
+  recorder_.flush_finals();  // their callbacks use this manager
 }
 
 uint64_t JobManager::state_bytes(const JobDefinition& def) {
@@ -231,20 +236,37 @@ void JobManager::publish_state_locked(Job& job) {
                      dump(state_event_of(job.status_, job.runner_.get(), job.facts_.get(), job.error_, false)));
 }
 
-void JobManager::finish_locked(Job& job, double now, std::optional<JobStatus> status, const FinishViews* views) {
-  job.status_ = status ? *status : job.runner_ ? status_of(*job.runner_) : JobStatus::failed;
-  if (job.status_ == JobStatus::running) job.status_ = JobStatus::succeeded;  // plan_pass had nothing left
-  if (job.runner_ && job.runner_->error_message() && job.error_.empty()) job.error_ = *job.runner_->error_message();
-  job.finished_at_ = now;
+JobEnding JobManager::ending_locked(const Job& job, double now, std::optional<JobStatus> status,
+                                    const FinishViews* views) {
+  JobEnding e;
+  e.status = status ? *status : job.runner_ ? status_of(*job.runner_) : JobStatus::failed;
+  if (e.status == JobStatus::running) e.status = JobStatus::succeeded;  // plan_pass had nothing left
+  e.error = job.error_;
+  if (job.runner_ && job.runner_->error_message() && e.error.empty()) e.error = *job.runner_->error_message();
+  e.finished_at = now;
   if (views && job.runner_) {
-    job.final_result_ = views->final_result;
-    job.facts_ = views->facts;
+    e.final_result = views->final_result;
+    e.facts = views->facts;
   } else {
-    job.final_result_ = job.runner_ && job.def_ ? std::make_shared<const json>(engine_json(*job.def_, *job.runner_))
-                                                : std::make_shared<const json>(json::object());
+    e.final_result = job.runner_ && job.def_ ? std::make_shared<const json>(engine_json(*job.def_, *job.runner_))
+                                             : std::make_shared<const json>(json::object());
     // What the views show once the state leaves memory (release_state).
-    if (job.runner_) job.facts_ = std::make_shared<const RunFacts>(run_facts(*job.runner_));
+    e.facts = job.runner_ ? std::make_shared<const RunFacts>(run_facts(*job.runner_)) : job.facts_;
   }
+  return e;
+}
+
+void JobManager::finish_locked(Job& job, double now, std::optional<JobStatus> status, const FinishViews* views) {
+  end_locked(job, ending_locked(job, now, status, views), views);
+}
+
+void JobManager::end_locked(Job& job, const JobEnding& e, const FinishViews* views) {
+  job.status_ = e.status;
+  job.error_ = e.error;
+  job.finished_at_ = e.finished_at;
+  job.final_result_ = e.final_result;
+  job.facts_ = e.facts;
+  job.finishing_ = false;
   job.live_facts_.reset();
   job.version_++;
   if (views && job.runner_ && job.runner_->state().passes > 0) {
@@ -514,6 +536,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
   std::shared_ptr<const json> engine;
   std::shared_ptr<const RunFacts> live;
   FinishViews views;
+  JobEnding ending;
   if (finished) {
     if (cancel_now) {
       std::lock_guard lock(job->mu_);
@@ -535,8 +558,13 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     job->watch_progress_version_ = version;
     job->publishing_ = false;
     if (finished) {
-      // Its events, then state and end, all under one lock (once per job).
-      finish_locked(*job, unix_now(), std::nullopt, &views);
+      // Its ending is stored before it is published (below): until then the job reads
+      // as running, with the last pass's figures.
+      ending = ending_locked(*job, unix_now(), std::nullopt, &views);
+      job->finishing_ = true;
+      job->engine_ = views.final_result;
+      job->engine_version_ = version;
+      job->live_facts_ = views.facts;
     } else {
       job->engine_ = std::move(engine);
       job->engine_version_ = version;
@@ -549,14 +577,25 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
            "pass {} boundary: lock wait {:.3f} ms, commit {:.3f} ms, plan {:.3f} ms, views {:.3f} ms, publish {:.3f} ms",
            done.pass, ms(t0, t_locked), ms(t_locked, t_committed), ms(t_committed, t_views), ms(t_views, t_publish),
            ms(t_publish, t_published));
-  // The last save is written before the state can leave memory; a periodic checkpoint
-  // is written on the recorder's thread while the next pass runs.
-  const bool stored = checkpoint && finished && recorder_.persist(*job, true);
+  // A periodic checkpoint is written on the recorder's thread while the next pass runs.
+  // The last save (the ending and the final checkpoint) on its finisher thread: this
+  // thread goes on at once (a worker; in cluster mode the coordinator), the job reads
+  // as finished once it is stored, and its state then leaves memory (if the save
+  // failed, it stays until a retried save succeeds; the image routes read it from memory).
   if (checkpoint && !finished) recorder_.checkpoint_later(job);
   if (finished) {
-    // Stored with its final checkpoint: the state leaves memory (else it stays until
-    // a later save succeeds, and the image routes read it from memory).
-    if (stored) release_state(*job);
+    auto shown = std::make_shared<const FinishViews>(std::move(views));
+    recorder_.save_final_later(job, ending, [this, job, ending, shown](bool stored) {
+      {
+        std::lock_guard lock(job->mu_);
+        end_locked(*job, ending, shown.get());  // its events, then state and end, under one lock
+      }
+      if (stored) {
+        release_state(*job);
+      } else {
+        recorder_.persist(*job, true);  // retried until stored, now as it reads
+      }
+    });
     job_left_scheduler(*job);
   }
   return next;
@@ -567,7 +606,7 @@ void JobManager::on_failed(const std::string& id, const std::string& error) {
   if (!job) return;
   {
     std::lock_guard lock(job->mu_);
-    if (is_terminal(job->status_)) return;
+    if (is_terminal(job->status_) || job->finishing_) return;
     // The partial pass was dropped; the runner is at its last pass boundary.
     job->runner_->fail(error);
     finish_locked(*job, unix_now());
@@ -581,7 +620,7 @@ void JobManager::on_cancelled(const std::string& id) {
   if (!job) return;
   {
     std::lock_guard lock(job->mu_);
-    if (is_terminal(job->status_)) return;
+    if (is_terminal(job->status_) || job->finishing_) return;
     // The partial pass was dropped; the runner is at its last pass boundary.
     job->runner_->cancel();
     finish_locked(*job, unix_now());
@@ -611,6 +650,10 @@ std::shared_ptr<Job> JobManager::cancel(const std::string& id) {
     if (is_terminal(job->status_)) {
       throw JobError(JobError::Kind::conflict,
                      fmt::format("job {} has already finished ({})", id, job_status_name(job->status_)));
+    }
+    if (job->finishing_) {
+      throw JobError(JobError::Kind::conflict,
+                     fmt::format("job {} has already finished; its result is being stored", id));
     }
     if (job->status_ == JobStatus::queued) {
       queue_.erase(std::remove(queue_.begin(), queue_.end(), job), queue_.end());
@@ -928,6 +971,7 @@ void JobManager::shutdown() {
   retention_.request_stop();
   if (retention_.joinable()) retention_.join();
   executor_->stop();  // chunks in flight finish; partial passes are dropped
+  recorder_.flush_finals();  // jobs that ended just before are stored and read as finished
   for (const auto& job : list()) {
     bool unfinished;
     {

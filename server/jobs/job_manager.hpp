@@ -167,6 +167,11 @@ class JobManager {
   // built here (a cancel or failure, whose runner has not changed since its last pass).
   void finish_locked(Job& job, double now, std::optional<JobStatus> status = std::nullopt,
                      const FinishViews* views = nullptr);
+  // finish_locked in two steps: what the end sets (built, not applied), then applying it
+  // (with its events). on_pass_done stores the ending between the two.
+  static JobEnding ending_locked(const Job& job, double now, std::optional<JobStatus> status,
+                                 const FinishViews* views);
+  void end_locked(Job& job, const JobEnding& ending, const FinishViews* views);
   void publish_state_locked(Job& job);
   // Under job.mu_: the progress event data for the job's current version.
   static std::shared_ptr<const std::string> watch_progress_locked(const Job& job);

@@ -24,7 +24,7 @@ double unix_now() {
 }
 }  // namespace
 
-JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint) const {
+JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint, const JobEnding* ending) const {
   Pending p;
   StoredJob& s = p.row;
   std::lock_guard lock(job.mu_);
@@ -34,19 +34,20 @@ JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint) const {
   s.spec = dump(*job.spec_);
   s.priority = job.priority_;
   s.owner = job.owner_;
-  s.state = std::string(job_status_name(job.status_));
+  const JobStatus status = ending ? ending->status : job.status_;
+  const auto& final_result = ending ? ending->final_result : job.final_result_;
+  const auto& facts = ending ? ending->facts : job.facts_;
+  s.state = std::string(job_status_name(status));
   s.stop_rule = job.runner_  ? dump(stop_rule_to_json(job.runner_->rule()))
                 : job.facts_ ? dump(stop_rule_to_json(job.facts_->rule))
                              : std::string("{}");
-  s.error = job.error_;
-  if (is_terminal(job.status_) && job.final_result_ && !job.final_result_->is_null()) {
-    s.result = dump(*job.final_result_);
-  }
-  if (is_terminal(job.status_) && job.facts_) s.facts = dump(run_facts_json(*job.facts_));
+  s.error = ending ? ending->error : job.error_;
+  if (is_terminal(status) && final_result && !final_result->is_null()) s.result = dump(*final_result);
+  if (is_terminal(status) && facts) s.facts = dump(run_facts_json(*facts));
   if (with_checkpoint && job.runner_) p.state = job.runner_->state();  // encoded later, without the lock
   s.created_at = job.created_at_;
   s.started_at = job.started_at_;
-  s.finished_at = job.finished_at_;
+  s.finished_at = ending ? ending->finished_at : job.finished_at_;
   return p;
 }
 
@@ -117,15 +118,58 @@ void JobRecorder::write_checkpoints(std::stop_token st) {
   }
 }
 
+void JobRecorder::save_final_later(const std::shared_ptr<Job>& job, const JobEnding& ending,
+                                   std::function<void(bool)> then) {
+  Pending p = take(*job, true, &ending);
+  {
+    std::lock_guard lock(finals_mu_);
+    if (finals_busy_ < kMaxQueuedFinals) {
+      ++finals_busy_;
+      finals_.push_back({job, std::move(p), std::move(then)});
+      finals_cv_.notify_all();
+      return;
+    }
+  }
+  const bool stored = store(*job, std::move(p), false);
+  then(stored);
+}
+
+void JobRecorder::flush_finals() {
+  std::unique_lock lock(finals_mu_);
+  finals_cv_.wait(lock, [&] { return finals_busy_ == 0; });
+}
+
+void JobRecorder::write_finals(std::stop_token st) {
+  // At normal priority, unlike checkpoints: the job reads as finished, and its memory
+  // is freed, only after this save.
+  std::unique_lock lock(finals_mu_);
+  for (;;) {
+    finals_cv_.wait(lock, st, [&] { return !finals_.empty(); });
+    if (finals_.empty()) return;  // stopped with nothing left (a stop drains the queue first)
+    Final f = std::move(finals_.front());
+    finals_.erase(finals_.begin());
+    lock.unlock();
+    const bool stored = store(*f.job, std::move(f.pending), false);
+    f.then(stored);
+    f = Final{};  // the state copy and the job let go before the count says done
+    lock.lock();
+    --finals_busy_;
+    finals_cv_.notify_all();
+  }
+}
+
 JobRecorder::JobRecorder(JobStore& store, JobCompiler compiler, JobLimits limits, size_t event_buffer)
     : store_(store), compiler_(std::move(compiler)), limits_(std::move(limits)), event_buffer_(event_buffer) {
   retrier_ = std::jthread([this](std::stop_token st) { retry_saves(st); });
   checkpointer_ = std::jthread([this](std::stop_token st) { write_checkpoints(st); });
+  finisher_ = std::jthread([this](std::stop_token st) { write_finals(st); });
 }
 
 JobRecorder::~JobRecorder() {
-  // Checkpoints still queued are written before the retrier stops (a failed one is
-  // then left to the next start's recovery from the last stored checkpoint).
+  // Final saves and checkpoints still queued are written before the retrier stops (a
+  // failed one is then left to the next start's recovery from the last stored checkpoint).
+  finisher_.request_stop();
+  if (finisher_.joinable()) finisher_.join();
   checkpointer_.request_stop();
   if (checkpointer_.joinable()) checkpointer_.join();
   retrier_.request_stop();

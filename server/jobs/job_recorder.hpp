@@ -42,6 +42,20 @@ class JobRecorder {
   // time: while the job's previous checkpoint is still being written, this one is
   // skipped (the next interval takes it). Failures are handled as persist's, with retry.
   void checkpoint_later(const std::shared_ptr<Job>& job);
+  // The save of a job that has ended at a pass boundary, with `ending` (its status,
+  // result and facts, not yet published) and its final checkpoint, on the recorder's
+  // finisher thread: the thread that ended it (a worker; in cluster mode the
+  // coordinator, which publishes no pass of any job meanwhile) goes on at once. The
+  // state is copied now, under the job's lock. `then(stored)` runs on the finisher
+  // thread after the save, stored or not (a failure is logged and counted; not retried
+  // here: `then` publishes the ending, and a save retried after that stores it). At most
+  // kMaxQueuedFinals wait (each holds a copy of its job's state): beyond that the save
+  // and `then` run here.
+  void save_final_later(const std::shared_ptr<Job>& job, const JobEnding& ending,
+                        std::function<void(bool stored)> then);
+  static constexpr size_t kMaxQueuedFinals = 2;
+  // Returns once every final save queued so far is written and its `then` has run.
+  void flush_finals();
   // The store's last error while its last save failed, else nullopt.
   std::optional<std::string> store_problem() const { return health_.problem(); }
   // What a salvage of a damaged store at open lost (JobStore::damage), else nullopt.
@@ -63,10 +77,12 @@ class JobRecorder {
     uint64_t version = 0;
     std::optional<JobState> state;
   };
-  Pending take(Job& job, bool with_checkpoint) const;
+  // The job's row as stored; with `ending`, as it will read once that ending is published.
+  Pending take(Job& job, bool with_checkpoint, const JobEnding* ending = nullptr) const;
   bool store(Job& job, Pending pending, bool retry);
   void retry_saves(std::stop_token st);
   void write_checkpoints(std::stop_token st);
+  void write_finals(std::stop_token st);
 
   JobStore& store_;
   JobCompiler compiler_;
@@ -81,7 +97,17 @@ class JobRecorder {
   std::condition_variable_any checkpoint_cv_;
   std::vector<std::pair<std::shared_ptr<Job>, Pending>> checkpoints_;  // queued
   std::set<std::string> checkpoint_busy_;  // ids of jobs whose checkpoint is queued or being written
-  std::jthread checkpointer_;  // last: runs write_checkpoints, stopped (and drained) first
+  std::mutex finals_mu_;
+  std::condition_variable_any finals_cv_;
+  struct Final {
+    std::shared_ptr<Job> job;
+    Pending pending;
+    std::function<void(bool)> then;
+  };
+  std::vector<Final> finals_;  // queued
+  size_t finals_busy_ = 0;     // queued or being written
+  std::jthread checkpointer_;  // runs write_checkpoints, stopped (and drained) after the finisher
+  std::jthread finisher_;      // last: runs write_finals, stopped (and drained) first
 };
 
 }  // namespace tally

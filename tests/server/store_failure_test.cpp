@@ -126,29 +126,34 @@ class GatedStore final : public JobStore {
 
 bool finished_row(const StoredJob& j) { return j.state == "succeeded"; }
 
-// A job reads as finished before its final save is stored (the pass callback saves it
-// after publishing the end). A DELETE in that window used to remove the row, answer
-// 204, and then the save wrote the row back: the deleted job returned after a restart
-// (seen as Delete.FinishedJobIsGoneFromMemoryAndStore failing now and then). Here the
-// final save is held at a gate while the DELETE runs.
-TEST(Delete, ASaveInFlightDoesNotBringTheRowBack) {
+// Nothing reads as finished before it is stored. A job used to read as finished before
+// its final save (the pass callback saved it after publishing the end): a DELETE in that
+// window removed the row and the save then wrote it back, and a crash in it lost a
+// result a client had already read. Now the ending is stored first, on the recorder's
+// finisher thread, and published after. Here the final save is held at a gate: the job
+// reads as running, a DELETE (a cancel, for a running job) is refused with 409, nothing
+// is stored as finished; once the gate opens the job reads succeeded, its row says so,
+// and DELETE removes the row for good.
+TEST(Delete, AJobReadsFinishedOnlyOnceItsFinalSaveIsStored) {
   auto owned = std::make_unique<GatedStore>(make_memory_store(), finished_row);
   GatedStore* store = owned.get();
   Harness h(test_manager_config(), std::move(owned));
-  struct OpenAtExit {  // a failed assertion must not leave the worker held at the gate
+  struct OpenAtExit {  // a failed assertion must not leave the finisher held at the gate
     GatedStore* s;
     ~OpenAtExit() { s->open(); }
   } open_at_exit{store};
   const std::string id = h.submit(fake_spec(20000));
   ASSERT_TRUE(store->wait_until_a_save_is_held(30));
-  ASSERT_TRUE(h.wait_state(id, "succeeded"));
-  const int saves_before = store->saves_done_.load();
-  auto del = std::async(std::launch::async, [&] { return h.call("DELETE", "/v1/jobs/" + id).status; });
-  // (EXPECT, not ASSERT, from here: the gate must open before `del` is waited for.)
-  EXPECT_TRUE(wait_until([&] { return stored_state(*store, id) == "<missing>"; }, 10));  // the row, at once
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));  // time to publish, were it not held
+  EXPECT_EQ(h.call_json("GET", "/v1/jobs/" + id).at("state"), "running");
+  const HttpResponse del = h.call("DELETE", "/v1/jobs/" + id);
+  EXPECT_EQ(del.status, 409);
+  EXPECT_NE(del.body.find("being stored"), std::string::npos) << del.body;
+  EXPECT_NE(stored_state(*store, id), "succeeded");
   store->open();
-  EXPECT_TRUE(wait_until([&] { return store->saves_done_.load() > saves_before; }, 10));  // the held save wrote
-  EXPECT_EQ(del.get(), 204);
+  ASSERT_TRUE(h.wait_state(id, "succeeded"));
+  EXPECT_EQ(stored_state(*store, id), "succeeded");  // stored before it read so
+  EXPECT_EQ(h.call("DELETE", "/v1/jobs/" + id).status, 204);
   EXPECT_EQ(stored_state(*store, id), "<missing>");
   EXPECT_FALSE(store->load_checkpoint(id).has_value());
   EXPECT_EQ(h.call("GET", "/v1/jobs/" + id).status, 404);
@@ -183,8 +188,8 @@ TEST(Checkpoint, AHeldCheckpointSaveDoesNotHoldUpThePasses) {
 // Status and list documents are built from a snapshot for the views, which copies no
 // runner (a running 512x512 image's state is ~150 MB, copied on an I/O thread at every
 // pass: status GETs took 0.5 s each, and /readyz waited behind them). They must read
-// exactly as the documents built from the runner, while the job runs and once it ended
-// with its state still in memory (its final save held at the gate).
+// exactly as the documents built from the runner, while the job runs and once its last
+// pass is merged (its final save held at the gate).
 TEST(Snapshot, DocumentsCopyNoRunnerAndReadAsFromTheRunner) {
   auto owned = std::make_unique<GatedStore>(make_memory_store(), [](const StoredJob& j) {
     return j.state == "succeeded";
@@ -220,10 +225,13 @@ TEST(Snapshot, DocumentsCopyNoRunnerAndReadAsFromTheRunner) {
   int running = 0;
   for (int k = 0; k < 3; ++k) running += compare(JobStatus::running) ? 1 : 0;
   EXPECT_GE(running, 1) << "never saw the job running after a pass";
+  // Its final save held at the gate: the job still reads as running (it reads as
+  // finished once stored), with its last pass's figures, the same from either snapshot.
   ASSERT_TRUE(store->wait_until_a_save_is_held(60));
-  EXPECT_TRUE(compare(JobStatus::succeeded));
+  EXPECT_TRUE(compare(JobStatus::running));
   store->open();
   ASSERT_TRUE(h.wait_state(id, "succeeded", 60));
+  EXPECT_EQ(stored_state(*store, id), "succeeded");
 }
 
 TEST(Readiness, JobRoutesWaitForRecovery) {
