@@ -120,8 +120,8 @@ class Job : public std::enable_shared_from_this<Job> {
   std::mutex save_mu_;
   uint64_t saved_version_ = 0;     // guarded by save_mu_
   // Set (under save_mu_) once DELETE removed the job's row: a save still in flight for
-  // it (its final pass's, which runs after the job reads as finished) must not write
-  // the row back.
+  // it (a retry of a failed final save, which runs after the job reads as finished)
+  // must not write the row back.
   bool removed_ = false;
   uint64_t checkpoint_bytes_ = 0;  // guarded by save_mu_: size of the stored checkpoint
 };

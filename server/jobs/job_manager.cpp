@@ -824,10 +824,10 @@ void JobManager::remove(const std::string& id) {
     }
   }
   {
-    // A job reads as finished before its final save (the pass callback stores it after
-    // publishing the end), so a save may be in flight or still to come: mark the job
-    // removed under its save lock (a later save then writes nothing) and delete the row
-    // once more, in case a save wrote it back meanwhile. Only the save lock is held here
+    // A save may still be in flight or to come (a retry of a failed final save runs
+    // after the job reads as finished): mark the job removed under its save lock (a
+    // later save then writes nothing) and delete the row once more, in case a save
+    // wrote it back meanwhile. Only the save lock is held here
     // (the pass callback takes it under the manager's lock: never the other way round).
     std::lock_guard save_lock(job->save_mu_);
     job->removed_ = true;
