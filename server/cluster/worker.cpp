@@ -265,9 +265,9 @@ class Worker {
           for (size_t i = 0; i < order.size() && !worked; ++i) {
             const std::string& s = order[i];
             const RValue r = try_cmd(*conn, {"XREADGROUP", "GROUP", kGroup, consumer, "COUNT", "1", "STREAMS", s, ">"});
-            if (entry_of(r)) {
+            if (const RValue* entry = entry_of(r)) {
               std::optional<RValue> next;
-              process(conn, t, consumer, s, *entry_of(r), false, store_sha, fail_sha, one_job ? &next : nullptr);
+              process(conn, t, consumer, s, *entry, false, store_sha, fail_sha, one_job ? &next : nullptr);
               while (next) {  // claimed: computed even when stopping
                 const RValue e = std::move(*next);
                 next.reset();
