@@ -31,7 +31,7 @@ export UBSAN_OPTIONS ?= halt_on_error=1:print_stacktrace=1:suppressions=$(SAN_SU
 export ASAN_SYMBOLIZER_PATH ?= $(wildcard /usr/lib/llvm-14/bin/llvm-symbolizer)
 
 .PHONY: all deps configure build test test-fast ctest-fast sanitize sanitize-build sanitize-build-all sanitize-run fuzz \
-  fuzz-build fuzz-run configure-sanitize demo bench study clean format
+  fuzz-build fuzz-run configure-sanitize deps-demo demo bench study clean format
 
 all: build
 
@@ -98,8 +98,11 @@ fuzz-build: configure-sanitize
 fuzz-run:
 	@scripts/fuzz.sh $(SAN_BUILD) $(FUZZ_SECONDS) $(FUZZ_TARGETS)
 
-# The demo needs only the server and the CLI.
-demo: configure
+# The demo needs only the server and the CLI, and only their packages (install-deps.sh demo).
+deps-demo:
+	@scripts/install-deps.sh demo
+
+demo: deps-demo $(BUILD)/build.ninja
 	cmake --build $(BUILD) -j $(JOBS) --target tally-server tally
 	@scripts/demo.sh $(BUILD)
 

@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Installs the Debian 12 packages tally needs, only those that are missing.
-# Usage: scripts/install-deps.sh [build|test|bench|all|containers]   (default: all)
+# Usage: scripts/install-deps.sh [build|demo|test|bench|all|containers]   (default: all)
+# demo: what `make demo` needs, the build set and python3 (scripts/gltf_example.py); no
+# browser, clang, Redis, scipy or wrk.
 # containers: podman and friends for the on-demand image/compose tests in docker/
 # (test-image.sh, test-compose.sh, test-cluster-compose.sh); not part of all / make test.
 set -euo pipefail
@@ -22,6 +24,7 @@ container_pkgs=(podman buildah runc debootstrap uidmap fuse-overlayfs slirp4netn
 pkgs=("${build_pkgs[@]}")
 case "$want" in
   build) ;;
+  demo) pkgs+=(python3) ;;
   test) pkgs+=("${test_pkgs[@]}") ;;
   bench|all) pkgs+=("${test_pkgs[@]}" "${bench_pkgs[@]}") ;;
   containers) pkgs=("${container_pkgs[@]}") ;;
