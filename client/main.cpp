@@ -2,6 +2,7 @@
 // commands submit/watch/get/list/cancel/extend (remote_commands.cpp), `health`
 // (container health checks) and `preview` (the tev bridge).
 #include <CLI/CLI.hpp>
+#include <string>
 
 #include "client/exit_codes.hpp"
 #include "client/health_command.hpp"
@@ -11,6 +12,7 @@
 
 int main(int argc, char** argv) {
   CLI::App app{"tally: Monte Carlo estimates with honest error bars"};
+  app.set_version_flag("--version", std::string("tally ") + TALLY_VERSION);
   app.require_subcommand(1);
   int code = tally::exit_code::ok;
   tally::add_run_command(app, code);

@@ -8,13 +8,19 @@
 #include <fstream>
 #include <functional>
 #include <iostream>
+#include <optional>
 #include <sstream>
 #include <thread>
 
-#include "client/exit_codes.hpp"
+#include <cerrno>
+#include <cstring>
+
 #include "client/api_request.hpp"
 #include "client/asset_upload.hpp"
+#include "client/exit_codes.hpp"
 #include "client/http_client.hpp"
+#include "client/image_format.hpp"
+#include "client/json_errors.hpp"
 #include "client/progress_display.hpp"
 #include "client/sse_parser.hpp"
 
@@ -29,7 +35,7 @@ struct RemoteOptions {
   ClientSecurity security;
 };
 
-// An HTTP answer we did not want: print the problem detail, map to an exit code.
+// A command that ends early with this exit code (the reason is printed already).
 struct RemoteFailure {
   int code;
 };
@@ -43,13 +49,40 @@ HttpClient make_client(const RemoteOptions& o) {
   return HttpClient(*url, 30.0, o.security);
 }
 
-[[noreturn]] void fail_response(const ClientResponse& r) {
-  const std::string detail = problem_detail(r);
+// The exit code of a refused request: access (401/403); the request was wrong (bad spec,
+// unknown job, wrong state): usage; else server trouble.
+int exit_code_for_http(int status) {
+  if (status == 401 || status == 403) return exit_code::auth;
+  const bool ours = status == 400 || status == 404 || status == 405 || status == 409 || status == 413 ||
+                    status == 415 || status == 422;
+  return ours ? exit_code::usage : exit_code::connection;
+}
+
+// An HTTP answer we did not want: print the problem detail (with the user's file names
+// in place of the hashes the packer gave them, when `paths` is given), map to an exit code.
+[[noreturn]] void fail_response(const ClientResponse& r, const AssetUploadReport* paths = nullptr) {
+  std::string detail = problem_detail(r);
+  if (paths) detail = paths->with_user_paths(detail);
+  if (r.status == 401) {
+    fmt::print(stderr, "tally: the server wants a token (401: {}); pass --token TOKEN or set TALLY_TOKEN\n", detail);
+    throw RemoteFailure{exit_code::auth};
+  }
+  if (r.status == 403) {
+    fmt::print(stderr, "tally: not allowed with this token (403: {})\n", detail);
+    throw RemoteFailure{exit_code::auth};
+  }
   fmt::print(stderr, "tally: server answered {}: {}\n", r.status, detail);
-  // The request was wrong (bad spec, unknown job, wrong state): usage. Else: server trouble.
-  const bool ours = r.status == 400 || r.status == 404 || r.status == 405 || r.status == 409 || r.status == 413 ||
-                    r.status == 415 || r.status == 422;
-  throw RemoteFailure{ours ? exit_code::usage : exit_code::connection};
+  throw RemoteFailure{exit_code_for_http(r.status)};
+}
+
+// Waits out 503 + Retry-After (a recovering server, a full queue), saying so on stderr.
+ClientResponse request(HttpClient& c, std::string_view method, std::string_view target, std::string_view body = {},
+                       const HeaderList& headers = {}) {
+  RetryPolicy policy;
+  policy.on_retry = [](const ClientResponse& r, double wait) {
+    fmt::print(stderr, "tally: server busy (503: {}); retrying in {:.1f} s\n", problem_detail(r), wait);
+  };
+  return request_retrying(c, method, target, body, headers, policy);
 }
 
 json get_json(HttpClient& c, const std::string& target) {
@@ -64,12 +97,80 @@ std::string read_spec(const std::string& path) {
   }
   std::ifstream in(path, std::ios::binary);
   if (!in) {
-    fmt::print(stderr, "tally: cannot read {}\n", path);
+    fmt::print(stderr, "tally: cannot read {}: {}\n", path, std::strerror(errno));
     throw RemoteFailure{exit_code::usage};
   }
   std::stringstream ss;
   ss << in.rdbuf();
+  if (in.bad()) {
+    fmt::print(stderr, "tally: cannot read {}: {}\n", path, std::strerror(errno));
+    throw RemoteFailure{exit_code::usage};
+  }
   return ss.str();
+}
+
+// The spec file as JSON, or a usage error naming the file, line and column.
+json parse_spec(const std::string& path, const std::string& text) {
+  try {
+    return json::parse(text);
+  } catch (const json::parse_error& e) {
+    fmt::print(stderr, "tally: {} is not valid JSON: {}\n", path == "-" ? "the spec on stdin" : path,
+               json_parse_error_text(e));
+    throw RemoteFailure{exit_code::usage};
+  }
+}
+
+// A spec read from `path`, its scene's files uploaded and named by hash (unless `upload`
+// is false). Returns the body to send and the packer's report (for naming files).
+std::pair<std::string, AssetUploadReport> packed_spec(HttpClient& c, const std::string& path, bool upload) {
+  json spec = parse_spec(path, read_spec(path));
+  AssetUploadReport up;
+  if (upload) {
+    const std::filesystem::path base =
+        path == "-" ? std::filesystem::current_path() : std::filesystem::path(path).parent_path();
+    try {
+      up = upload_scene_assets(c, spec, base.empty() ? "." : base);
+    } catch (const PackError& e) {
+      fmt::print(stderr, "tally: {}\n", e.what());
+      throw RemoteFailure{exit_code::usage};
+    } catch (const AssetRefused& e) {
+      fmt::print(stderr, "tally: {}\n", e.what());
+      throw RemoteFailure{exit_code_for_http(e.status)};
+    }
+    if (up.uploaded + up.present > 0) {
+      fmt::print(stderr, "tally: assets: {} uploaded, {} already on the server\n", up.uploaded, up.present);
+    }
+  }
+  return {spec.dump(), std::move(up)};
+}
+
+// The validate answer's prediction as one line ("" when there is none).
+std::string prediction_text(const json& v) {
+  const json p = v.value("prediction", json());
+  if (!p.is_object()) {
+    const json pilot = v.value("pilot", json::object());
+    if (pilot.contains("error")) return "the pilot failed: " + pilot["error"].get<std::string>();
+    if (pilot.contains("note")) return pilot["note"].get<std::string>();
+    return "";
+  }
+  const json samples = p.value("samples", json()), seconds = p.value("seconds", json());
+  std::string out = fmt::format("predicted: stops by {} after {} samples, {} compute", p.value("stops_by", "?"),
+                                samples.is_number() ? format_count(samples.get<double>()) : "?",
+                                seconds.is_number() ? format_duration(seconds.get<double>()) : "?");
+  const json pilot = v.value("pilot", json::object());
+  if (pilot.contains("job_samples_per_second") && pilot["job_samples_per_second"].is_number()) {
+    out += fmt::format(" (at {}/s)", format_count(pilot["job_samples_per_second"].get<double>()));
+  }
+  if (!p.value("reliable", true)) out += "; unreliable: the variance may be infinite (heavy tail)";
+  return out;
+}
+
+// Seconds the validate answer predicts (nullopt when it has no prediction).
+std::optional<double> predicted_seconds(const json& v) {
+  const json p = v.value("prediction", json());
+  const json seconds = p.is_object() ? p.value("seconds", json()) : json();
+  if (!seconds.is_number()) return std::nullopt;
+  return seconds.get<double>();
 }
 
 void print_status(const json& s) {
@@ -209,38 +310,95 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
     auto file = std::make_shared<std::string>();
     auto watch = std::make_shared<bool>(false);
     auto priority = std::make_shared<int>(0);
+    auto warn_s = std::make_shared<double>(60.0);
+    auto no_predict = std::make_shared<bool>(false);
+    auto no_upload = std::make_shared<bool>(false);
     CLI::App* cmd = app.add_subcommand("submit", "Submit a job spec (JSON file, - for stdin) to the server");
     cmd->add_option("spec", *file, "job spec file")->required();
     cmd->add_flag("--watch,-w", *watch, "follow the job until it ends");
     cmd->add_option("--priority", *priority, "CPU share priority, -5..5")->check(CLI::Range(-5, 5));
-    auto no_upload = std::make_shared<bool>(false);
     cmd->add_flag("--no-upload", *no_upload,
-                  "send the spec as it is (by default the local files a scene names are uploaded to the server's "
-                  "asset store, only those it lacks, and named by their sha256)");
+                  "send the spec as it is (by default every local file the scene names, and the files those name, "
+                  "is uploaded to the server's asset store, only what it lacks, and named by its sha256)");
+    cmd->add_option("--warn-seconds", *warn_s,
+                    "warn when the predicted compute time exceeds this (seconds; the prediction is the server's "
+                    "validate pilot)")
+        ->check(CLI::NonNegativeNumber)
+        ->capture_default_str();
+    cmd->add_flag("--no-predict", *no_predict, "submit without asking the server for a prediction first");
     add_server_option(cmd, *opt);
     cmd->callback([=, &exit_code] {
       run_guarded(exit_code, [&] {
         HttpClient c = make_client(*opt);
-        std::string body = read_spec(*file);
-        if (!*no_upload) {
-          json spec = json::parse(body, nullptr, false);
-          if (!spec.is_discarded()) {
-            const std::filesystem::path base =
-                *file == "-" ? std::filesystem::current_path() : std::filesystem::path(*file).parent_path();
-            const AssetUploadReport up = upload_scene_assets(c, spec, base.empty() ? "." : base);
-            if (up.uploaded + up.present > 0) {
-              fmt::print(stderr, "tally: assets: {} uploaded, {} already on the server\n", up.uploaded, up.present);
-              body = spec.dump();
+        const auto [body, up] = packed_spec(c, *file, !*no_upload);
+        const HeaderList json_type = {{"Content-Type", "application/json"}};
+        if (!*no_predict) {
+          const ClientResponse v = request(c, "POST", "/v1/jobs/validate", body, json_type);
+          if (v.status == 200) {
+            const json vj = json::parse(v.body);
+            const std::string text = prediction_text(vj);
+            if (!text.empty()) fmt::print(stderr, "tally: {}\n", text);
+            const auto secs = predicted_seconds(vj);
+            if (secs && *secs > *warn_s) {
+              fmt::print(stderr,
+                         "tally: warning: the job is predicted to take {} of compute, more than --warn-seconds {}; "
+                         "`tally cancel ID` stops it, a looser target or another estimator is cheaper "
+                         "(`tally validate` shows the cost curve)\n",
+                         format_duration(*secs), *warn_s);
             }
+          } else if (v.status != 503) {
+            fail_response(v, &up);  // the spec is refused: the submit would be too
           }
         }
-        const ClientResponse r = c.request("POST", fmt::format("/v1/jobs?priority={}", *priority), body,
-                                           {{"Content-Type", "application/json"}});
-        if (r.status != 202) fail_response(r);
+        const ClientResponse r = request(c, "POST", fmt::format("/v1/jobs?priority={}", *priority), body, json_type);
+        if (r.status != 202) fail_response(r, &up);
         const std::string id = json::parse(r.body).at("id").get<std::string>();
         fmt::print("{}\n", id);
         std::fflush(stdout);
         return *watch ? watch_job(c, id) : exit_code::ok;
+      });
+    });
+  }
+  // validate
+  {
+    auto opt = std::make_shared<RemoteOptions>();
+    auto file = std::make_shared<std::string>();
+    auto as_json = std::make_shared<bool>(false);
+    auto no_upload = std::make_shared<bool>(false);
+    CLI::App* cmd = app.add_subcommand(
+        "validate", "Check a job spec on the server and predict its cost (samples, seconds) without running it");
+    cmd->add_option("spec", *file, "job spec file (- for stdin)")->required();
+    cmd->add_flag("--json", *as_json, "print the server's whole answer (plan, pilot, prediction, cost curve)");
+    cmd->add_flag("--no-upload", *no_upload, "send the spec as it is (see submit)");
+    add_server_option(cmd, *opt);
+    cmd->callback([=, &exit_code] {
+      run_guarded(exit_code, [&] {
+        HttpClient c = make_client(*opt);
+        const auto [body, up] = packed_spec(c, *file, !*no_upload);
+        const ClientResponse r =
+            request(c, "POST", "/v1/jobs/validate", body, {{"Content-Type", "application/json"}});
+        if (r.status != 200) fail_response(r, &up);
+        const json v = json::parse(r.body);
+        if (*as_json) {
+          fmt::print("{}\n", v.dump(2));
+          return exit_code::ok;
+        }
+        fmt::print("valid\n");
+        const std::string text = prediction_text(v);
+        if (!text.empty()) fmt::print("{}\n", text);
+        const json p = v.value("prediction", json());
+        if (p.is_object() && p.contains("cost_curve") && p["cost_curve"].is_array()) {
+          for (const auto& pt : p["cost_curve"]) {
+            if (!pt["samples"].is_number() || !pt["seconds"].is_number()) continue;
+            fmt::print("  rel. error {:g}: {} samples, {}\n", pt.value("rel_error", 0.0),
+                       format_count(pt["samples"].get<double>()), format_duration(pt["seconds"].get<double>()));
+          }
+        }
+        const json pilot = v.value("pilot", json::object());
+        for (const auto& w : pilot.value("warnings", json::array())) {
+          if (w.is_string()) fmt::print("warning: {}\n", w.get<std::string>());
+        }
+        return exit_code::ok;
       });
     });
   }
@@ -258,7 +416,12 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
           cmd->add_option("--image", *image, "save the job's image (.exr or .png)");
         },
         [=](HttpClient& c, const std::string& id) {
-          const ClientResponse r = c.request("GET", "/v1/jobs/" + id);
+          const auto format = image->empty() ? std::optional<ImageFormat>() : image_format_of(*image);
+          if (!image->empty() && !format) {
+            fmt::print(stderr, "tally: {}\n", unknown_image_format_message(*image));
+            return exit_code::usage;
+          }
+          const ClientResponse r = request(c, "GET", "/v1/jobs/" + id);
           if (r.status != 200) fail_response(r);
           const json s = json::parse(r.body);
           if (*as_json) {
@@ -267,13 +430,13 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
             print_status(s);
           }
           if (!image->empty()) {
-            const bool png = image->size() >= 4 && image->substr(image->size() - 4) == ".png";
-            const ClientResponse img = c.request("GET", "/v1/jobs/" + id + (png ? "/image.png" : "/image.exr"));
+            const bool png = *format == ImageFormat::png;
+            const ClientResponse img = request(c, "GET", "/v1/jobs/" + id + (png ? "/image.png" : "/image.exr"));
             if (img.status != 200) fail_response(img);
             std::ofstream out(*image, std::ios::binary);
             out.write(img.body.data(), static_cast<std::streamsize>(img.body.size()));
             if (!out) {
-              fmt::print(stderr, "tally: cannot write {}\n", *image);
+              fmt::print(stderr, "tally: cannot write {}: {}\n", *image, std::strerror(errno));
               return exit_code::usage;
             }
             fmt::print(stderr, "wrote {} ({} bytes)\n", *image, img.body.size());
@@ -293,12 +456,16 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
     cmd->callback([=, &exit_code] {
       run_guarded(exit_code, [&] {
         HttpClient c = make_client(*opt);
-        fmt::print("{:<18} {:<10} {:<10} {:>10} {:>20} {:>12}\n", "ID", "STATE", "KIND", "SAMPLES", "MEAN", "STDERR");
+        bool header = false;  // printed with the first page: a refusal prints no table
         // Pages of up to 1000 jobs, each naming the next one (docs/api.md).
         std::string page = state->empty() ? std::string("/v1/jobs?limit=1000") : "/v1/jobs?limit=1000&state=" + *state;
         for (int pages = 0; !page.empty() && pages < 100000; ++pages) {
         const json j = get_json(c, page);
         page = j.contains("next") && j["next"].is_string() ? j["next"].get<std::string>() : std::string();
+        if (!header) {
+          fmt::print("{:<18} {:<10} {:<10} {:>10} {:>20} {:>12}\n", "ID", "STATE", "KIND", "SAMPLES", "MEAN", "STDERR");
+          header = true;
+        }
         for (const auto& s : j.at("jobs")) {
           auto num = [&](const char* k) {
             return s.contains(k) && s[k].is_number() ? fmt::format("{:.10g}", s[k].get<double>()) : std::string("-");
@@ -321,7 +488,7 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
                                  state, id);
                       return exit_code::usage;
                     }
-                    const ClientResponse r = c.request("DELETE", "/v1/jobs/" + id);
+                    const ClientResponse r = request(c, "DELETE", "/v1/jobs/" + id);
                     if (r.status == 204) {  // it finished in between, and was deleted
                       fmt::print("{} deleted (it had just finished)\n", id);
                       return exit_code::ok;
@@ -338,7 +505,7 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
                       fmt::print(stderr, "tally: job {} is still {}; `tally cancel {}` first\n", id, state, id);
                       return exit_code::usage;
                     }
-                    const ClientResponse r = c.request("DELETE", "/v1/jobs/" + id);
+                    const ClientResponse r = request(c, "DELETE", "/v1/jobs/" + id);
                     if (r.status != 204) fail_response(r);
                     fmt::print("{} deleted\n", id);
                     return exit_code::ok;
@@ -367,7 +534,7 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
           if (*abs_error > 0) body["abs_error"] = *abs_error;
           if (*rel_error > 0) body["rel_error"] = *rel_error;
           if (*budget > 0) body["time_budget_s"] = *budget;
-          const ClientResponse r = c.request("POST", "/v1/jobs/" + id + "/extend", body.dump(),
+          const ClientResponse r = request(c, "POST", "/v1/jobs/" + id + "/extend", body.dump(),
                                              {{"Content-Type", "application/json"}});
           if (r.status != 202) fail_response(r);
           fmt::print("{} extended\n", id);

@@ -3,14 +3,20 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <cerrno>
 #include <csignal>
 #include <cstdio>
+#include <cstring>
+#include <filesystem>
 #include <fmt/format.h>
 #include <fstream>
 #include <iostream>
 #include <sstream>
 
 #include "client/exit_codes.hpp"
+#include "client/image_format.hpp"
+#include "client/json_errors.hpp"
+#include "common/image/image_io.hpp"
 #include "common/engine/local_executor.hpp"
 #include "common/jobs/job_factory.hpp"
 #include "common/protocol/spec_reader.hpp"
@@ -31,9 +37,42 @@ struct RunOptions {
   bool progress = false;
   unsigned threads = 0;
   std::string image_out;
+  std::string asset_dir;  // "" = the spec file's directory
 };
 
+// Writes the job's image to `path` in `format`; false (with the reason on stderr) on failure.
+bool write_image(const JobDefinition& job, const JobRunner& runner, const std::string& path, ImageFormat format) {
+  const ImageSource* source = job.image();
+  if (!source) {
+    fmt::print(stderr, "tally run: --image: this job makes no image (its query is not \"type\": \"image\")\n");
+    return false;
+  }
+  const ImageSnapshot snap = source->snapshot(runner.state());
+  std::string bytes;
+  try {
+    const nlohmann::json meta = {{"samples", runner.state().samples}, {"passes", runner.state().passes}};
+    bytes = format == ImageFormat::exr ? encode_exr(snap, meta) : encode_png(snap);
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "tally run: cannot encode {}: {}\n", path, e.what());
+    return false;
+  }
+  std::ofstream out(path, std::ios::binary);
+  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  out.close();
+  if (!out) {
+    fmt::print(stderr, "tally run: cannot write {}: {}\n", path, std::strerror(errno));
+    return false;
+  }
+  fmt::print(stderr, "wrote {} ({} bytes)\n", path, bytes.size());
+  return true;
+}
+
 int run(const RunOptions& o) {
+  const auto format = o.image_out.empty() ? std::optional<ImageFormat>() : image_format_of(o.image_out);
+  if (!o.image_out.empty() && !format) {
+    fmt::print(stderr, "tally run: {}\n", unknown_image_format_message(o.image_out));
+    return exit_code::usage;
+  }
   std::string text;
   if (o.path == "-") {
     std::stringstream ss;
@@ -42,7 +81,7 @@ int run(const RunOptions& o) {
   } else {
     std::ifstream in(o.path, std::ios::binary);
     if (!in) {
-      fmt::print(stderr, "tally run: cannot read {}\n", o.path);
+      fmt::print(stderr, "tally run: cannot read {}: {}\n", o.path, std::strerror(errno));
       return exit_code::usage;
     }
     std::stringstream ss;
@@ -53,12 +92,20 @@ int run(const RunOptions& o) {
   try {
     spec = nlohmann::json::parse(text);
   } catch (const nlohmann::json::parse_error& e) {
-    fmt::print(stderr, "tally run: {} is not valid JSON: {}\n", o.path, e.what());
+    fmt::print(stderr, "tally run: {} is not valid JSON: {}\n", o.path == "-" ? "the spec on stdin" : o.path,
+               json_parse_error_text(e));
     return exit_code::usage;
   }
   std::unique_ptr<JobDefinition> job;
   try {
-    job = compile_job(spec, JobLimits{});
+    JobLimits limits;
+    if (!o.asset_dir.empty()) {
+      limits.asset_dir = o.asset_dir;
+    } else {
+      const std::filesystem::path dir = o.path == "-" ? std::filesystem::path(".") : std::filesystem::path(o.path).parent_path();
+      limits.asset_dir = dir.empty() ? std::string(".") : dir.string();
+    }
+    job = compile_job(spec, limits);
   } catch (const SpecError& e) {
     fmt::print(stderr, "tally run: invalid job: {} (at \"{}\")\n", e.detail(), e.pointer());
     return exit_code::usage;
@@ -96,6 +143,9 @@ int run(const RunOptions& o) {
       for (const auto& w : runner.warnings()) fmt::print("warning: {}\n", w);
     }
   }
+  if (format && runner.stop_reason() != StopReason::failed && !write_image(*job, runner, o.image_out, *format)) {
+    return exit_code::usage;
+  }
   switch (runner.stop_reason()) {
     case StopReason::failed:
     case StopReason::cancelled: return exit_code::job_failed;
@@ -114,6 +164,11 @@ void add_run_command(CLI::App& app, int& exit_code) {
   cmd->add_flag("--json", opts->json, "Print the full result as JSON");
   cmd->add_flag("--progress", opts->progress, "Print one line per pass on stderr");
   cmd->add_option("--threads", opts->threads, "Worker threads (default: the CPUs available)");
+  cmd->add_option("--asset-dir", opts->asset_dir,
+                  "Directory the scene's file names are relative to (default: the spec file's directory)");
+  cmd->add_option("--image", opts->image_out,
+                  "Write the job's image: out.exr (float RGB, standard errors, samples per pixel) or out.png "
+                  "(8-bit preview); the format is the extension's");
   cmd->callback([opts, &exit_code] { exit_code = run(*opts); });
 }
 

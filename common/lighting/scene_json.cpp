@@ -513,7 +513,13 @@ std::string read_asset_file(const std::filesystem::path& path, const std::string
 std::filesystem::path resolve_asset(const std::string& asset_dir, const std::string& relative,
                                     const std::string& pointer) {
   namespace fs = std::filesystem;
-  if (asset_dir.empty()) throw SpecError(pointer, "no asset directory is configured: OBJ files are not allowed");
+  if (asset_dir.empty()) {
+    // Any scene file (OBJ, glTF, .bin, texture, map) lands here: name none of them by kind.
+    throw SpecError(pointer, fmt::format("\"{}\" is a file name, but this server has no asset directory (--asset-dir): "
+                                         "upload the file and name it \"sha256:<hex>\" (tally submit and the Python "
+                                         "client do both)",
+                                         relative));
+  }
   const fs::path rel(relative);
   if (rel.empty() || rel.is_absolute() || rel.has_root_name() || rel.has_root_directory()) {
     throw SpecError(pointer, "must be a relative path inside the asset directory");

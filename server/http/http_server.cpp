@@ -563,10 +563,16 @@ HttpServer::~HttpServer() { stop(0); }
 uint16_t HttpServer::start() {
   Impl& s = *impl_;
   const tcp::endpoint ep(net::ip::make_address(s.shared.config.address), s.shared.config.port);
-  s.acceptor.open(ep.protocol());
-  s.acceptor.set_option(net::socket_base::reuse_address(true));
-  s.acceptor.bind(ep);
-  s.acceptor.listen(net::socket_base::max_listen_connections);
+  try {
+    s.acceptor.open(ep.protocol());
+    s.acceptor.set_option(net::socket_base::reuse_address(true));
+    s.acceptor.bind(ep);
+    s.acceptor.listen(net::socket_base::max_listen_connections);
+  } catch (const boost::system::system_error& e) {
+    // "bind: Address already in use" names no address; the operator needs to know which.
+    throw std::runtime_error(fmt::format("cannot listen on {}:{}: {}", s.shared.config.address,
+                                         s.shared.config.port, e.code().message()));
+  }
   s.port = s.acceptor.local_endpoint().port();
   s.accept();
   s.work.emplace(s.ioc.get_executor());
