@@ -12,7 +12,8 @@ from tally_test_support import (CuttingProxy, Server, TlsProxy, disk_spec, free_
                                 small_image_spec)
 
 import tally_client  # noqa: E402
-from tally_client import (BadRequest, Client, Conflict, HeaderTooLarge, InvalidSpec, MethodNotAllowed,  # noqa: E402
+from tally_client import (BadRequest, Client, Conflict, HeaderTooLarge, InvalidSpec, JobFailed,  # noqa: E402
+                          MethodNotAllowed,
                           NotFound, PayloadTooLarge, ProblemError, ServiceUnavailable, TallyConnectionError,
                           UnsupportedMediaType)
 
@@ -50,6 +51,8 @@ class ClientMethods(unittest.TestCase):
     def test_name_travels_with_the_spec(self) -> None:
         job = self.client.submit(disk_spec(1000, name="first try"))
         self.assertEqual(self.client.status(job)["spec"]["name"], "first try")
+        entry = [j for j in self.client.list() if j["id"] == job]
+        self.assertEqual([j.get("name") for j in entry], ["first try"])  # the list shows it too
 
     def test_list_and_filter(self) -> None:
         a = self.client.submit(disk_spec(1000, seed=5))
@@ -76,8 +79,9 @@ class ClientMethods(unittest.TestCase):
         job = self.client.submit(disk_spec(50_000_000_000, seed=9))
         out = self.client.cancel(job)
         self.assertIn(out.get("state"), ("cancelled", "running", "queued"))
-        final = self.client.wait(job, timeout=60)
-        self.assertEqual(final["state"], "cancelled")
+        with self.assertRaises(JobFailed) as failed:  # wait() raises for a cancelled job
+            self.client.wait(job, timeout=60)
+        self.assertEqual(failed.exception.result["state"], "cancelled")
         # Finished: DELETE now deletes it (204), then it is gone (404).
         self.assertIsNone(self.client.delete(job))
         with self.assertRaises(NotFound) as cm:

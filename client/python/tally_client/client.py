@@ -2,27 +2,36 @@
 
 from __future__ import annotations
 
-import hashlib
 import http.client
 import json
 import os
 import socket
 import ssl
+import threading
 import time
 import urllib.parse
 from dataclasses import dataclass
+from types import TracebackType
 from typing import Any, BinaryIO, Dict, Iterator, List, Mapping, Optional, Tuple, Type, Union
 
-from .errors import TallyConnectionError, problem_from_response
+from .errors import Conflict, JobFailed, ProblemError, TallyConnectionError, problem_from_response
 from .image import Image, decode_exr, image_from_tiles
+from .packing import ScenePacker, sha256_file
+from .result import JobResult
 
-__all__ = ["Client", "Event", "TERMINAL_STATES"]
+__all__ = ["Client", "Event", "TERMINAL_STATES", "DEFAULT_URL"]
+
+DEFAULT_URL = "http://127.0.0.1:8080"
 
 TERMINAL_STATES = frozenset({"succeeded", "failed", "cancelled"})
 JsonObject = Dict[str, Any]
 
 # Errors that mean "the connection broke" (as opposed to an HTTP error answer).
 _NETWORK_ERRORS: Tuple[Type[Exception], ...] = (OSError, http.client.HTTPException)
+# What a kept-alive connection the server has closed meanwhile gives on its next use:
+# the request is sent again once on a new connection.
+_STALE_CONNECTION: Tuple[Type[Exception], ...] = (http.client.RemoteDisconnected, ConnectionResetError,
+                                                  BrokenPipeError, http.client.CannotSendRequest)
 
 
 @dataclass(frozen=True)
@@ -45,21 +54,30 @@ class _Response:
 
 
 class Client:
-    """A connection-per-request client of one tally-server.
+    """A client of one tally-server.
 
-    ``url`` is the server's base URL (``http://127.0.0.1:8080``, ``https://host/prefix``).
-    ``token``, when given, is sent as ``Authorization: Bearer <token>``. https uses the
-    system's certificate store (``ssl.create_default_context()``) unless ``ssl_context``
-    is given. ``timeout`` bounds each request's connect and each read, in seconds.
+    ``url`` is the server's base URL (``http://127.0.0.1:8080``, ``https://host/prefix``);
+    without it ``TALLY_SERVER`` is used, then ``http://127.0.0.1:8080``. ``token``, or else
+    ``TALLY_TOKEN``, is sent as ``Authorization: Bearer <token>``. https uses the system's
+    certificate store (``ssl.create_default_context()``) unless ``ssl_context`` is given.
+    ``timeout`` bounds each request's connect and each read, in seconds.
+
+    Requests reuse one kept-alive connection per thread (a connection the server closed
+    meanwhile is replaced, and the request sent again once); event streams have their own.
+    ``close()`` closes the calling thread's connection; ``with Client() as c:`` does it at
+    the end. Instances may be shared between threads.
 
     Every method raises a :class:`~tally_client.errors.ProblemError` subclass for an
     HTTP error (with the server's ``status``, ``title``, ``detail``, ``pointer``) and
     :class:`~tally_client.errors.TallyConnectionError` when the server cannot be reached.
-    Instances hold no connection and may be shared between threads.
     """
 
-    def __init__(self, url: str, token: Optional[str] = None, *, timeout: float = 30.0,
+    def __init__(self, url: Optional[str] = None, token: Optional[str] = None, *, timeout: float = 30.0,
                  ssl_context: Optional[ssl.SSLContext] = None):
+        if url is None:
+            url = os.environ.get("TALLY_SERVER") or DEFAULT_URL
+        if token is None:
+            token = os.environ.get("TALLY_TOKEN") or None
         parts = urllib.parse.urlsplit(url)
         if parts.scheme not in ("http", "https") or not parts.hostname:
             raise ValueError(f"url must be http://host[:port][/prefix] or https://..., got {url!r}")
@@ -71,24 +89,70 @@ class Client:
         self._port = parts.port or (443 if self._https else 80)
         self._prefix = parts.path.rstrip("/")
         self._ssl = ssl_context if ssl_context is not None else (ssl.create_default_context() if self._https else None)
+        self._local = threading.local()
+        self._lock = threading.Lock()
+        self._conns: List[http.client.HTTPConnection] = []  # every thread's, for close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, exc_type: Optional[Type[BaseException]], exc: Optional[BaseException],
+                 tb: Optional[TracebackType]) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Closes the kept-alive connections of every thread (call it when no request is in
+        flight); the next request opens a new one. Also done when the client is collected."""
+        with self._lock:
+            conns, self._conns = self._conns, []
+        for conn in conns:
+            conn.close()
+        self._local.conn = None
+
+    def __del__(self) -> None:
+        if getattr(self, "_conns", None):  # not when __init__ refused the URL
+            self.close()
 
     def __repr__(self) -> str:
         return f"Client({self.url!r}{', token=...' if self.token else ''})"
 
     # --- jobs ----------------------------------------------------------------------
 
-    def submit(self, spec: Mapping[str, Any], *, priority: Optional[int] = None) -> str:
-        """Submits a job spec (docs/jobs.md); returns the new job's id. ``priority``: -5..5."""
+    def submit(self, spec: Mapping[str, Any], *, priority: Optional[int] = None, base_dir: str = ".",
+               upload: bool = True) -> str:
+        """Submits a job spec (docs/jobs.md); returns the new job's id. ``priority``: -5..5.
+
+        With ``upload`` (the default) the scene's local files, and the files they name, are
+        uploaded first (only what the server lacks) and named by their hash, as ``tally
+        submit`` does (see :meth:`upload_scene_assets`; relative names are taken relative to
+        ``base_dir``). An error about an uploaded file names its local path, not its hash.
+        """
         query = {"priority": str(priority)} if priority is not None else None
-        return str(self._json("POST", "/v1/jobs", body=spec, query=query)["id"])
+        if not upload:
+            return str(self._json("POST", "/v1/jobs", body=spec, query=query)["id"])
+        packer = self._packer(base_dir)
+        sent = packer.pack_spec(spec)
+        try:
+            return str(self._json("POST", "/v1/jobs", body=sent, query=query)["id"])
+        except ProblemError as e:
+            raise _with_user_paths(e, packer) from None
 
-    def validate(self, spec: Mapping[str, Any]) -> JsonObject:
-        """Dry run: the plan, a short pilot and the predicted samples and seconds per rule."""
-        return self._json("POST", "/v1/jobs/validate", body=spec)
+    def validate(self, spec: Mapping[str, Any], *, base_dir: str = ".", upload: bool = True) -> JsonObject:
+        """Dry run: the plan, a short pilot and the predicted samples and seconds per rule.
+        Uploads the scene's files as :meth:`submit` does (unless ``upload`` is false)."""
+        if not upload:
+            return self._json("POST", "/v1/jobs/validate", body=spec)
+        packer = self._packer(base_dir)
+        sent = packer.pack_spec(spec)
+        try:
+            return self._json("POST", "/v1/jobs/validate", body=sent)
+        except ProblemError as e:
+            raise _with_user_paths(e, packer) from None
 
-    def status(self, job_id: str) -> JsonObject:
-        """The status document of a job (state, estimate, prediction, timing, ...)."""
-        return self._json("GET", f"/v1/jobs/{_segment(job_id)}")
+    def status(self, job_id: str) -> JobResult:
+        """The status document of a job (state, estimate, prediction, timing, ...), a dict
+        with typed accessors (``.mean``, ``.sdev``, ``.ci``, ``.state``; see JobResult)."""
+        return JobResult(self._json("GET", f"/v1/jobs/{_segment(job_id)}"))
 
     def list(self, state: Optional[str] = None, *, page_size: Optional[int] = None) -> List[JsonObject]:
         """Job summaries in submission order, optionally only those in ``state``.
@@ -112,8 +176,14 @@ class Client:
 
     def cancel(self, job_id: str) -> JsonObject:
         """Cancels a queued or running job: its summary (state ``cancelled``, or still
-        ``running`` until the next chunk boundary). On a job that has already finished
-        the same request deletes it (see :meth:`delete`) and {} is returned."""
+        ``running`` until the next chunk boundary). A job that has already finished is
+        left alone: :class:`Conflict` (409) says so (``tally cancel`` refuses the same way;
+        :meth:`delete` deletes a finished job). If the job finishes between the check and
+        the request, the server deletes it and {} is returned."""
+        state = self.status(job_id).state
+        if state in TERMINAL_STATES:
+            raise Conflict(409, {"title": "Conflict", "status": 409,
+                                 "detail": f"job {job_id} has already finished ({state}); delete() deletes it"})
         return self._json("DELETE", f"/v1/jobs/{_segment(job_id)}")
 
     def delete(self, job_id: str) -> None:
@@ -130,16 +200,23 @@ class Client:
             raise ValueError("extend needs at least one of max_samples, abs_error, rel_error, time_budget_s")
         return self._json("POST", f"/v1/jobs/{_segment(job_id)}/extend", body=body)
 
-    def wait(self, job_id: str, timeout: Optional[float] = None, *, reconnect_timeout: float = 60.0) -> JsonObject:
-        """Follows the job's event stream until it ends; returns the final status document.
+    def wait(self, job_id: str, timeout: Optional[float] = None, *, raise_on_failure: bool = True,
+             reconnect_timeout: float = 60.0) -> JobResult:
+        """Follows the job's event stream until it ends; returns the final status document
+        (a :class:`JobResult`: ``.mean``, ``.sdev``, ``.ci``, or as a dict).
 
-        Raises TimeoutError when ``timeout`` seconds pass first (the job keeps running).
-        A dropped connection is resumed as in :meth:`events`.
+        A job that ends ``failed`` or ``cancelled`` raises :class:`JobFailed` (its
+        ``result`` is the status) unless ``raise_on_failure`` is false. Raises TimeoutError
+        when ``timeout`` seconds pass first (the job keeps running). A dropped connection is
+        resumed as in :meth:`events`.
         """
         deadline = None if timeout is None else time.monotonic() + timeout
         for ev in self._events(job_id, None, reconnect_timeout, deadline):
             if ev is not None and ev.event == "end":
-                return self.status(job_id)
+                result = self.status(job_id)
+                if raise_on_failure and result.state in ("failed", "cancelled"):
+                    raise JobFailed(result)
+                return result
         raise TimeoutError(f"job {job_id} did not finish within {timeout} s")  # pragma: no cover
 
     def events(self, job_id: str, *, last_event_id: Optional[int] = None,
@@ -202,39 +279,45 @@ class Client:
     def upload_asset(self, path: str, *, skip_if_present: bool = True) -> str:
         """Uploads a file to the server's asset store and returns its name, ``"sha256:<hex>"``
         (what a scene uses wherever it names a file). The file is streamed, never read whole
-        into memory; with ``skip_if_present`` a HEAD first avoids sending what the server has."""
-        ref = "sha256:" + _sha256_file(path)
+        into memory; with ``skip_if_present`` a HEAD first avoids sending what the server has.
+        The file is sent as it is: :meth:`upload_scene_assets` also packs the files it names."""
+        ref = "sha256:" + sha256_file(path)
         if skip_if_present and self.has_asset(ref):
             return ref
-        size = os.path.getsize(path)
-        headers = self._headers({"Content-Type": "application/octet-stream", "Content-Length": str(size)})
-        with open(path, "rb") as f:
-            resp = self._exchange("PUT", f"/v1/assets/{ref}", None, f, headers, self.timeout + size / 2e6)
-        if resp.status >= 400:
-            raise problem_from_response(resp.status, resp.body, resp.headers)
+        self._put_asset(ref, path, None)
         return ref
 
     def upload_scene_assets(self, spec: Mapping[str, Any], base_dir: str = ".") -> JsonObject:
-        """A copy of ``spec`` whose local files (the scene fields ``obj``, ``file`` and ``map``,
-        relative to ``base_dir``) are uploaded (only those the server lacks) and named by
-        their hash, as ``tally submit`` does. Names that are not local files are left alone.
-        Files named inside those files (a .gltf's buffers and images, an OBJ's .mtl and
-        map_Kd) are not uploaded: use a .glb, data URIs or ``sha256:`` names there."""
-        def walk(v: Any) -> Any:
-            if isinstance(v, dict):
-                out = {}
-                for k, x in v.items():
-                    if k in _FILE_FIELDS and isinstance(x, str) and not x.startswith("sha256:"):
-                        local = x if os.path.isabs(x) else os.path.join(base_dir, x)
-                        out[k] = self.upload_asset(local) if os.path.isfile(local) else x
-                    else:
-                        out[k] = walk(x)
-                return out
-            if isinstance(v, list):
-                return [walk(x) for x in v]
-            return v
-        out: JsonObject = walk(dict(spec))
-        return out
+        """A copy of ``spec`` whose local files are uploaded (only those the server lacks)
+        and named by their hash, as ``tally submit`` does (tally_client.packing): the scene
+        fields ``obj``, ``file`` and ``map`` (relative to ``base_dir``), a glTF's buffers and
+        images (.gltf or .glb), an OBJ's ``mtllib`` files and their ``map_Kd`` textures.
+        A file that names others is uploaded with those names rewritten. Spec names that
+        are not local files are left alone; a file named inside a packed file that cannot be
+        read raises :class:`~tally_client.packing.PackError` naming both files."""
+        return self._packer(base_dir).pack_spec(spec)
+
+    def _packer(self, base_dir: str) -> ScenePacker:
+        def put_file(ref: str, path: str) -> None:
+            if not self.has_asset(ref):
+                self._put_asset(ref, path, None)
+
+        def put_bytes(ref: str, data: bytes, origin: str) -> None:
+            if not self.has_asset(ref):
+                self._put_asset(ref, origin, data)
+
+        return ScenePacker(put_file, put_bytes, base_dir)
+
+    def _put_asset(self, ref: str, path: str, data: Optional[bytes]) -> None:
+        size = len(data) if data is not None else os.path.getsize(path)
+        headers = self._headers({"Content-Type": "application/octet-stream", "Content-Length": str(size)})
+        if data is not None:
+            resp = self._exchange("PUT", f"/v1/assets/{ref}", None, data, headers, self.timeout + size / 2e6)
+        else:
+            with open(path, "rb") as f:
+                resp = self._exchange("PUT", f"/v1/assets/{ref}", None, f, headers, self.timeout + size / 2e6)
+        if resp.status >= 400:
+            raise _with_path(problem_from_response(resp.status, resp.body, resp.headers), ref, path)
 
     # --- HTTP ----------------------------------------------------------------------
 
@@ -270,19 +353,44 @@ class Client:
 
     def _exchange(self, method: str, path: str, query: Optional[Mapping[str, str]],
                   body: Optional[Union[bytes, BinaryIO]], headers: Mapping[str, str], timeout: float) -> _Response:
-        """One request on its own connection and the whole answer, whatever its status
-        (a file body is streamed); a network failure is a TallyConnectionError."""
-        conn = self._connection(timeout)
-        try:
+        """One request on the thread's kept-alive connection and the whole answer, whatever
+        its status (a file body is streamed); a network failure is a TallyConnectionError.
+        A reused connection the server has closed is replaced and the request sent once more."""
+        target = self._target(path, query)
+        start = body.tell() if body is not None and not isinstance(body, bytes) else 0
+        for attempt in (0, 1):
+            conn: Optional[http.client.HTTPConnection] = getattr(self._local, "conn", None)
+            reused = conn is not None
+            if conn is None:
+                conn = self._connection(timeout)
+                self._local.conn = conn
+                with self._lock:
+                    self._conns.append(conn)
+            conn.timeout = timeout
+            if conn.sock is not None:
+                conn.sock.settimeout(timeout)
             try:
-                conn.request(method, self._target(path, query), body=body, headers=dict(headers))
+                conn.request(method, target, body=body, headers=dict(headers))
                 resp = conn.getresponse()
                 payload = resp.read()
             except _NETWORK_ERRORS as e:
+                self._forget(conn)
+                if reused and attempt == 0 and isinstance(e, _STALE_CONNECTION):
+                    if body is not None and not isinstance(body, bytes):
+                        body.seek(start)
+                    continue
                 raise TallyConnectionError(f"{method} {self.url}{path}: {e}") from e
+            if resp.will_close:
+                self._forget(conn)
             return _Response(resp.status, {k.lower(): v for k, v in resp.getheaders()}, payload)
-        finally:
-            conn.close()
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def _forget(self, conn: http.client.HTTPConnection) -> None:
+        conn.close()
+        self._local.conn = None
+        with self._lock:
+            if conn in self._conns:
+                self._conns.remove(conn)
 
     def _json(self, method: str, path: str, **kw: Any) -> JsonObject:
         out = self._request(method, path, **kw).json()
@@ -361,16 +469,18 @@ class Client:
             delay = min(delay * 2, 1.0)
 
 
-# Scene fields that name a file (common/lighting/asset_resolver.hpp: is_scene_file_field).
-_FILE_FIELDS = frozenset({"obj", "map", "file"})
+def _with_user_paths(e: ProblemError, packer: ScenePacker) -> ProblemError:
+    """The same error with the hashes the packer gave files replaced by their paths."""
+    problem = dict(e.problem)
+    if isinstance(problem.get("detail"), str):
+        problem["detail"] = packer.with_user_paths(problem["detail"])
+    return type(e)(e.status, problem, e.headers)
 
 
-def _sha256_file(path: str) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+def _with_path(e: ProblemError, ref: str, path: str) -> ProblemError:
+    problem = dict(e.problem)
+    problem["detail"] = f"uploading {path} ({ref}): {problem.get('detail', '')}"
+    return type(e)(e.status, problem, e.headers)
 
 
 def _segment(job_id: str) -> str:

@@ -29,6 +29,7 @@ __all__ = [
     "ServerError",
     "NotImplementedByServer",
     "ServiceUnavailable",
+    "JobFailed",
     "problem_from_response",
 ]
 
@@ -39,6 +40,18 @@ class TallyError(Exception):
 
 class TallyConnectionError(TallyError, ConnectionError):
     """The server could not be reached, or the connection broke and could not be resumed."""
+
+
+class JobFailed(TallyError):
+    """``wait()`` saw the job end ``failed`` or ``cancelled``; ``result`` is its final status
+    (a :class:`~tally_client.JobResult`), ``state`` and ``error_message`` say why."""
+
+    def __init__(self, result: Mapping[str, Any]):
+        self.result = result
+        self.state = str(result.get("state", ""))
+        self.error_message = str(result.get("error_message", "")) or None
+        why = f": {self.error_message}" if self.error_message else ""
+        super().__init__(f"job {result.get('id', '?')} {self.state}{why}")
 
 
 class ProblemError(TallyError):
