@@ -122,6 +122,8 @@
     settled: false,       // job ended and every announced tile is drawn
     lastEventId: null,
     dropStream: () => view && view.dropStream(),
+    // Whether the page holds an event stream that is open or reconnecting.
+    streamOpen: () => !!(view && view.es && view.es.readyState !== EventSource.CLOSED),
   };
   window.tallyPreview = hook;
 
@@ -155,11 +157,12 @@
     tbody.replaceChildren();
     $('jobs-empty').hidden = jobs.length > 0;
     for (const j of jobs.slice().reverse()) {
+      // The id's first 8 digits (the whole id in the tooltip and the job view); the name,
+      // or the kind when the spec has none: the table fits its column at 390 px and up.
       const tr = el('tr', { 'data-id': j.id },
-        el('td', {}, el('code', {}, j.id)),
-        el('td', {}, j.kind || ''),
+        el('td', { title: j.id }, el('code', {}, j.id.slice(0, 8))),
+        el('td', { class: j.name ? 'name' : 'name muted', title: j.name || '' }, j.name || `(${j.kind || 'job'})`),
         el('td', {}, el('span', { class: `state ${j.state}` }, j.state)),
-        el('td', { class: 'num' }, j.passes ?? '—'),
         el('td', { class: 'num' }, fmtCount(j.samples)));
       if (j.id === selectedId) tr.classList.add('selected');
       tr.addEventListener('click', () => { location.hash = `#/jobs/${encodeURIComponent(j.id)}`; });
@@ -205,16 +208,40 @@
     showResult(el('p', { class: 'muted' }, 'validating (short pilot run)…'));
     try {
       const r = await api('POST', '/v1/jobs/validate', text);
-      const p = r.prediction || {};
-      const lines = [`valid ${r.kind} job`];
-      if (r.pilot) lines.push(`pilot: ${JSON.stringify(r.pilot)}`);
-      if (r.prediction) lines.push(`prediction: ${JSON.stringify(p)}`);
-      if (r.note) lines.push(r.note);
-      showResult(el('div', {}, el('p', {}, lines[0]), el('pre', {}, lines.slice(1).join('\n') +
-        `\nplan: ${JSON.stringify(r.plan, null, 1)}`)));
+      showResult(validationView(r));
     } catch (e) {
       showResult(el('pre', {}, e.message), true);
     }
+  }
+
+  // The validate answer as a person reads it: what stops the job, after how many
+  // samples and how long, the cost of tighter targets, then the plan (folded).
+  function validationView(r) {
+    const p = r.prediction;
+    const pilot = r.pilot || {};
+    const rows = [];
+    if (p) {
+      rows.push(['stops by', p.stops_by || '—']);
+      rows.push(['samples', fmtCount(p.samples)]);
+      rows.push(['compute time', fmtDuration(p.seconds)]);
+      if (pilot.job_samples_per_second) rows.push(['at', `${fmtCount(Math.round(pilot.job_samples_per_second))} samples/s`]);
+      if (p.reliable === false) rows.push(['reliable', 'no: the variance may be infinite (heavy tail)']);
+      for (const c of p.cost_curve || []) {
+        if (c.samples === null || c.samples === undefined) continue;  // no relative error (an image, a zero mean)
+        rows.push([`rel. error ${c.rel_error}`, `${fmtCount(c.samples)} samples, ${fmtDuration(c.seconds)}`]);
+      }
+    } else {
+      rows.push(['prediction', pilot.error || pilot.note || r.note || 'none (the pilot did not run)']);
+    }
+    for (const w of pilot.warnings || []) rows.push(['warning', w]);
+    const table = el('table', { class: 'kv prediction', id: 'prediction' }, el('tbody', {},
+      ...rows.map(([k, v]) => el('tr', {}, el('td', {}, k), el('td', {}, v)))));
+    const head = el('p', {}, `valid ${r.kind || (r.plan && r.plan.kind) || ''} job`);
+    if (p && p.seconds > 60) {
+      head.append(el('strong', { class: 'error-text' }, ` · predicted ${fmtDuration(p.seconds)} of compute`));
+    }
+    return el('div', {}, head, table,
+      el('details', {}, el('summary', {}, 'plan'), el('pre', {}, JSON.stringify(r.plan, null, 2))));
   }
 
   async function submit(ev) {
@@ -262,6 +289,8 @@
     async start() {
       $('job-view').hidden = false;
       $('job-id').textContent = this.id;
+      $('job-name').textContent = '';
+      for (const id of ['download-exr', 'download-png']) $(id).hidden = true;
       $('plan').textContent = '';
       $('stats').querySelector('tbody').replaceChildren();
       this.message(null);
@@ -293,6 +322,7 @@
         return;
       }
       const s = this.status;
+      $('job-name').textContent = s.spec && typeof s.spec.name === 'string' ? s.spec.name : '';
       this.setState(s.state, s.stop_reason);
       // The effects (what is on, what is off, why) first, then the rest of the plan.
       const plan = s.plan && typeof s.plan === 'object' && 'plan' in s.plan ? { plan: s.plan.plan, ...s.plan } : s.plan;
@@ -318,6 +348,12 @@
       }
       if (!w || !h) { $('image-box').hidden = true; this.image = null; return; }
       $('image-box').hidden = false;
+      const base = `/v1/jobs/${encodeURIComponent(this.id)}/image`;
+      for (const [id, ext] of [['download-exr', 'exr'], ['download-png', 'png']]) {
+        $(id).href = `${base}.${ext}`;
+        $(id).setAttribute('download', `${this.id}.${ext}`);
+        $(id).hidden = false;
+      }
       if (!this.image || this.image.w !== w || this.image.h !== h) {
         this.image = { w, h, tileSize: img ? img.tile_size : (s.spec.query.tile_size || 32),
                        tileCount: img ? img.tiles : null };
@@ -348,6 +384,7 @@
       const active = state === 'queued' || state === 'running';
       $('cancel-btn').disabled = !active;
       $('extend-btn').disabled = active;
+      $('delete-btn').disabled = active;
     }
 
     // --- the event stream -------------------------------------------------
@@ -544,7 +581,7 @@
       const conf = est.confidence ? `${Math.round(est.confidence * 1000) / 10}%` : '95%';
       rows.push(['pass', p.pass ?? p.passes]);
       // An image job counts samples per pixel.
-      rows.push([this.image ? 'samples per pixel' : 'samples', fmtCount(p.samples)]);
+      rows.push([this.image ? 'spp (samples per pixel)' : 'samples', fmtCount(p.samples)]);
       if (this.image) {
         rows.push([`mean ${conf} CI half-width`, `${fmtNum(p.error && p.error.abs)} (relative ${fmtNum(p.error && p.error.rel && 100 * p.error.rel, 3)}%)`]);
       } else {
@@ -552,7 +589,7 @@
         rows.push([`${conf} CI`, `[${fmtNum(est.ci && est.ci[0], 7)}, ${fmtNum(est.ci && est.ci[1], 7)}]`]);
         rows.push(['relative error', p.error ? `${fmtNum(p.error.rel && 100 * p.error.rel, 3)}%` : '—']);
       }
-      rows.push(['samples/s', fmtCount(Math.round(p.samples_per_second || 0))]);
+      rows.push([this.image ? 'spp/s' : 'samples/s', fmtCount(Math.round(p.samples_per_second || 0))]);
       rows.push(['compute time', fmtDuration(p.compute_seconds)]);
       const eta = p.eta_seconds ?? (p.prediction && p.prediction.seconds_remaining);
       rows.push(['ETA', this.ended ? 'done' : fmtDuration(eta)]);
@@ -578,6 +615,13 @@
       ctx.fillStyle = '#6b7482';
       const pts = this.points;
       if (pts.length < 2) {
+        if (this.image && this.ended) {
+          // The server keeps no per-pass history of an image's error: only what the page saw.
+          const e = this.progress && this.progress.error;
+          ctx.fillText('an image job\'s history is drawn only while the page watches it;', 8, H / 2 - 8);
+          ctx.fillText(`final: CI half-width ${fmtNum(e && e.abs)} (${fmtNum(e && e.rel && 100 * e.rel, 3)}%)`, 8, H / 2 + 8);
+          return;
+        }
         ctx.fillText('the history starts when the page opens:', L, H / 2 - 8);
         ctx.fillText('fewer than two passes seen so far', L, H / 2 + 8);
         return;
@@ -632,6 +676,14 @@
 
     // --- buttons --------------------------------------------------------
 
+    async remove() {
+      try {
+        await api('DELETE', `/v1/jobs/${encodeURIComponent(this.id)}`);
+        location.hash = '';
+        refreshJobs();
+      } catch (e) { this.message(e.message); }
+    }
+
     async cancel() {
       try { await api('DELETE', `/v1/jobs/${encodeURIComponent(this.id)}`); refreshJobs(); }
       catch (e) { this.message(e.message); }
@@ -674,6 +726,7 @@
 
   function showLogin(why) {
     loggedIn = false;
+    $('server-status').textContent = '';  // not "connecting…": the server answered, it wants a token
     if (view) view.close();
     view = null;
     $('app-main').hidden = true;
@@ -731,6 +784,7 @@
   $('validate-btn').addEventListener('click', validate);
   $('submit-form').addEventListener('submit', submit);
   $('cancel-btn').addEventListener('click', () => view && view.cancel());
+  $('delete-btn').addEventListener('click', () => view && view.remove());
   $('extend-btn').addEventListener('click', () => view && view.extend());
   for (const r of document.querySelectorAll('input[name=view]')) {
     r.addEventListener('change', () => view && view.setMode(r.value));

@@ -222,6 +222,9 @@ json summary_json(const JobSnapshot& job) {
   j["id"] = job.id;
   j["state"] = std::string(job_status_name(job.status));
   j["kind"] = job.spec && job.spec->is_object() ? job.spec->value("kind", "") : std::string();
+  if (job.spec && job.spec->is_object() && job.spec->contains("name") && (*job.spec)["name"].is_string()) {
+    j["name"] = (*job.spec)["name"];  // what the user called it (the list, the page)
+  }
   j["priority"] = job.priority;
   if (!job.owner.empty()) j["owner"] = job.owner;
   j["created_at"] = time_json(job.created_at);

@@ -205,6 +205,69 @@ describe('preview page', { concurrency: 1 }, () => {
     await page.close();
   });
 
+  test('the dashboard fits 1280 and 390 px: names, a readable prediction, downloads and delete', async () => {
+    const page = await browser.context.newPage();
+    await page.setViewportSize({ width: 1280, height: 900 });
+    try {
+      const name = 'dashboard check: a long job name that must wrap or be cut, never widen the page';
+      const id = await submitExample(page, server.url, (spec) => { spec.name = name; spec.stop = { max_samples: 2 }; });
+      await waitFor(async () => (await hook(page)).settled, { what: 'the job to finish and be drawn', timeout: 60000 });
+      assert.equal(await page.textContent('#job-name'), name);
+      await waitFor(async () => (await page.$(`#jobs tr[data-id="${id}"] td.name`)) !== null, { what: 'the job in the list' });
+      assert.equal(await page.getAttribute(`#jobs tr[data-id="${id}"] td.name`, 'title'), name);
+      // The download buttons name the server's files of this job.
+      for (const [sel, magic] of [['#download-exr', [0x76, 0x2f, 0x31, 0x01]], ['#download-png', [0x89, 0x50, 0x4e, 0x47]]]) {
+        assert.equal(await page.isVisible(sel), true, `${sel} is shown for an image job`);
+        const res = await fetch(new URL(await page.getAttribute(sel, 'href'), server.url));
+        assert.equal(res.status, 200);
+        assert.deepEqual([...new Uint8Array(await res.arrayBuffer()).subarray(0, 4)], magic, sel);
+      }
+      const stats = await page.textContent('#stats');
+      assert.match(stats, /spp \(samples per pixel\)/);
+      assert.match(stats, /spp\/s/);
+      assert.doesNotMatch(stats, /samples\/s/);
+      // Validate shows the prediction as rows, not JSON.
+      await page.click('#validate-btn');
+      await page.waitForSelector('#prediction', { timeout: 60000 });
+      const prediction = await page.textContent('#prediction');
+      assert.match(prediction, /stops by/);
+      assert.doesNotMatch(prediction, /[{}]/);
+
+      const shots = shotDir || fs.mkdtempSync(path.join(process.env.TMPDIR || '/tmp', 'tally-dashboard-'));
+      for (const width of [1280, 390]) {
+        await page.setViewportSize({ width, height: 900 });
+        await sleep(200);
+        const o = await page.evaluate(() => {
+          const over = [];
+          for (const e of document.querySelectorAll('header, main, .panel, #jobs, #stats, #prediction, #plot, #image, .job-head .buttons > *')) {
+            const r = e.getBoundingClientRect();
+            if (r.width > 0 && (r.right > window.innerWidth + 0.5 || r.left < -0.5)) {
+              over.push(`${e.id || e.className || e.tagName}: ${Math.round(r.left)}..${Math.round(r.right)}`);
+            }
+          }
+          // Panels that scroll inside (the job list, the plan) must not have to either.
+          for (const e of document.querySelectorAll('#jobs-panel, #stats, #prediction')) {
+            if (e.scrollWidth > e.clientWidth + 1) over.push(`${e.id} scrolls: ${e.scrollWidth} > ${e.clientWidth}`);
+          }
+          return { scrollWidth: document.documentElement.scrollWidth, innerWidth: window.innerWidth, over };
+        });
+        assert.deepEqual(o.over, [], `at ${width} px these stick out of the window`);
+        assert.ok(o.scrollWidth <= o.innerWidth, `at ${width} px the page is ${o.scrollWidth} px wide`);
+        // A full-page screenshot is as wide as the page: the window's width when nothing overflows.
+        const file = path.join(shots, `preview-dashboard-${width}.png`);
+        await page.screenshot({ path: file, fullPage: true });
+        assert.equal(decodePng(fs.readFileSync(file)).width, width, `the ${width} px screenshot (${file})`);
+      }
+
+      // Delete: the job is gone from the server and from the list.
+      await page.click('#delete-btn');
+      await waitFor(async () => (await page.$(`#jobs tr[data-id="${id}"]`)) === null, { what: 'the row to go' });
+      assert.equal((await fetch(`${server.url}/v1/jobs/${id}`)).status, 404);
+    } finally {
+      await page.close();
+    }
+  });
+
   test('a cut connection and a dropped EventSource resume with no lost or duplicated pass', async () => {
     const proxy = await startProxy(server.port);
     const page = await browser.context.newPage();
