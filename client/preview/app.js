@@ -110,6 +110,7 @@
   // the event stream; nothing else uses this object.
   const hook = {
     streamClosed: 0,
+    streamsOpened: 0,     // EventSources the page created
     loggedIn: false,
     jobId: null,
     passesSeen: [],       // pass of every progress event received, in order
@@ -395,6 +396,7 @@
       // A new EventSource sends no Last-Event-ID; the query parameter does the same.
       if (afterId !== null && afterId !== undefined) url += `?last_event_id=${encodeURIComponent(afterId)}`;
       const es = new EventSource(url);
+      hook.streamsOpened++;
       this.es = es;
       const on = (type, fn) => es.addEventListener(type, (ev) => {
         if (this.es !== es) return;
