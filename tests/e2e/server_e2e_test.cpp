@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <sstream>
 #include <exception>
 #include <thread>
 
@@ -445,6 +446,16 @@ CliResult run_cli(const std::string& args, const std::string& server_url) {
   return r;
 }
 
+// The job id `tally submit` prints on stdout; run_cli merges stderr, where submit first
+// prints the server's prediction ("tally: predicted: ...").
+std::string submitted_id(const std::string& out) {
+  std::istringstream in(out);
+  for (std::string line; std::getline(in, line);) {
+    if (line.rfind("tally: ", 0) != 0) return line;
+  }
+  return {};
+}
+
 TEST(ServerE2E, CliSubmitWatchGetListCancelExtend) {
   if (std::string(TALLY_CLI_BIN).empty()) GTEST_SKIP() << "the tally CLI is not built";
   TempDir tmp;
@@ -456,7 +467,8 @@ TEST(ServerE2E, CliSubmitWatchGetListCancelExtend) {
   EXPECT_EQ(r.code, 0) << r.out;
   EXPECT_NE(r.out.find("succeeded"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("±"), std::string::npos) << r.out;
-  const std::string id = r.out.substr(0, r.out.find('\n'));
+  EXPECT_NE(r.out.find("tally: predicted: stops by max_samples"), std::string::npos) << r.out;
+  const std::string id = submitted_id(r.out);
   r = run_cli("get " + id + " --json", url);
   EXPECT_EQ(r.code, 0);
   EXPECT_EQ(json::parse(r.out).at("id"), id);
@@ -480,7 +492,7 @@ TEST(ServerE2E, CliSubmitWatchGetListCancelExtend) {
   std::ofstream(tmp.path / "long.json") << disk_spec(50'000'000'000ULL).dump();
   r = run_cli("submit " + (tmp.path / "long.json").string(), url);
   ASSERT_EQ(r.code, 0) << r.out;
-  const std::string long_id = r.out.substr(0, r.out.find('\n'));
+  const std::string long_id = submitted_id(r.out);
   EXPECT_EQ(run_cli("cancel " + long_id, url).code, 0);
   EXPECT_EQ(run_cli("watch " + long_id, url).code, 3);
   // Invalid spec: 4; unknown job: 4; no server: 5.
