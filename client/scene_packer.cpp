@@ -187,6 +187,13 @@ std::string ScenePacker::pack(const fs::path& path, Format format) {
   return ref;
 }
 
+std::string ScenePacker::store_packed(const fs::path& path, const std::string& original, const std::string* rewritten) {
+  if (rewritten) return store_bytes(*rewritten, path);
+  const std::string ref = std::string(kAssetRefPrefix) + sha256_bytes_hex(original);
+  store_.put_file(ref, path);  // unchanged: sent from disk as it is
+  return ref;
+}
+
 std::string ScenePacker::store_bytes(const std::string& bytes, const fs::path& origin) {
   const std::string ref = std::string(kAssetRefPrefix) + sha256_bytes_hex(bytes);
   store_.put_bytes(ref, bytes, origin);
@@ -240,11 +247,7 @@ std::string ScenePacker::pack_gltf(const fs::path& path) {
       changed = true;
     }
   }
-  if (!changed) {
-    const std::string ref = std::string(kAssetRefPrefix) + sha256_bytes_hex(bytes);
-    store_.put_file(ref, path);
-    return ref;
-  }
+  if (!changed) return store_packed(path, bytes, nullptr);
   if (!glb) return store_bytes(doc.dump(), path);
   std::string js = doc.dump();
   while (js.size() % 4 != 0) js.push_back(' ');
@@ -275,12 +278,7 @@ std::string ScenePacker::pack_obj(const fs::path& path) {
     changed = true;
     return fixed;
   });
-  if (!changed) {
-    const std::string ref = std::string(kAssetRefPrefix) + sha256_bytes_hex(text);
-    store_.put_file(ref, path);
-    return ref;
-  }
-  return store_bytes(out, path);
+  return store_packed(path, text, changed ? &out : nullptr);
 }
 
 // The server reads an .mtl's map_Kd textures (common/lighting: mtl_texture); other maps
@@ -305,12 +303,7 @@ std::string ScenePacker::pack_mtl(const fs::path& path, const fs::path& obj_dir)
     const size_t at = line.rfind(name);
     return line.substr(0, at) + ref + line.substr(at + name.size());
   });
-  if (!changed) {
-    const std::string ref = std::string(kAssetRefPrefix) + sha256_bytes_hex(text);
-    store_.put_file(ref, path);
-    return ref;
-  }
-  return store_bytes(out, path);
+  return store_packed(path, text, changed ? &out : nullptr);
 }
 
 }  // namespace tally

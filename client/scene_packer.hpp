@@ -64,6 +64,9 @@ class ScenePacker {
   std::string nested(const std::filesystem::path& referrer, const char* format, const std::string& what,
                      const std::string& name, const std::filesystem::path& dir, Format kind);
   std::string store_bytes(const std::string& bytes, const std::filesystem::path& origin);
+  // The file at `path` as it is (`rewritten` null: sent from disk) or as rewritten.
+  std::string store_packed(const std::filesystem::path& path, const std::string& original,
+                           const std::string* rewritten);
 
   PackStore& store_;
   std::filesystem::path base_;

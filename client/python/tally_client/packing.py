@@ -148,6 +148,15 @@ class ScenePacker:
         self._put_bytes(ref, data, origin)
         return ref
 
+    def _store_packed(self, path: str, original: bytes, rewritten: Optional[bytes]) -> str:
+        """The file as it is on disk (sent from disk) when nothing was rewritten, else the
+        rewritten bytes."""
+        if rewritten is None:
+            ref = _REF + hashlib.sha256(original).hexdigest()
+            self._put_file(ref, path)
+            return ref
+        return self._store(rewritten, path)
+
     def _nested(self, referrer: str, fmt: str, what: str, name: str, directory: str, kind: str) -> str:
         if name.startswith(_REF):
             return name
@@ -198,9 +207,7 @@ class ScenePacker:
                                            "plain")
                 changed = True
         if not changed:
-            ref = _REF + hashlib.sha256(data).hexdigest()
-            self._put_file(ref, path)
-            return ref
+            return self._store_packed(path, data, None)
         js = json.dumps(doc, separators=(",", ":")).encode("utf-8")
         if not glb:
             return self._store(js, path)
@@ -235,11 +242,7 @@ class ScenePacker:
             return "mtllib " + " ".join(self._nested(path, "OBJ", "mtllib", w, directory, "mtl") for w in words[1:])
 
         out, changed = self._map_lines(data, fix)
-        if not changed:
-            ref = _REF + hashlib.sha256(data).hexdigest()
-            self._put_file(ref, path)
-            return ref
-        return self._store(out, path)
+        return self._store_packed(path, data, out if changed else None)
 
     def _pack_mtl(self, path: str) -> str:
         data = _read(path)
@@ -260,8 +263,4 @@ class ScenePacker:
             return line[:at] + ref + line[at + len(name):]
 
         out, changed = self._map_lines(data, fix)
-        if not changed:
-            ref = _REF + hashlib.sha256(data).hexdigest()
-            self._put_file(ref, path)
-            return ref
-        return self._store(out, path)
+        return self._store_packed(path, data, out if changed else None)
