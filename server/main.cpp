@@ -85,6 +85,10 @@ int main(int argc, char** argv) {
   app.add_option("--max-json-depth", hc.max_json_depth, "nesting depth of request JSON")->capture_default_str();
   app.add_option("--max-running", mc.max_running, "jobs sharing the workers at once")->capture_default_str();
   app.add_option("--max-queued", mc.max_queued, "jobs waiting for a running slot (then 503)")->capture_default_str();
+  app.add_option("--preempt-min-run", mc.preempt_min_run_s,
+                 "seconds a job runs (since it started or resumed) before a waiting job of higher priority, or "
+                 "of an owner below its fair share, may pause it at a pass boundary; negative: never preempt")
+      ->capture_default_str();
   add_job_limit_flags(app, mc.limits);
   app.add_option("--checkpoint-interval", mc.checkpoint_interval_s, "least seconds between a job's checkpoints")
       ->capture_default_str();

@@ -188,6 +188,7 @@ json status_json(const JobSnapshot& job, double now, json links) {
   j["state"] = std::string(job_status_name(job.status));
   j["priority"] = job.priority;
   if (!job.owner.empty()) j["owner"] = job.owner;
+  if (!job.cached_from.empty()) j["cached_from"] = job.cached_from;
   j["spec"] = job.spec ? *job.spec : json(nullptr);
   j["plan"] = job.def ? plan_json(*job.def) : json(nullptr);
   if (job.runner) {
@@ -196,6 +197,9 @@ json status_json(const JobSnapshot& job, double now, json links) {
     j["stop_rule"] = stop_rule_to_json(job.facts->rule);
   }
   if (!job.error.empty()) j["error_message"] = job.error;
+  if (job.status == JobStatus::queued && !job.executor.waiting_reason.empty()) {
+    j["waiting_reason"] = job.executor.waiting_reason;  // "preempted": paused for a job that went first
+  }
   if (job.status == JobStatus::running) {
     if (!job.executor.waiting_reason.empty()) j["waiting_reason"] = job.executor.waiting_reason;
     if (job.executor.has_blocks) {
@@ -242,6 +246,10 @@ json summary_json(const JobSnapshot& job) {
     j["stop_reason"] = std::string(stop_reason_name(f->stop_reason));
   }
   if (!job.error.empty()) j["error_message"] = job.error;
+  if (job.status == JobStatus::queued && !job.executor.waiting_reason.empty()) {
+    j["waiting_reason"] = job.executor.waiting_reason;
+  }
+  if (!job.cached_from.empty()) j["cached_from"] = job.cached_from;
   return j;
 }
 

@@ -65,6 +65,7 @@ struct JobSnapshot {
   std::shared_ptr<const nlohmann::json> engine;
   uint64_t last_event_id = 0;                    // the job's event log at the same instant
   ExecutorNote executor;                         // running jobs in cluster mode
+  std::string cached_from;  // answered from this finished job's stored result ("" : computed)
 };
 
 }  // namespace tally

@@ -57,6 +57,7 @@ Submitter RequestHandler::submitter(const HttpRequest& req) const {
   const Quotas& q = p.quotas;
   s.max_running = q.max_running_jobs;
   s.max_queued = q.max_queued_jobs;
+  s.reads_all = p.is_admin();
   JobLimits limits = manager_.config().limits;
   limits.max_samples = std::min<uint64_t>(limits.max_samples, q.max_samples);
   limits.max_seconds = std::min(limits.max_seconds, q.max_seconds);
@@ -69,7 +70,16 @@ HttpResponse RequestHandler::post_job(const HttpRequest& req, const PathParams&)
   const int priority = parse_priority(req);
   const json spec = parse_json_body(req);
   check_assets(req, spec);
-  auto job = manager_.submit(spec, priority, submitter(req));
+  // ?cache=false: compute even if a finished job with the same spec and seed is readable.
+  bool use_cache = true;
+  if (req.has_query_param("cache")) {
+    const std::string c = req.query_param("cache");
+    if (c != "true" && c != "false") {
+      throw HttpError(400, fmt::format("query parameter cache must be true or false; got \"{}\"", c));
+    }
+    use_cache = c == "true";
+  }
+  auto job = manager_.submit(spec, priority, submitter(req), use_cache);
   const JobSnapshot s = manager_.snapshot(*job);
   HttpResponse r = json_response(202, {{"id", s.id},
                                        {"state", std::string(job_status_name(s.status))},
@@ -167,16 +177,18 @@ HttpResponse RequestHandler::extend_job(const HttpRequest& req, const PathParams
   const StopRule keep = before.runner ? before.runner->rule() : before.facts ? before.facts->rule : StopRule{};
   SpecReader rd(body, "");
   const StopRule rule = parse_stop_rule(rd, *submitter(req).limits, &keep);
-  manager_.extend(before.id, rule);
+  manager_.extend(before.id, rule, submitter(req));
   return json_response(202, summary_json(manager_.snapshot(before.id)));
 }
 
 HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathParams&) {
   const json spec = parse_json_body(req);
   check_assets(req, spec);
-  const JobLimits limits = *submitter(req).limits;
-  std::unique_ptr<JobDefinition> def = manager_.compiler()(spec, limits);
-  manager_.check_memory(spec, limits, *def);  // the pilot would allocate the state too
+  const Submitter who = submitter(req);
+  const JobLimits limits = *who.limits;
+  // Within the memory budget: the pilot would allocate the state too.
+  std::unique_ptr<JobDefinition> def = manager_.compile(spec, limits);
+  manager_.check_room(who);  // the pilot computes as a job would: the same room
   json out = {{"valid", true},
               {"kind", std::string(def->kind())},
               {"plan", plan_json(*def)},
@@ -188,6 +200,15 @@ HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathPara
     out["note"] = "too many pilots running; the spec is valid but no prediction was made";
     return json_response(200, out);
   }
+  // The pilot's state is charged against the memory budget like a job's.
+  const uint64_t pilot_bytes = JobManager::state_bytes(*def);
+  if (!manager_.reserve_memory(pilot_bytes)) {
+    pilots_.fetch_sub(1);
+    out["pilot"] = nullptr;
+    out["prediction"] = nullptr;
+    out["note"] = "the memory budget is in use by running jobs; the spec is valid but no prediction was made";
+    return json_response(200, out);
+  }
   PilotOptions po;
   po.seconds = config_.pilot_seconds;
   po.caps = limits.caps();
@@ -196,9 +217,11 @@ HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathPara
   try {
     pilot = run_pilot(*def, po);
   } catch (...) {
+    manager_.release_memory(pilot_bytes);
     pilots_.fetch_sub(1);
     throw;  // handle() maps it to a problem response
   }
+  manager_.release_memory(pilot_bytes);
   pilots_.fetch_sub(1);
   if (pilot["pilot"].contains("error")) {
     throw SpecError("", fmt::format("the pilot run failed, as the job would: {}",

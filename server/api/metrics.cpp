@@ -66,6 +66,17 @@ std::string Metrics::render(const ManagerStats& jobs) const {
               jobs.state_loads);
   prom_metric(o, "tally_jobs_deleted_total", "counter", "Finished jobs deleted (DELETE or retention) since start.",
               jobs.jobs_removed);
+  o += "# HELP tally_predicted_cpu_seconds Predicted CPU-seconds of work left, from the jobs' own forecasts "
+       "(running: ETA x workers / running jobs; queued: jobs that ran before, at their rate). The autoscaling "
+       "signal (docs/cluster.md).\n# TYPE tally_predicted_cpu_seconds gauge\n";
+  o += fmt::format("tally_predicted_cpu_seconds{{state=\"running\"}} {}\n", jobs.predicted_cpu_seconds_running);
+  o += fmt::format("tally_predicted_cpu_seconds{{state=\"queued\"}} {}\n", jobs.predicted_cpu_seconds_queued);
+  prom_metric(o, "tally_preemptions_total", "counter",
+              "Running jobs paused at a pass boundary for a waiting job that goes first.", jobs.preemptions);
+  prom_metric(o, "tally_result_cache_hits_total", "counter",
+              "Submits answered from a finished job's stored result (same spec and seed).", jobs.result_cache_hits);
+  prom_metric(o, "tally_result_cache_misses_total", "counter", "Submits that looked in the result cache and computed.",
+              jobs.result_cache_misses);
   if (const auto rss = resident_bytes()) {
     prom_metric(o, "tally_process_resident_bytes", "gauge", "Resident memory of the server process (VmRSS).", *rss);
   }

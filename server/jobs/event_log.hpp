@@ -15,7 +15,7 @@ namespace tally {
 
 struct Event {
   uint64_t id = 0;
-  std::string type;  // progress | state | tile | end | shutdown
+  std::string type;  // progress | state | tile | end | shutdown | preempted
   std::string data;  // one line of JSON
 };
 

@@ -8,12 +8,15 @@
 #include <cstdint>
 #include <memory>
 #include <mutex>
+#include <optional>
+#include <vector>
 #include <nlohmann/json.hpp>
 #include <string>
 
 #include "common/engine/job_definition.hpp"
 #include "common/engine/job_runner.hpp"
 #include "common/protocol/job_snapshot.hpp"
+#include "server/executor/executor.hpp"
 #include "server/jobs/event_log.hpp"
 
 namespace tally {
@@ -37,22 +40,26 @@ struct JobEnding {
   std::shared_ptr<const RunFacts> facts;
 };
 
+double unix_now();  // seconds since the epoch (system clock)
+
 class Job : public std::enable_shared_from_this<Job> {
  public:
   Job(std::string id, int64_t seq, nlohmann::json spec, int priority, double created_at, uint64_t epoch,
-      size_t event_buffer, std::string owner = {})
-      : id_(std::move(id)), seq_(seq), spec_(std::make_shared<const nlohmann::json>(std::move(spec))),
-        priority_(priority), created_at_(created_at), owner_(std::move(owner)), events_(epoch, event_buffer) {}
+      size_t event_buffer, std::string owner = {});
 
   const std::string& id() const { return id_; }
   int64_t seq() const { return seq_; }
   const nlohmann::json& spec() const { return *spec_; }
+  // The spec as JSON text, written once (the store and remote workers read it).
+  const std::string& spec_text() const { return spec_text_; }
   int priority() const { return priority_; }
   // The principal that submitted it ("" without access control).
   const std::string& owner() const { return owner_; }
   double created_at() const { return created_at_; }
   // Thread-safe by itself (its own lock); the event streams read it.
   EventLog& events() const { return events_; }
+  // What a new or lagging watcher starts with (JobManager::watch_snapshot). Takes mu_.
+  std::vector<Event> watch_snapshot() const;
 
  private:
   friend class JobManager;
@@ -61,20 +68,71 @@ class Job : public std::enable_shared_from_this<Job> {
   // The picture routes read; call under mu_. `with_runner`: also a copy of the runner
   // (else one is made only when the views built at the pass boundary are missing).
   JobSnapshot snapshot_locked(bool with_runner) const;
+  // Under mu_: the progress event data for the job's current version (built once per
+  // version, shared by every watcher).
+  std::shared_ptr<const std::string> watch_progress_locked() const;
+  // Under mu_: a "state" event for the job as it is now.
+  void publish_state_locked();
+  // Under mu_: ends the job. `views`: its last views, built without the lock
+  // (JobManager::on_pass_done); null: built here (a cancel or failure, whose runner has
+  // not changed since its last pass; or `status` for a job that never started).
+  void finish_locked(double now, std::optional<JobStatus> status = std::nullopt, const FinishViews* views = nullptr);
+  // finish_locked in two steps: what the end sets (built, not applied), then applying
+  // it with its events. on_pass_done stores the ending between the two.
+  JobEnding ending_locked(double now, std::optional<JobStatus> status, const FinishViews* views) const;
+  void end_locked(const JobEnding& ending, const FinishViews* views);
+
+  // The lifecycle's steps on this job (the manager decides, under its lock, and calls
+  // them under mu_):
+  // queued -> running: allocates the state if it has none, plans the first pass and
+  // fills `ej`. nullopt: not startable (no longer queued, no definition); an empty pass:
+  // nothing to run, the job has ended (finish_locked).
+  std::optional<PassWork> start_running_locked(uint64_t epoch, double now, ExecutorJob& ej);
+  // The state leaves memory, the figures stay (facts_): read back when it starts.
+  void park_locked();
+  // running -> queued at a pass boundary, its state stored (`stored`: then released).
+  // Returns the samples it had.
+  uint64_t pause_locked(bool stored);
+  // A finished job waits again with `runner` (the old one's state, the new rule); with
+  // `park`, on disk.
+  void reopen_locked(JobRunner runner, bool park);
+  // A queued job is cancelled at once.
+  void cancel_queued_locked(double now);
+  // A parked job's state read back (null: `error`): running can start, or it failed.
+  bool resumed_locked(std::unique_ptr<JobRunner> runner, const std::string& error, double now);
+  // A new job answered from a finished job's result and facts.
+  void answer_locked(std::shared_ptr<const JobDefinition> def, JobCaps caps, const JobEnding& ending);
+  // A pass boundary (JobManager::on_pass_done), in two steps. First, under mu_: the
+  // pass's results merged, then what comes next: the next pass, or the end (the rule is
+  // met, nothing is left, or a cancel), or a pause (preempt_requested_), and whether a
+  // checkpoint is due.
+  struct PassCommit {
+    PassWork next;
+    bool finished = false, checkpoint = false, cancel_now = false, pause_now = false;
+    uint64_t version = 0;
+  };
+  PassCommit commit_pass_locked(std::vector<BlockResult>&& results, double wall, uint64_t pass,
+                                double checkpoint_interval_s);
+  // Then, taking mu_ itself: the pass's heavy views (progress, tiles, status; for the
+  // last pass the final ones, into `views`) built without the lock, then published.
+  // Returns the job's ending when it finished (stored before it is published).
+  JobEnding publish_pass(const std::vector<Block>& blocks, const PassCommit& c, FinishViews& views);
+  // Adds this job's forecast of CPU-seconds left (ManagerStats), `share`: the workers a
+  // running job has.
+  void forecast_locked(double share, double& running, double& queued) const;
 
   const std::string id_;
   const int64_t seq_;
   const std::shared_ptr<const nlohmann::json> spec_;
+  const std::string spec_text_;
   const int priority_;
   const double created_at_;
   const std::string owner_;
   mutable EventLog events_;
-  // The owner's running-jobs quota at submission; guarded by the manager's mutex.
-  uint64_t owner_max_running_ = UINT64_MAX;
-  // Memory the job's state takes while it is in memory (JobManager::state_bytes), and
-  // whether it is counted against the budget now; guarded by the manager's mutex.
-  uint64_t state_bytes_ = 0;
-  bool charged_ = false;
+  // The result cache's key (ResultCache::key_of; "" : never cached) and, for a job
+  // answered from it, the job whose stored result it took. Set before the job is shared.
+  std::string cache_key_;
+  std::string cached_from_;
   // Bytes of the job's row in the store (spec, result, checkpoint), for retention.
   std::atomic<uint64_t> stored_bytes_{0};
 
@@ -112,6 +170,16 @@ class Job : public std::enable_shared_from_this<Job> {
   std::shared_ptr<const RunFacts> live_facts_;
   std::chrono::steady_clock::time_point last_checkpoint_{};
   bool cancel_requested_ = false;
+  // Queued with its state on disk (its stored checkpoint), not in memory: extended from
+  // disk, paused for a job that goes first (preempted_), or resumed at start beyond the
+  // memory budget. Its state is read back (JobRecorder::read_back) when it starts;
+  // loading_ while that read is under way.
+  bool parked_ = false;
+  bool loading_ = false;
+  // Preemption: to pause at its next pass boundary (a job that goes first waits), and
+  // paused so (queued until it resumes: waiting_reason "preempted").
+  bool preempt_requested_ = false;
+  bool preempted_ = false;
   // Its last pass is merged and its ending is being stored (JobManager::on_pass_done):
   // it still reads as running, and nothing else may end it.
   bool finishing_ = false;

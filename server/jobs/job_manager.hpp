@@ -4,38 +4,29 @@
 // the snapshots routes read. Persistence and recovery are the recorder's
 // (job_recorder.hpp); JSON views are the protocol layer's (job_json.hpp). Knows
 // nothing about HTTP: failures are JobError, mapped to statuses by the routes.
-#include <condition_variable>
-#include <list>
+#include <functional>
 #include <map>
-#include <stop_token>
-#include <thread>
 #include <memory>
 #include <mutex>
-#include <optional>
 #include <nlohmann/json.hpp>
 #include <optional>
-#include <stdexcept>
 #include <string>
 #include <vector>
 
 #include "common/engine/job_definition.hpp"
 #include "common/protocol/job_snapshot.hpp"
 #include "server/executor/executor.hpp"
+#include "server/jobs/admission.hpp"
+#include "server/jobs/finished_state_cache.hpp"
 #include "server/jobs/job.hpp"
+#include "server/jobs/job_error.hpp"
 #include "server/jobs/job_recorder.hpp"
+#include "server/jobs/job_retention.hpp"
+#include "server/jobs/result_cache.hpp"
+#include "server/jobs/spec_compile.hpp"
 #include "server/jobs/job_store.hpp"
 
 namespace tally {
-
-class JobError : public std::runtime_error {
- public:
-  enum class Kind { not_found, conflict, queue_full, unavailable, quota };
-  JobError(Kind kind, const std::string& what) : std::runtime_error(what), kind_(kind) {}
-  Kind kind() const noexcept { return kind_; }
-
- private:
-  Kind kind_;
-};
 
 struct ManagerConfig {
   unsigned workers = 1;
@@ -57,18 +48,13 @@ struct ManagerConfig {
   size_t retain_max_jobs = 0;
   uint64_t retain_max_bytes = 0;
   double retention_interval_s = 60;
+  // Preemption: a running job may be paused at a pass boundary for a waiting job of
+  // higher priority (or of an owner below its fair share) once it has run this long
+  // since it (re)started; negative: never.
+  double preempt_min_run_s = 10;
   // Builds the executor (e.g. cluster mode's RedisExecutor); unset: the in-process
   // worker pool with `workers` threads.
   std::function<std::unique_ptr<Executor>(ExecutorCallbacks)> make_executor;
-};
-
-// Who submits a job and within which limits. The default is the anonymous owner
-// with the server's own limits (no access control).
-struct Submitter {
-  std::string owner;
-  uint64_t max_running = UINT64_MAX;  // the owner's jobs computing at once; more wait in the queue
-  uint64_t max_queued = UINT64_MAX;   // the owner's jobs waiting; beyond: JobError quota
-  std::optional<JobLimits> limits;    // per-job limits and caps; nullopt: the server's
 };
 
 struct ManagerStats {
@@ -86,6 +72,13 @@ struct ManagerStats {
   uint64_t finished_cache_bytes = 0; // decoded finished states kept for image routes
   uint64_t state_loads = 0;          // finished jobs' states read back from the store
   uint64_t jobs_removed = 0;         // by DELETE or retention since start
+  uint64_t preemptions = 0;          // jobs paused at a pass boundary for one that goes first
+  uint64_t result_cache_hits = 0;    // submits answered from a finished job's stored result
+  uint64_t result_cache_misses = 0;  // submits that looked and computed
+  // Predicted CPU-seconds of work left (the jobs' own forecasts): running jobs from their
+  // throughput and stop rule, queued ones from their pilot-free estimate (forecast_cpu_seconds).
+  double predicted_cpu_seconds_running = 0;
+  double predicted_cpu_seconds_queued = 0;
 };
 
 class JobManager {
@@ -97,11 +90,21 @@ class JobManager {
   // from their last checkpoint. Call once, before serving.
   void recover();
 
-  // SpecError naming the field that makes the job big if its state could never fit
-  // the memory budget (`def` compiled from `spec` with `limits`).
-  void check_memory(const nlohmann::json& spec, const JobLimits& limits, const JobDefinition& def) const;
-  // Throws SpecError (invalid spec) or JobError (queue full, shutting down).
-  std::shared_ptr<Job> submit(const nlohmann::json& spec, int priority = 0, const Submitter& who = {});
+  // The spec compiled with `limits` (compile_within_budget): SpecError if it is invalid
+  // or its state could never fit the memory budget.
+  std::unique_ptr<JobDefinition> compile(const nlohmann::json& spec, const JobLimits& limits) const;
+  // Memory for a state outside any job (a validate's pilot): charged against the
+  // memory budget if it fits beside the jobs' states now, else false. Release it after.
+  bool reserve_memory(uint64_t bytes);
+  // JobError queue_full / quota if one more job of `who` would have no room to wait
+  // (Admission::check_room): validate asks it before its pilot, as submit and extend do.
+  void check_room(const Submitter& who) const;
+  void release_memory(uint64_t bytes);
+  // Throws SpecError (invalid spec) or JobError (queue full, shutting down). With
+  // `use_cache`, a spec and seed equal to a finished job's that `who` may read is
+  // answered from its stored result (ResultCache): a new job, finished at once.
+  std::shared_ptr<Job> submit(const nlohmann::json& spec, int priority = 0, const Submitter& who = {},
+                              bool use_cache = true);
   std::shared_ptr<Job> find(const std::string& id) const;  // null if unknown
   std::vector<std::shared_ptr<Job>> list() const;           // in submission order
   // The job as it is now, taken under its lock (JobError not_found if unknown).
@@ -124,7 +127,8 @@ class JobManager {
   // unknown id (not_found) or a finished job (conflict).
   std::shared_ptr<Job> cancel(const std::string& id);
   // Reopens a finished job with a new rule. JobError: not_found, conflict.
-  std::shared_ptr<Job> extend(const std::string& id, const StopRule& rule);
+  // The job waits again: JobError queue_full / quota as a submit of `who` would get.
+  std::shared_ptr<Job> extend(const std::string& id, const StopRule& rule, const Submitter& who = {});
 
   // Deletes a finished job from memory and the store. JobError: not_found, conflict
   // (still queued or running: cancel it first).
@@ -136,9 +140,8 @@ class JobManager {
   // the store's checkpoint (finished jobs; cached, bounded). Null if not available.
   // May read the disk: call it off the I/O threads.
   std::shared_ptr<const JobState> state(const JobSnapshot& s);
-  // Bytes a job's state takes in memory: its channels and partitions, twice (the
-  // runner's and the copy published to readers at each pass boundary).
-  static uint64_t state_bytes(const JobDefinition& def);
+  // Bytes a job's state takes in memory (Admission::state_bytes).
+  static uint64_t state_bytes(const JobDefinition& def) { return Admission::state_bytes(def); }
 
   // Stop computing, checkpoint every unfinished job, end every event stream.
   void shutdown();
@@ -161,26 +164,22 @@ class JobManager {
   void on_cancelled(const std::string& id);
   void start_queued_locked();
   void job_left_scheduler(const Job& job);
-  // Under job.mu_: marks the job finished from its runner (or `status` for a job that
-  // never started), keeps its facts, publishes state + end.
-  // Ends the job. `views`: its last views, built without the lock (on_pass_done); null:
-  // built here (a cancel or failure, whose runner has not changed since its last pass).
-  void finish_locked(Job& job, double now, std::optional<JobStatus> status = std::nullopt,
-                     const FinishViews* views = nullptr);
-  // finish_locked in two steps: what the end sets (built, not applied), then applying it
-  // (with its events). on_pass_done stores the ending between the two.
-  static JobEnding ending_locked(const Job& job, double now, std::optional<JobStatus> status,
-                                 const FinishViews* views);
-  void end_locked(Job& job, const JobEnding& ending, const FinishViews* views);
-  void publish_state_locked(Job& job);
-  // Under job.mu_: the progress event data for the job's current version.
-  static std::shared_ptr<const std::string> watch_progress_locked(const Job& job);
+  // Under mu_: starts the job Admission picked (allocates its state, plans its first
+  // pass, hands it to the executor).
+  void start_locked(const std::shared_ptr<Job>& job);
+  // A new job answered from `source`'s stored result, or null if that is gone.
+  std::shared_ptr<Job> answer_from(const std::string& source, const nlohmann::json& spec, int priority,
+                                   const Submitter& who, std::shared_ptr<const JobDefinition> def,
+                                   const JobLimits& limits, const std::string& key);
+  // On the recorder's loader thread: a parked job's state is read back; it starts.
+  void resume_loaded(const std::shared_ptr<Job>& job);
+  // Under mu_: asks the running job Admission picks to pause at its next pass boundary.
+  void preempt_locked();
+  // At a pass boundary (on_pass_done): stores the job's state, releases it and queues
+  // the job again (preempted).
+  void pause(const std::shared_ptr<Job>& job);
   // Once a finished job is stored with its final checkpoint: frees its state.
   void release_state(Job& job);
-  // Under mu_: picks the next job to start, or null (memory budget, quotas).
-  std::shared_ptr<Job> next_to_start_locked();
-  void retention_loop(std::stop_token st);
-  std::shared_ptr<const JobState> load_finished_state(const JobSnapshot& s);
 
   ManagerConfig config_;
   JobCompiler compiler_;
@@ -190,34 +189,18 @@ class JobManager {
   mutable std::mutex mu_;
   std::map<std::string, std::shared_ptr<Job>> jobs_;
   std::vector<std::shared_ptr<Job>> order_;   // submission order
-  std::vector<std::shared_ptr<Job>> queue_;   // waiting to run
-  size_t running_ = 0;
-  std::map<std::string, uint64_t> running_by_owner_;
+  Admission admission_;                       // guarded by mu_
   int64_t next_seq_ = 1;
   bool shutting_down_ = false;
-  uint64_t memory_used_ = 0;   // sum of state_bytes_ of charged jobs
   uint64_t jobs_removed_ = 0;
+  uint64_t preemptions_ = 0;
 
   JobStore& store_;
-  // Decoded finished states (LRU, at most config_.finished_cache_bytes).
-  struct CachedState {
-    std::string id;
-    uint64_t version;
-    std::shared_ptr<const JobState> state;
-    uint64_t bytes;
-  };
-  mutable std::mutex cache_mu_;
-  std::list<CachedState> cache_;  // most recent first
-  uint64_t cache_bytes_ = 0;
-  uint64_t state_loads_ = 0;
-
-  std::mutex retention_mu_;
-  std::condition_variable_any retention_cv_;
-  std::jthread retention_;  // runs retention_loop when a limit is set
+  FinishedStateCache finished_;  // its own lock
+  JobRetention retention_;
+  ResultCache results_;  // its own lock
 
   std::unique_ptr<Executor> executor_;  // last: its workers call back into us
 };
-
-double unix_now();
 
 }  // namespace tally

@@ -19,9 +19,6 @@ using nlohmann::json;
 
 namespace {
 std::string dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
-double unix_now() {
-  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-}
 }  // namespace
 
 JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint, const JobEnding* ending) const {
@@ -31,7 +28,7 @@ JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint, const Job
   p.version = job.version_;
   s.id = job.id_;
   s.seq = job.seq_;
-  s.spec = dump(*job.spec_);
+  s.spec = job.spec_text_;
   s.priority = job.priority_;
   s.owner = job.owner_;
   const JobStatus status = ending ? ending->status : job.status_;
@@ -53,6 +50,12 @@ JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint, const Job
 
 bool JobRecorder::persist(Job& job, bool with_checkpoint, bool retry) {
   return store(job, take(job, with_checkpoint), retry);
+}
+
+bool JobRecorder::persist_with(Job& job, std::string checkpoint) {
+  Pending p = take(job, false);
+  p.row.checkpoint = std::move(checkpoint);
+  return store(job, std::move(p), false);
 }
 
 bool JobRecorder::store(Job& job, Pending pending, bool retry) {
@@ -163,9 +166,11 @@ JobRecorder::JobRecorder(JobStore& store, JobCompiler compiler, JobLimits limits
   retrier_ = std::jthread([this](std::stop_token st) { retry_saves(st); });
   checkpointer_ = std::jthread([this](std::stop_token st) { write_checkpoints(st); });
   finisher_ = std::jthread([this](std::stop_token st) { write_finals(st); });
+  loader_ = std::jthread([this](std::stop_token st) { run_loads(st); });
 }
 
 JobRecorder::~JobRecorder() {
+  stop_loads();
   // Final saves and checkpoints still queued are written before the retrier stops (a
   // failed one is then left to the next start's recovery from the last stored checkpoint).
   finisher_.request_stop();
@@ -299,6 +304,64 @@ JobRecorder::Recovered JobRecorder::recover() {
   }
   for (auto& j : to_save) persist(*j, false);
   return out;
+}
+
+std::unique_ptr<JobRunner> JobRecorder::read_back(const Job& job, const JobDefinition& def,
+                                                   const StopRule& rule) const {
+  const std::optional<std::string> cp = store_.load_checkpoint(job.id());
+  return cp ? std::make_unique<JobRunner>(def.kernel(), rule, job.caps_, decode_checkpoint(*cp))
+            : std::make_unique<JobRunner>(def.kernel(), rule, job.caps_);
+}
+
+void JobRecorder::removed(Job& job) {
+  std::lock_guard save_lock(job.save_mu_);
+  job.removed_ = true;
+  try {
+    if (store_.remove(job.id())) {
+      log::job(log::Level::debug, job.id(), "a save in flight had written the row back: deleted again");
+    }
+  } catch (const std::exception& e) {
+    log::job(log::Level::warn, job.id(), "deleting the job's row again failed ({}): it may come back after a restart",
+             e.what());
+  }
+}
+
+void JobRecorder::load_later(std::function<void()> task) {
+  {
+    std::lock_guard lock(loads_mu_);
+    if (!loads_stopped_) {
+      loads_.push_back(std::move(task));
+      loads_cv_.notify_all();
+      return;
+    }
+  }
+  task();
+}
+
+void JobRecorder::stop_loads() {
+  {
+    std::lock_guard lock(loads_mu_);
+    loads_stopped_ = true;
+  }
+  loader_.request_stop();
+  if (loader_.joinable()) loader_.join();
+}
+
+void JobRecorder::run_loads(std::stop_token st) {
+  std::unique_lock lock(loads_mu_);
+  for (;;) {
+    loads_cv_.wait(lock, st, [&] { return !loads_.empty(); });
+    if (loads_.empty()) return;  // stopped with nothing left (a stop drains the queue first)
+    std::function<void()> task = std::move(loads_.front());
+    loads_.erase(loads_.begin());
+    lock.unlock();
+    try {
+      task();
+    } catch (const std::exception& e) {
+      log::error("reading a stored state back failed: {}", e.what());
+    }
+    lock.lock();
+  }
 }
 
 }  // namespace tally

@@ -35,6 +35,9 @@ class JobRecorder {
   // and, if `retry`, the job is saved again every 200 ms until it is stored (with
   // its checkpoint while it is unfinished). The job runs on either way.
   bool persist(Job& job, bool with_checkpoint, bool retry = true);
+  // Saves a job that has no runner with `checkpoint` (encoded state bytes, e.g. another
+  // job's stored state) as its checkpoint. Not retried.
+  bool persist_with(Job& job, std::string checkpoint);
   // A periodic checkpoint of a running job: the state is copied now (under the job's
   // lock, on the caller's thread) and encoded and stored on the recorder's checkpoint
   // thread, so the pass that asked goes on at once (an image's checkpoint takes
@@ -69,6 +72,23 @@ class JobRecorder {
   // Loads every stored job. Finished jobs come back as stored; unfinished ones
   // resume from their checkpoint, or are marked failed (and saved) if they cannot.
   Recovered recover();
+
+  // Once DELETE removed the job's row: a save still in flight or to come (a retry of a
+  // failed final save runs after the job reads as finished) writes nothing, and the row
+  // is deleted once more in case a save wrote it back meanwhile. Takes the job's save
+  // lock only (the pass callback takes it under the manager's lock: never the other way).
+  void removed(Job& job);
+
+  // A runner with the job's stored state (its last checkpoint; a fresh state if none
+  // was stored) and `rule`, to go on from where it stopped (extend, a paused job).
+  // Reads the disk; throws if the stored state cannot be read.
+  std::unique_ptr<JobRunner> read_back(const Job& job, const JobDefinition& def, const StopRule& rule) const;
+  // Runs `task` on the recorder's loader thread, in arrival order: reads of stored
+  // states (read_back) for jobs about to start, kept off the threads that start them.
+  void load_later(std::function<void()> task);
+  // Runs the tasks queued so far, then stops the loader: load_later runs a task on the
+  // caller's thread after this. Call before whatever the tasks use goes away.
+  void stop_loads();
 
  private:
   // What persist stores, taken under the job's lock (the state is encoded later).
@@ -107,7 +127,14 @@ class JobRecorder {
   std::vector<Final> finals_;  // queued
   size_t finals_busy_ = 0;     // queued or being written
   std::jthread checkpointer_;  // runs write_checkpoints, stopped (and drained) after the finisher
-  std::jthread finisher_;      // last: runs write_finals, stopped (and drained) first
+  std::jthread finisher_;      // runs write_finals, stopped (and drained) first
+
+  void run_loads(std::stop_token st);
+  std::mutex loads_mu_;
+  std::condition_variable_any loads_cv_;
+  std::vector<std::function<void()>> loads_;  // queued
+  bool loads_stopped_ = false;
+  std::jthread loader_;  // last: runs run_loads
 };
 
 }  // namespace tally

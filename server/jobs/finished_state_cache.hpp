@@ -1,0 +1,50 @@
+#pragma once
+// Decoded states of finished jobs, read back from the store for their image routes and
+// kept in memory, most recently used first, up to a byte capacity. Thread-safe (its
+// own lock, never held while the store is read).
+#include <cstdint>
+#include <list>
+#include <memory>
+#include <mutex>
+#include <string>
+
+#include "common/engine/job_state.hpp"
+#include "common/protocol/job_snapshot.hpp"
+#include "server/jobs/job_store.hpp"
+
+namespace tally {
+
+class FinishedStateCache {
+ public:
+  FinishedStateCache(JobStore& store, uint64_t capacity_bytes) : store_(store), capacity_(capacity_bytes) {}
+
+  // The finished job's state at the snapshot's version: cached, else read back from the
+  // store's checkpoint (and cached if it fits). Null if the job is not finished or its
+  // stored state is missing, unreadable or does not match the job (logged). May read
+  // the disk: call it off the I/O threads.
+  std::shared_ptr<const JobState> get(const JobSnapshot& s);
+  // Drops every version of the job (deleted).
+  void erase(const std::string& id);
+
+  uint64_t bytes() const;   // decoded states kept
+  uint64_t loads() const;   // states read back from the store since start
+
+ private:
+  std::shared_ptr<const JobState> load(const JobSnapshot& s);
+  void erase_locked(const std::string& id);
+
+  struct Entry {
+    std::string id;
+    uint64_t version;
+    std::shared_ptr<const JobState> state;
+    uint64_t bytes;
+  };
+  JobStore& store_;
+  const uint64_t capacity_;
+  mutable std::mutex mu_;
+  std::list<Entry> entries_;  // most recent first
+  uint64_t bytes_ = 0;
+  uint64_t loads_ = 0;
+};
+
+}  // namespace tally

@@ -1,0 +1,381 @@
+#include "server/jobs/job.hpp"
+
+#include <fmt/format.h>
+
+#include <cmath>
+
+#include "common/log/log.hpp"
+#include "common/protocol/job_json.hpp"
+#include "server/jobs/pass_views.hpp"
+
+namespace tally {
+
+namespace {
+std::string spec_text_of(const nlohmann::json& spec) {
+  return spec.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+}
+}  // namespace
+
+Job::Job(std::string id, int64_t seq, nlohmann::json spec, int priority, double created_at, uint64_t epoch,
+         size_t event_buffer, std::string owner)
+    : id_(std::move(id)), seq_(seq), spec_(std::make_shared<const nlohmann::json>(std::move(spec))),
+      spec_text_(spec_text_of(*spec_)), priority_(priority), created_at_(created_at), owner_(std::move(owner)),
+      events_(epoch, event_buffer) {}
+
+JobSnapshot Job::snapshot_locked(bool with_runner) const {
+  JobSnapshot s;
+  s.id = id_;
+  s.seq = seq_;
+  s.priority = priority_;
+  s.owner = owner_;
+  s.cached_from = cached_from_;
+  s.spec = spec_;
+  s.created_at = created_at_;
+  s.started_at = started_at_;
+  s.finished_at = finished_at_;
+  s.status = status_;
+  s.error = error_;
+  s.version = version_;
+  s.def = def_;
+  s.final_result = final_result_;
+  // A running job's status may lag its runner by the pass being published (built
+  // without the lock in on_pass_done) rather than be rebuilt here, on an I/O thread.
+  if (engine_ && (engine_version_ == version_ || status_ == JobStatus::running)) s.engine = engine_;
+  s.last_event_id = events_.last_id();
+  if (!runner_) {
+    published_.reset();
+    s.facts = facts_;
+    return s;
+  }
+  // The documents need only the runner's figures: a running job's come from its pass
+  // boundary's views, a finished one's from what finish kept (facts_, final_result_).
+  if (!with_runner) {
+    if (status_ == JobStatus::running && s.engine && live_facts_) {
+      auto f = std::make_shared<RunFacts>(*live_facts_);
+      f->rule = runner_->rule();  // extend changes it between passes
+      s.facts = std::move(f);
+      return s;
+    }
+    if (is_terminal(status_) && facts_ && final_result_) {
+      s.facts = facts_;
+      return s;
+    }
+  }
+  // The runner changes in place at pass boundaries: readers get a copy made once
+  // per version, which no one mutates afterwards.
+  if (published_version_ != version_) {
+    published_ = std::make_shared<const JobRunner>(*runner_);
+    published_version_ = version_;
+  }
+  s.runner = published_;
+  return s;
+}
+
+
+// ---------------------------------------------------------------- events and ending
+
+namespace {
+
+std::string dump(const nlohmann::json& j) { return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace); }
+
+nlohmann::json state_event_of(JobStatus status, const JobRunner* runner, const RunFacts* facts,
+                              const std::string& error, bool end) {
+  return runner ? state_event_json(status, runner, error, end) : state_event_json(status, facts, error, end);
+}
+
+JobStatus status_of(const JobRunner& r) {
+  switch (r.stop_reason()) {
+    case StopReason::none: return JobStatus::running;
+    case StopReason::cancelled: return JobStatus::cancelled;
+    case StopReason::failed: return JobStatus::failed;
+    default: return JobStatus::succeeded;
+  }
+}
+
+}  // namespace
+
+std::shared_ptr<const std::string> Job::watch_progress_locked() const {
+  if (!runner_) return nullptr;
+  // While a pass is being published (on_pass_done builds it without the lock) the
+  // previous pass's progress serves: the new one follows as a live event.
+  // No progress published yet for a pass being published (the first one): none serves.
+  if (publishing_ && !watch_progress_) return nullptr;
+  const bool publishing = status_ == JobStatus::running && watch_progress_;
+  if (!watch_progress_ || (watch_progress_version_ != version_ && !publishing)) {
+    watch_progress_ = std::make_shared<const std::string>(dump(progress_event_json(*runner_)));
+    watch_progress_version_ = version_;
+  }
+  return watch_progress_;
+}
+
+std::vector<Event> Job::watch_snapshot() const {
+  std::lock_guard lock(mu_);
+  const uint64_t id = events_.last_id();  // every append happens under mu_
+  std::vector<Event> out;
+  // A job whose state is not in memory (queued, or finished and on disk) shows the
+  // figures kept when it left (RunFacts): the same bytes the runner would give.
+  const RunFacts* facts = facts_.get();
+  out.push_back(Event{id, "state", dump(state_event_of(status_, runner_.get(), facts, error_, false))});
+  if (runner_ && runner_->state().passes > 0) {
+    // Built on a worker thread at the pass boundary; only a rare transition
+    // (start, cancel of a queued job, extend) leaves it to be built here.
+    if (auto progress = watch_progress_locked()) out.push_back(Event{id, "progress", *progress});
+  } else if (!runner_ && facts && !facts->progress_event.empty()) {
+    out.push_back(Event{id, "progress", facts->progress_event});
+  }
+  if (is_terminal(status_)) {
+    out.push_back(Event{id, "end", dump(state_event_of(status_, runner_.get(), facts, error_, true))});
+  }
+  return out;
+}
+
+void Job::publish_state_locked() {
+  events_.append("state", dump(state_event_of(status_, runner_.get(), facts_.get(), error_, false)));
+}
+
+JobEnding Job::ending_locked(double now, std::optional<JobStatus> status, const FinishViews* views) const {
+  JobEnding e;
+  e.status = status ? *status : runner_ ? status_of(*runner_) : JobStatus::failed;
+  if (e.status == JobStatus::running) e.status = JobStatus::succeeded;  // plan_pass had nothing left
+  e.error = error_;
+  if (runner_ && runner_->error_message() && e.error.empty()) e.error = *runner_->error_message();
+  e.finished_at = now;
+  if (views && runner_) {
+    e.final_result = views->final_result;
+    e.facts = views->facts;
+  } else {
+    e.final_result = runner_ && def_ ? std::make_shared<const nlohmann::json>(engine_json(*def_, *runner_))
+                                     : std::make_shared<const nlohmann::json>(nlohmann::json::object());
+    // What the views show once the state leaves memory (JobManager::release_state).
+    e.facts = runner_ ? std::make_shared<const RunFacts>(run_facts(*runner_)) : facts_;
+  }
+  return e;
+}
+
+void Job::finish_locked(double now, std::optional<JobStatus> status, const FinishViews* views) {
+  end_locked(ending_locked(now, status, views), views);
+}
+
+void Job::end_locked(const JobEnding& e, const FinishViews* views) {
+  status_ = e.status;
+  error_ = e.error;
+  finished_at_ = e.finished_at;
+  final_result_ = e.final_result;
+  facts_ = e.facts;
+  finishing_ = false;
+  live_facts_.reset();
+  version_++;
+  if (views && runner_ && runner_->state().passes > 0) {
+    watch_progress_ = views->progress;
+    watch_progress_version_ = version_;
+  } else if (runner_ && runner_->state().passes > 0) {
+    watch_progress_locked();
+  }
+  // With views, the events read the facts built from the runner (the same figures).
+  const JobRunner* runner = views ? nullptr : runner_.get();
+  events_.append("state", dump(state_event_of(status_, runner, facts_.get(), error_, false)));
+  events_.append("end", dump(state_event_of(status_, runner, facts_.get(), error_, true)));
+  log::job(status_ == JobStatus::failed ? log::Level::warn : log::Level::info, id_, "{}{}{}", job_status_name(status_),
+           runner_ ? fmt::format(" ({}, {} samples)", stop_reason_name(runner_->stop_reason()), runner_->state().samples)
+                   : std::string(),
+           error_.empty() ? std::string() : ": " + error_);
+}
+
+// ---------------------------------------------------------------- lifecycle steps
+
+std::optional<PassWork> Job::start_running_locked(uint64_t epoch, double now, ExecutorJob& ej) {
+  if (status_ != JobStatus::queued) return std::nullopt;
+  if (!runner_) {
+    // The state is allocated now, not at submission.
+    if (!def_) return std::nullopt;
+    const StopRule rule = facts_ ? facts_->rule : def_->stop_rule();
+    runner_ = std::make_unique<JobRunner>(def_->kernel(), rule, caps_);
+    facts_.reset();
+  }
+  status_ = JobStatus::running;
+  preempted_ = false;
+  preempt_requested_ = false;  // a request for a run that ended otherwise
+  if (started_at_ <= 0) started_at_ = now;
+  // Where the job starts is durable already (its spec, or the checkpoint it resumes
+  // from): the first checkpoint is due one interval from now, not at the first pass
+  // boundary, where it would save little and copy the whole state (an image's every
+  // pixel) on the thread that publishes the next pass.
+  last_checkpoint_ = std::chrono::steady_clock::now();
+  version_++;
+  publish_state_locked();
+  if (runner_->state().passes == 0) {
+    // The documents' views of a fresh state (no pass over data: cheap), so status
+    // reads copy no runner before the first pass either. A job resumed from a
+    // checkpoint has them from its first pass on (until then a read copies it).
+    engine_ = std::make_shared<const nlohmann::json>(engine_json(*def_, *runner_));
+    engine_version_ = version_;
+    live_facts_ = std::make_shared<const RunFacts>(live_run_facts(*runner_));
+  }
+  PassWork pass = plan_next(*runner_);
+  if (pass.empty()) {
+    finish_locked(now);
+    return pass;
+  }
+  ej.id = id_;
+  ej.kernel = def_->kernel();
+  ej.spec_json = spec_text_;
+  ej.epoch = epoch;
+  ej.priority = priority_;
+  ej.owner = owner_;
+  return pass;
+}
+
+void Job::park_locked() {
+  if (!runner_) return;
+  facts_ = std::make_shared<const RunFacts>(run_facts(*runner_));
+  runner_.reset();
+  published_.reset();
+  parked_ = true;
+}
+
+uint64_t Job::pause_locked(bool stored) {
+  preempt_requested_ = false;
+  preempted_ = true;
+  status_ = JobStatus::queued;
+  const uint64_t samples = runner_ ? runner_->state().samples : 0;
+  if (stored) park_locked();
+  engine_.reset();
+  live_facts_.reset();
+  version_++;
+  publish_state_locked();
+  events_.append("preempted", dump(nlohmann::json{{"samples", samples}, {"state_stored", stored}}));
+  return samples;
+}
+
+void Job::reopen_locked(JobRunner runner, bool park) {
+  if (park) {
+    // Back to disk: it holds no memory while it waits, and is charged against the
+    // memory budget when it starts (read back then, with the new rule).
+    facts_ = std::make_shared<const RunFacts>(run_facts(runner));
+    runner_.reset();
+    parked_ = true;
+  } else {
+    *runner_ = std::move(runner);
+    facts_.reset();
+  }
+  status_ = JobStatus::queued;
+  cancel_requested_ = false;
+  error_.clear();
+  finished_at_ = 0;
+  final_result_.reset();
+  engine_.reset();
+  live_facts_.reset();
+  version_++;
+  publish_state_locked();
+}
+
+void Job::cancel_queued_locked(double now) {
+  if (runner_) {
+    runner_->cancel();
+  } else {
+    // Never started (or parked): no state, the facts say it was cancelled.
+    RunFacts f = facts_ ? *facts_ : RunFacts{};
+    f.stop_reason = StopReason::cancelled;
+    facts_ = std::make_shared<const RunFacts>(std::move(f));
+  }
+  finish_locked(now, JobStatus::cancelled);
+}
+
+bool Job::resumed_locked(std::unique_ptr<JobRunner> runner, const std::string& error, double now) {
+  loading_ = false;
+  if (!runner) {
+    error_ = "its stored state cannot be read back: " + error;
+    finish_locked(now, JobStatus::failed);
+    return false;
+  }
+  runner_ = std::move(runner);
+  parked_ = false;
+  facts_.reset();
+  return true;
+}
+
+void Job::answer_locked(std::shared_ptr<const JobDefinition> def, JobCaps caps, const JobEnding& ending) {
+  caps_ = caps;
+  def_ = std::move(def);
+  started_at_ = created_at_;
+  end_locked(ending, nullptr);
+}
+
+void Job::forecast_locked(double share, double& running, double& queued) const {
+  if (status_ == JobStatus::running && runner_) {
+    // Its ETA at its current throughput, on its share of the workers.
+    if (const double eta = runner_->eta_seconds(); std::isfinite(eta)) running += eta * share;
+  } else if (status_ == JobStatus::queued && facts_ && facts_->samples > 0 && facts_->compute_seconds > 0 &&
+             facts_->rule.max_samples > facts_->samples) {
+    // Ran before (paused, extended): the samples its rule still asks for, at its rate.
+    const double per_sample = facts_->compute_seconds / static_cast<double>(facts_->samples);
+    queued += static_cast<double>(facts_->rule.max_samples - facts_->samples) * per_sample * share;
+  }
+}
+
+Job::PassCommit Job::commit_pass_locked(std::vector<BlockResult>&& results, double wall, uint64_t pass,
+                                        double checkpoint_interval_s) {
+  PassCommit c;
+  JobRunner& r = *runner_;
+  try {
+    r.commit_groups(std::move(results), wall);
+  } catch (const std::exception& e) {
+    log::job(log::Level::error, id_, "committing pass {} failed: {}", pass, e.what());
+    r.fail(fmt::format("internal error committing a pass: {}", e.what()));
+  }
+  version_++;
+  c.version = version_;
+  publishing_ = true;  // until this pass's progress event is in the log (publish_pass)
+  c.cancel_now = cancel_requested_ && !r.finished();
+  c.pause_now = preempt_requested_ && !c.cancel_now && !r.finished();
+  if (!c.cancel_now && !c.pause_now && !r.finished()) c.next = plan_next(r);
+  c.finished = c.cancel_now || r.finished() || (c.next.empty() && !c.pause_now);
+  if (c.finished) c.next = PassWork{};
+  const auto now = std::chrono::steady_clock::now();
+  if (c.finished || now - last_checkpoint_ >= std::chrono::duration<double>(checkpoint_interval_s)) {
+    last_checkpoint_ = now;
+    c.checkpoint = true;
+  }
+  return c;
+}
+
+JobEnding Job::publish_pass(const std::vector<Block>& blocks, const PassCommit& c, FinishViews& views) {
+  // The heavy views of the pass (progress event, status JSON, tile events, and for the
+  // last pass the final result and facts: passes over every pixel of an image) are built
+  // here without the lock, so status GETs and watchers never wait for them. The runner
+  // is not mutated meanwhile: only the pass boundary changes it (the cancel below under
+  // the lock), and the executors call cancelled/failed for a job only once its
+  // pass_done has returned (the next pass starts after that).
+  const JobRunner& r = *runner_;
+  const JobDefinition* def = def_.get();
+  PassViews pv = c.finished ? pass_events(def, r, blocks) : running_views(def, r, blocks);
+  if (c.finished) {
+    if (c.cancel_now) {
+      std::lock_guard lock(mu_);
+      runner_->cancel();  // takes effect at this boundary
+    }
+    views = finish_views(def, r, c.cancel_now ? progress_data(r) : pv.progress);
+  }
+  JobEnding ending;
+  std::lock_guard lock(mu_);
+  events_.append("progress", *pv.progress);
+  for (std::string& t : pv.tiles) events_.append("tile", std::move(t));
+  watch_progress_ = std::move(pv.progress);
+  watch_progress_version_ = c.version;
+  publishing_ = false;
+  engine_version_ = c.version;
+  if (c.finished) {
+    // Its ending is stored before it is published: until then the job reads as
+    // running, with the last pass's figures.
+    ending = ending_locked(unix_now(), std::nullopt, &views);
+    finishing_ = true;
+    engine_ = views.final_result;
+    live_facts_ = views.facts;
+  } else {
+    engine_ = std::move(pv.engine);
+    live_facts_ = std::move(pv.live);
+  }
+  return ending;
+}
+
+}  // namespace tally
