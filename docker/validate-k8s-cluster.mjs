@@ -49,6 +49,20 @@ const worker = find("Deployment", "tally-worker");
 const redis = find("StatefulSet", "tally-redis");
 const redisSvc = find("Service", "tally-redis");
 const policy = docs.find((d) => d.kind === "NetworkPolicy");
+const hpa = docs.find((d) => d.kind === "HorizontalPodAutoscaler");
+expect("cluster", hpa, "a HorizontalPodAutoscaler for the workers");
+if (hpa) {
+  const where = `HorizontalPodAutoscaler/${hpa.metadata.name}`;
+  expect(where, hpa.spec.scaleTargetRef?.kind === "Deployment" && hpa.spec.scaleTargetRef?.name === "tally-worker",
+         "scales the tally-worker Deployment");
+  const m = (hpa.spec.metrics ?? []).find((x) => x.type === "External");
+  expect(where, m?.external?.metric?.name === "tally_predicted_cpu_seconds",
+         "on the server's tally_predicted_cpu_seconds gauge");
+  expect(where, m?.external?.target?.type === "AverageValue" && Number(m.external.target.averageValue) > 0,
+         "with a per-worker target (AverageValue)");
+  expect(where, hpa.spec.minReplicas >= 1 && hpa.spec.maxReplicas >= hpa.spec.minReplicas, "min 1, max >= min");
+  // The Deployment's fixed replicas is only the start; the HPA owns it from then on.
+}
 expect("cluster", server, "the server Deployment");
 expect("cluster", worker, "a tally-worker Deployment");
 expect("cluster", redis && redisSvc, "Redis as a StatefulSet with a Service");

@@ -1,0 +1,114 @@
+// The shared farm's two latencies (issue 32), in process: prints figures, not a test.
+//  1. Preemption: --max-running low-priority image jobs hold every slot; a priority-5
+//     job is submitted. Printed: how long until it runs, against the low jobs' pass
+//     length (the goal: within one pass).
+//  2. Result cache: an integration job that computes for ≥ 10 s, then the same spec
+//     submitted again. Printed: the compute time and the cached submit's latency
+//     (the goal: ≤ 10 ms).
+// Usage: farm_bench [workers [samples]]   (default 2 workers; the slow job's max_samples,
+// default 200 M: about 30 s on 2 idle cores)
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <thread>
+
+#include "common/jobs/job_factory.hpp"
+#include "server/jobs/job_manager.hpp"
+
+using nlohmann::json;
+using namespace tally;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+template <class P>
+bool wait_for(P pred, double seconds) {
+  const auto t0 = Clock::now();
+  while (since(t0) < seconds) {
+    if (pred()) return true;
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  return pred();
+}
+
+json image_spec(int w, int h, uint64_t seed) {
+  json spec = json::parse(R"({
+    "kind": "lighting",
+    "scene": {
+      "camera": {"position": [0, -4.5, 3.2], "look_at": [0, 0, 0.6], "up": [0, 0, 1], "fov_deg": 50},
+      "materials": {"white": {"type": "diffuse", "albedo": [0.8, 0.8, 0.8]},
+                    "lamp": {"type": "emissive", "radiance": [5, 5, 5], "two_sided": false}},
+      "shapes": [
+        {"type": "quad", "corner": [-3, -3, 0], "edge_u": [6, 0, 0], "edge_v": [0, 6, 0], "material": "white"},
+        {"type": "quad", "corner": [-0.5, -0.5, 2], "edge_u": [0, 1, 0], "edge_v": [1, 0, 0], "material": "lamp"}]
+    },
+    "query": {"type": "image"}, "estimators": ["mis"], "stop": {"max_samples": 100000000}
+  })");
+  spec["seed"] = seed;
+  spec["scene"]["camera"]["resolution"] = {w, h};
+  return spec;
+}
+
+uint64_t passes(JobManager& m, const std::string& id) {
+  const JobSnapshot s = m.snapshot(id, JobManager::SnapshotOf::state);
+  return s.runner ? s.runner->state().passes : s.facts ? s.facts->passes : 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const unsigned workers = argc > 1 ? static_cast<unsigned>(std::atoi(argv[1])) : 2;
+  auto store = make_memory_store();
+  ManagerConfig mc;
+  mc.workers = workers;
+  mc.max_running = workers;
+  mc.preempt_min_run_s = 0;
+  JobManager m(mc, *store, compile_job);
+  m.recover();
+
+  // 1. Preemption latency.
+  std::vector<std::string> low;
+  for (unsigned i = 0; i < workers; ++i) low.push_back(m.submit(image_spec(256, 256, i + 1), 0)->id());
+  for (const auto& id : low) wait_for([&] { return passes(m, id) >= 3; }, 60);
+  const auto t_pass = Clock::now();
+  const uint64_t p0 = passes(m, low[0]);
+  wait_for([&] { return passes(m, low[0]) >= p0 + 3; }, 60);
+  const double pass_s = since(t_pass) / static_cast<double>(passes(m, low[0]) - p0);
+  const auto t0 = Clock::now();
+  const std::string urgent = m.submit(image_spec(64, 64, 99), 5)->id();
+  const bool started = wait_for([&] { return m.snapshot(urgent).status == JobStatus::running; }, 60);
+  const double latency = since(t0);
+  std::printf("preemption: %u low-priority 256x256 image jobs on %u workers, pass length %.1f ms;\n"
+              "  a priority-5 job ran %.1f ms after its submit (%.2f pass lengths)%s; preemptions %llu\n",
+              workers, workers, pass_s * 1e3, latency * 1e3, latency / pass_s, started ? "" : " (NOT STARTED)",
+              static_cast<unsigned long long>(m.stats().preemptions));
+  for (const auto& id : low) m.cancel(id);
+  m.cancel(urgent);
+  wait_for([&] { return m.stats().jobs_by_state.at("running") == 0; }, 60);
+
+  // 2. Cached submit latency for a job that computes for ≥ 10 s.
+  const json slow = {{"kind", "integrate"},
+                     {"seed", 11},
+                     {"integrand", {{"expression", "exp(-x*x-y*y-z*z) * sin(3*x*y*z + 1)"}}},
+                     {"domain", {{"type", "box"}, {"lower", {0, 0, 0}}, {"upper", {1, 1, 1}}}},
+                     {"stop", {{"max_samples", argc > 2 ? std::strtoull(argv[2], nullptr, 10) : 200000000ULL}}}};
+  const auto c0 = Clock::now();
+  const std::string first = m.submit(slow, 0)->id();
+  wait_for([&] { return m.snapshot(first).status == JobStatus::succeeded; }, 600);
+  const double computed = since(c0);
+  const auto h0 = Clock::now();
+  const auto hit = m.submit(slow, 0);
+  const double hit_ms = since(h0) * 1e3;
+  const JobSnapshot hs = m.snapshot(*hit);
+  std::printf("result cache: the job computed in %.1f s (wall, %u workers); the same spec again answered in "
+              "%.2f ms, state %s, cached_from %s, bits %s\n",
+              computed, workers, hit_ms, std::string(job_status_name(hs.status)).c_str(), hs.cached_from.c_str(),
+              hs.final_result && m.snapshot(first).final_result &&
+                      hs.final_result->at("bits") == m.snapshot(first).final_result->at("bits")
+                  ? "equal"
+                  : "DIFFER");
+  m.shutdown();
+  return 0;
+}
