@@ -6,6 +6,23 @@
 
 namespace tally {
 
+namespace {
+
+// The order jobs start in: highest priority first; among equal priorities the owner
+// running fewer jobs (its fair share: a job paused for it does not start again before
+// it), then submission order.
+bool goes_before(const Job& a, const Job& b, const std::map<std::string, uint64_t>& running) {
+  if (a.priority() != b.priority()) return a.priority() > b.priority();
+  if (a.owner() != b.owner()) {
+    const auto ra = running.find(a.owner()), rb = running.find(b.owner());
+    const uint64_t na = ra == running.end() ? 0 : ra->second, nb = rb == running.end() ? 0 : rb->second;
+    if (na != nb) return na < nb;
+  }
+  return a.seq() < b.seq();
+}
+
+}  // namespace
+
 uint64_t Admission::state_bytes(const JobDefinition& def) {
   const Kernel& k = *def.kernel();
   return 2 * (static_cast<uint64_t>(k.channel_count()) * sizeof(Tally) +
@@ -71,12 +88,12 @@ uint64_t Admission::running_of(const std::string& owner) const {
 
 std::shared_ptr<Job> Admission::next() {
   if (running_ >= limits_.max_running) return nullptr;
-  // Highest priority first, then submission order; skipping owners at their
-  // running-jobs quota. The first in that order waits while its state does not fit
-  // the memory budget (no smaller job overtakes it), except that jobs already
-  // holding their state (resumed or extended) may start: they need nothing more.
-  const auto before = [](const std::shared_ptr<Job>& a, const std::shared_ptr<Job>& b) {
-    return a->priority() != b->priority() ? a->priority() > b->priority() : a->seq() < b->seq();
+  // Highest priority first, then the owner running fewer jobs, then submission order;
+  // skipping owners at their running-jobs quota. The first in that order waits while
+  // its state does not fit the memory budget (no smaller job overtakes it), except that
+  // jobs already holding their state (resumed or extended) may start: they need nothing more.
+  const auto before = [this](const std::shared_ptr<Job>& a, const std::shared_ptr<Job>& b) {
+    return goes_before(*a, *b, running_by_owner_);
   };
   static const Entry none;
   const auto info = [&](const Job& j) -> const Entry& {
@@ -137,8 +154,8 @@ void Admission::stopped(const Job& job) {
 
 std::shared_ptr<Job> Admission::preemption_victim(double now, double min_run_s) {
   if (running_ < limits_.max_running || queue_.empty() || running_jobs_.empty()) return nullptr;
-  const auto before = [](const std::shared_ptr<Job>& a, const std::shared_ptr<Job>& b) {
-    return a->priority() != b->priority() ? a->priority() > b->priority() : a->seq() < b->seq();
+  const auto before = [this](const std::shared_ptr<Job>& a, const std::shared_ptr<Job>& b) {
+    return goes_before(*a, *b, running_by_owner_);
   };
   static const Entry none;
   std::shared_ptr<Job> waiting;

@@ -18,6 +18,17 @@ namespace tally {
 
 using nlohmann::json;
 
+namespace {
+// A finished job whose result is the one its spec computes (ResultCache): it stopped
+// for a reason the clock does not decide, under its spec's own rule (not extended).
+bool answers_its_spec(const JobDefinition* def, const RunFacts* f) {
+  if (!def || !f || !ResultCache::reusable(f->stop_reason)) return false;
+  const StopRule a = f->rule, b = def->stop_rule();
+  return a.max_samples == b.max_samples && a.time_budget_s == b.time_budget_s && a.abs_error == b.abs_error &&
+         a.rel_error == b.rel_error && a.confidence == b.confidence && a.min_samples == b.min_samples;
+}
+}  // namespace
+
 double unix_now() {
   return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
@@ -58,6 +69,7 @@ JobManager::~JobManager() {
     std::lock_guard lock(mu_);
     shutting_down_ = true;  // a final save's release_state starts no queued job now
   }
+  recorder_.stop_loads();  // reads of parked states under way end (they start nothing now)
   retention_.stop();
   executor_->stop();
   recorder_.flush_finals();  // their callbacks use this manager
@@ -389,8 +401,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     recorder_.save_final_later(job, ending, [this, job, ending, shown](bool stored) {
       // Stored: its result may answer later submits of the same spec (from when it reads
       // as finished, just below).
-      if (stored && ending.status == JobStatus::succeeded && ending.facts &&
-          ResultCache::reusable(ending.facts->stop_reason)) {
+      if (stored && ending.status == JobStatus::succeeded && answers_its_spec(job->def_.get(), ending.facts.get())) {
         results_.add(job->cache_key_, job->id(), job->owner(), ending.facts->samples);
       }
       {
@@ -558,8 +569,7 @@ void JobManager::recover() {
       std::lock_guard jl(job->mu_);
       const uint64_t bytes = job->def_ ? state_bytes(*job->def_) : 0;
       if (job->def_) job->cache_key_ = ResultCache::key_of(job->spec(), job->def_->seed());
-      if (job->status_ == JobStatus::succeeded && job->def_ && job->facts_ &&
-          ResultCache::reusable(job->facts_->stop_reason)) {
+      if (job->status_ == JobStatus::succeeded && answers_its_spec(job->def_.get(), job->facts_.get())) {
         results_.add(job->cache_key_, job->id(), job->owner(), job->facts_->samples);
       }
       admission_.track(*job, bytes, UINT64_MAX);
@@ -651,6 +661,7 @@ void JobManager::shutdown() {
     if (shutting_down_) return;
     shutting_down_ = true;
   }
+  recorder_.stop_loads();
   retention_.stop();
   executor_->stop();  // chunks in flight finish; partial passes are dropped
   recorder_.flush_finals();  // jobs that ended just before are stored and read as finished

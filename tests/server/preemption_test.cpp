@@ -77,7 +77,7 @@ TEST(Preemption, IntegrationJobResumesBitIdentical) {
                                              {"seed", 3},
                                              {"integrand", {{"expression", "exp(-x*x-y*y)"}}},
                                              {"domain", {{"type", "box"}, {"lower", {0, 0}}, {"upper", {1, 1}}}},
-                                             {"stop", {{"max_samples", 4000000}}}});
+                                             {"stop", {{"max_samples", 20000000}}}});
 }
 
 TEST(Preemption, VegasJobResumesBitIdentical) {

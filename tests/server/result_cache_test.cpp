@@ -99,17 +99,26 @@ TEST(ResultCache, HitAnswersBitIdenticalWithoutComputing) {
   EXPECT_FALSE(s1.contains("cached_from"));
   EXPECT_EQ(s2.at("bits"), s1.at("bits"));
   EXPECT_EQ(s2.at("result"), s1.at("result"));
-  EXPECT_TRUE(same_bits(h.channels(second), h.channels(first))) << "the stored state (its image) is the same";
+  const std::vector<Tally> c1 = h.channels(first), c2 = h.channels(second);
+  ASSERT_EQ(c1.size(), 64u);
+  ASSERT_EQ(c2.size(), c1.size());
+  for (size_t i = 0; i < c1.size(); ++i) {
+    ASSERT_EQ(c2[i].n, c1[i].n) << i;
+    ASSERT_EQ(c2[i].mean, c1[i].mean) << i;
+    ASSERT_EQ(c2[i].m2, c1[i].m2) << i;
+  }
+  EXPECT_TRUE(same_bits(c2, c1)) << "the stored state (its image) is the same";
   EXPECT_EQ(h.manager->stats().samples_total, computed) << "nothing was computed";
   EXPECT_EQ(h.metric("tally_result_cache_hits_total"), 1);
   EXPECT_EQ(h.metric("tally_result_cache_misses_total"), 1);  // the first submit looked
   std::printf("cached submit answered in %.2f ms\n", ms);
   // The list shows where it came from.
   bool listed = false;
-  for (const json& j : h.call_json("GET", "/v1/jobs").at("jobs")) {
+  const json list = h.call_json("GET", "/v1/jobs");
+  for (const json& j : list.at("jobs")) {
     if (j.at("id") == second) listed = j.at("cached_from") == first;
   }
-  EXPECT_TRUE(listed);
+  EXPECT_TRUE(listed) << list.dump();
 }
 
 TEST(ResultCache, OptOutAnotherSeedOrAnotherSpecComputes) {
