@@ -27,6 +27,10 @@ struct EstimatorPlan {
   std::optional<uint64_t> strata_per_dim, stratified_dims;  // stratified
   std::optional<uint64_t> points_per_sample;                // stratified, qmc
   std::optional<std::string> sequence, scramble;            // qmc
+  std::optional<std::string> construction, periodize;       // lattice ...
+  std::vector<uint64_t> generating_vector;
+  std::vector<double> weights;
+  std::optional<double> worst_case_error;                   // ... lattice
   std::optional<uint64_t> bins;                             // vegas ...
   std::optional<double> alpha;
   std::optional<uint64_t> warmup_passes, max_pass_samples;

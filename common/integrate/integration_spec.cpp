@@ -23,6 +23,10 @@ using nlohmann::json;
 namespace {
 
 constexpr uint64_t kMaxSweepCoordinates = uint64_t{1} << 24;
+// The fast CBC construction runs when the spec compiles: O(s n log n) with FFTs of
+// length ~n, 0.3 s of CPU for n = 65521 and s = 32 (LatticeRule.FastCbcTimeAtTheLargestSize).
+constexpr uint64_t kMaxLatticePoints = uint64_t{1} << 16;
+constexpr double kDefaultLatticeWeight = 0.1;
 
 
 struct ParsedIntegrand {
@@ -219,7 +223,8 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
   }
   SpecReader r(*node, pointer);
   const std::string type =
-      r.enumeration("type", {"uniform", "importance", "stratified", "qmc", "rejection", "quadrature", "vegas", "cubature"});
+      r.enumeration("type", {"uniform", "importance", "stratified", "qmc", "lattice", "rejection", "quadrature", "vegas",
+                              "cubature"});
   c.plan.type = type;
   auto need_box = [&](const char* what) {
     if (!D.is_box()) {
@@ -315,6 +320,37 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
     c.plan.scramble = scramble;
     c.plan.points_per_sample = points;
     c.kernel = make_qmc_kernel(prob, points, scramble == "owen");
+    c.sweep = true;
+  } else if (type == "lattice") {
+    const uint32_t U = D.uniforms();
+    const auto requested = static_cast<uint32_t>(r.integer_or("points", 1021, 5, kMaxLatticePoints));
+    const uint32_t n = largest_prime_at_most(requested);
+    if (static_cast<uint64_t>(n) * U > kMaxSweepCoordinates) {
+      throw SpecError(r.pointer_of("points"),
+                      fmt::format("points x dimensions = {} x {} exceeds {} coordinates per point set", n, U,
+                                  kMaxSweepCoordinates));
+    }
+    std::vector<double> weights(U, kDefaultLatticeWeight);
+    if (r.has("weights")) {
+      if (r.at("weights").is_array()) {
+        weights = r.numbers("weights", U, U, 1e-12, 1e3);
+      } else {
+        weights.assign(U, r.number("weights", 1e-12, 1e3));
+      }
+    }
+    const std::string per = r.enumeration_or("periodize", "baker", {"none", "baker", "cubic"});
+    LatticeRule rule = cbc_lattice_rule(n, weights);
+    c.plan.construction =
+        "rank-1 lattice, prime n, generating vector by fast component-by-component construction (Nuyens-Cools) "
+        "minimising P_2 for product weights; one independent uniform shift per sample";
+    c.plan.periodize = per;
+    c.plan.points_per_sample = n;
+    c.plan.generating_vector.assign(rule.z.begin(), rule.z.end());
+    c.plan.weights = weights;
+    c.plan.worst_case_error = rule.worst_case_error;
+    c.kernel = make_lattice_kernel(prob, std::move(rule),
+                                   per == "none" ? Periodization::none
+                                                 : (per == "baker" ? Periodization::baker : Periodization::cubic));
     c.sweep = true;
   } else if (type == "vegas") {
     need_box("vegas");

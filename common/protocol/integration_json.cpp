@@ -60,6 +60,11 @@ json estimator_plan_json(const EstimatorPlan& p) {
   put(j, "points_per_sample", p.points_per_sample);
   put(j, "sequence", p.sequence);
   put(j, "scramble", p.scramble);
+  put(j, "construction", p.construction);
+  put(j, "periodize", p.periodize);
+  if (!p.generating_vector.empty()) j["generating_vector"] = p.generating_vector;
+  if (!p.weights.empty()) j["weights"] = p.weights;
+  put(j, "worst_case_error", p.worst_case_error);
   put(j, "bins", p.bins);
   put(j, "alpha", p.alpha);
   put(j, "warmup_passes", p.warmup_passes);
