@@ -33,6 +33,10 @@ LatticeRule cbc_lattice_rule_plain(uint32_t n, const std::vector<double>& weight
 // P_2(z) of any generating vector, computed directly in O(s n).
 double lattice_worst_case_error(uint32_t n, const std::vector<uint32_t>& z, const std::vector<double>& weights);
 
+// The product weights CBC uses unless a spec gives some: gamma_j = 0.1 in every
+// dimension (no dimension assumed more important than another, as in the Genz suite).
+inline constexpr double kDefaultLatticeWeight = 0.1;
+
 // Periodizing transforms of [0,1] applied per coordinate before the integrand, so a
 // smooth non-periodic integrand becomes (nearly) periodic; `jacobian` multiplies the
 // value. baker (tent) 1 - |2u - 1|: measure preserving, Jacobian 1 (Hickernell 2002);

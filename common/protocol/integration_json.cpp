@@ -46,8 +46,28 @@ json domain_json(const DomainInfo& info) {
   return j;
 }
 
+json auto_selection_json(const AutoSelection& a) {
+  json cands = json::array();
+  for (const AutoCandidate& c : a.candidates) {
+    json e = {{"estimator", c.estimator},
+              {"pilot_points", {c.pilot_points_small, c.pilot_points_large}},
+              {"pilot_sd", {finite_or_null(c.sd_small), finite_or_null(c.sd_large)}},
+              {"rate", c.rate},
+              {"points_per_sample", c.points},
+              {"predicted_evaluations", finite_or_null(c.predicted_evaluations)}};
+    if (!c.periodize.empty()) e["periodize"] = c.periodize;
+    cands.push_back(std::move(e));
+  }
+  return {{"chosen", a.chosen},
+          {"reason", a.reason},
+          {"target_half_width", a.target_half_width},
+          {"pilot_evaluations", a.pilot_evaluations},
+          {"candidates", std::move(cands)}};
+}
+
 json estimator_plan_json(const EstimatorPlan& p) {
   json j = {{"type", p.type}};
+  if (p.selection) j["auto"] = auto_selection_json(*p.selection);
   put(j, "components", p.components);
   if (p.density) {
     json d = {{"type", p.density->type}};
