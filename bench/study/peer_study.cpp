@@ -42,15 +42,6 @@ json tally_stop(const json& est, const peers::Target& t) {
   return {{"rel_error", kRelTarget}, {"confidence", 0.95}, {"time_budget_s", t.max_seconds}, {"max_samples", cap}};
 }
 
-// TALLY_STUDY_FAMILIES=name,name limits the peer study to some families;
-// TALLY_STUDY_INSTANCES=N sets the instances per family and dimension.
-bool family_selected(GenzFamily f) {
-  const char* env = std::getenv("TALLY_STUDY_FAMILIES");
-  if (env == nullptr || *env == 0) return true;
-  const std::string list = std::string(",") + env + ",";
-  return list.find(fmt::format(",{},", genz_family_name(f))) != std::string::npos;
-}
-
 }  // namespace
 
 // tally's estimator per family, as a user would pick it after trying the candidates

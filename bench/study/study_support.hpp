@@ -88,6 +88,10 @@ class Stopwatch {
 
 void log(const std::string& line);
 
+// TALLY_STUDY_FAMILIES=name,name limits the peer studies to some families (all when unset);
+// TALLY_STUDY_INSTANCES=N sets the instances per family and dimension.
+bool family_selected(GenzFamily f);
+
 // The sections; each writes its CSVs under options.out.
 void run_quadrature_study(const Options& o);
 void run_variance_study(const Options& o);
@@ -98,5 +102,6 @@ void run_peer_study(const Options& o);
 void run_peer_tuning(const Options& o);
 void run_vegas_tuning(const Options& o);
 void run_eta_study(const Options& o);
+void run_hard_study(const Options& o);
 
 }  // namespace tally::study
