@@ -3,7 +3,8 @@
 // An input that starts with the checkpoint magic has its last 8 bytes replaced by the
 // checksum of the rest, so mutations of the seed corpus (whole checkpoints) reach the
 // parser behind a valid checksum; other inputs go in as given (the checksum's path).
-// Decoded sealed inputs must re-encode to exactly their own bytes.
+// Decoded sealed inputs of the current version (3) must re-encode to exactly their own
+// bytes (older versions re-encode as version 3).
 #include <cstring>
 #include <string>
 #include <string_view>
@@ -26,7 +27,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     return 0;
   }
   const std::string again = tally::encode_checkpoint(s);
-  if (seal && again != bytes) tally::fuzz::fail("a decoded checkpoint does not encode to its own bytes", "", bytes);
+  const bool current_version = bytes.size() >= 16 && static_cast<unsigned char>(bytes[8]) == 3 &&
+                               bytes.compare(9, 7, std::string(7, '\0')) == 0;
+  if (seal && current_version && again != bytes) tally::fuzz::fail("a decoded checkpoint does not encode to its own bytes", "", bytes);
   try {
     if (tally::encode_checkpoint(tally::decode_checkpoint(again)) != again) {
       tally::fuzz::fail("round trip changed the state", "", bytes);
