@@ -105,11 +105,7 @@ void run_hard_study(const Options& o) {
                    fmt::format("{} auto->{}{} n={}", stop_reason_name(r.runner->stop_reason()), plan.type,
                                plan.periodize ? "/" + *plan.periodize : "", plan.points_per_sample.value_or(1)));
           }
-          peers::GenzScalar g;
-          g.family = static_cast<int>(fi);
-          g.d = d;
-          g.a = p.a.data();
-          g.u = p.u.data();
+          const peers::GenzScalar g = peer_integrand(p);
           for (peers::GslMethod m : {peers::GslMethod::plain, peers::GslMethod::miser, peers::GslMethod::vegas}) {
             if (!method_selected(methods, peers::gsl_method_name(m))) continue;
             const peers::PeerResult r = peers::run_gsl(m, g, pt, static_cast<unsigned long>(k + 1));

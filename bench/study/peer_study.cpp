@@ -194,11 +194,7 @@ void run_peer_study(const Options& o) {
                  r.runner->stop_reason() == StopReason::error_target,
                  fmt::format("{} {}", stop_reason_name(r.runner->stop_reason()), estimator_label(est)));
         }
-        peers::GenzScalar g;
-        g.family = static_cast<int>(fi);
-        g.d = d;
-        g.a = p.a.data();
-        g.u = p.u.data();
+        const peers::GenzScalar g = peer_integrand(p);
         for (peers::GslMethod m : {peers::GslMethod::plain, peers::GslMethod::miser, peers::GslMethod::vegas}) {
           const peers::PeerResult r = peers::run_gsl(m, g, target, static_cast<unsigned long>(k + 1));
           record(peers::gsl_method_name(m), r.estimate, r.half_width, r.seconds, r.evaluations, r.converged, r.note);

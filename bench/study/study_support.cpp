@@ -101,6 +101,15 @@ void log(const std::string& line) {
   std::fprintf(stderr, "[study] %s\n", line.c_str());
 }
 
+peers::GenzScalar peer_integrand(const GenzParams& p) {
+  peers::GenzScalar g;
+  g.family = static_cast<int>(p.family);
+  g.d = p.a.size();
+  g.a = p.a.data();
+  g.u = p.u.data();
+  return g;
+}
+
 bool family_selected(GenzFamily f) {
   const char* env = std::getenv("TALLY_STUDY_FAMILIES");
   if (env == nullptr || *env == 0) return true;

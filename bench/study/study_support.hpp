@@ -13,6 +13,7 @@
 #include "common/engine/job_definition.hpp"
 #include "common/engine/job_runner.hpp"
 #include "common/engine/kernel.hpp"
+#include "bench/peers/genz_scalar.hpp"
 #include "common/integrate/genz.hpp"
 
 namespace tally::study {
@@ -57,6 +58,9 @@ struct SeedStats {
 };
 SeedStats over_seeds(const std::function<json(uint64_t seed)>& spec_of, double exact, int seeds,
                      unsigned threads = 1);
+
+// The same Genz instance as the peers' scalar integrand (p must outlive it).
+peers::GenzScalar peer_integrand(const GenzParams& p);
 
 // An integrate job over [0,1]^d with a Genz built-in.
 json genz_spec(const GenzParams& p, const json& estimator, const json& stop, uint64_t seed);

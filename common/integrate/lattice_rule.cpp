@@ -97,6 +97,35 @@ double lattice_worst_case_error(uint32_t n, const std::vector<uint32_t>& z, cons
   return std::sqrt(std::max(0.0, sum / n - 1.0));
 }
 
+namespace {
+
+// The CBC loop: component s is the z minimising the error given components < s;
+// `candidate_errors(p, err)` fills err[z] for z in 1..n-1 (up to terms that do not depend
+// on z) from p(k) = prod_{j<s} (1 + gamma_j omega({k z_j / n})).
+template <class CandidateErrors>
+LatticeRule run_cbc(uint32_t n, const std::vector<double>& weights, CandidateErrors&& candidate_errors) {
+  check_arguments(n, weights);
+  LatticeRule rule;
+  rule.n = n;
+  rule.weights = weights;
+  std::vector<double> p(n, 1.0), err(n, 0.0);
+  for (size_t s = 0; s < weights.size(); ++s) {
+    uint32_t zs = 1;  // the first component: every unit gives the same error
+    if (s > 0) {
+      candidate_errors(p, err);
+      zs = pick(err, n);
+    }
+    rule.z.push_back(zs);
+    multiply_in(p, n, zs, weights[s]);
+  }
+  double sum = 0.0;
+  for (double pk : p) sum += pk;
+  rule.worst_case_error = std::sqrt(std::max(0.0, sum / n - 1.0));
+  return rule;
+}
+
+}  // namespace
+
 LatticeRule cbc_lattice_rule(uint32_t n, const std::vector<double>& weights) {
   check_arguments(n, weights);
   const uint32_t L = n - 1;
@@ -115,57 +144,26 @@ LatticeRule cbc_lattice_rule(uint32_t n, const std::vector<double>& weights) {
   std::vector<double> c(H);
   for (uint32_t m = 0; m < H; ++m) c[m] = omega(gm[m], n);
   const CyclicConvolution conv(c);
-
-  LatticeRule rule;
-  rule.n = n;
-  rule.weights = weights;
-  std::vector<double> p(n, 1.0);  // prod over chosen components of (1 + gamma_j omega({k z_j / n}))
-  std::vector<double> x(H), err(n, 0.0);
-  for (size_t s = 0; s < weights.size(); ++s) {
-    uint32_t zs = 1;  // the first component: every unit gives the same error
-    if (s > 0) {
-      // y[i] = sum_j omega({g^(i-j) / n}) p(g^-j) = sum over units k of omega({k g^i / n}) p(k),
-      // the candidate z = g^i's error up to terms that do not depend on z.
-      for (uint32_t j = 0; j < H; ++j) x[j] = p[gm[(L - j) % L]];
-      const std::vector<double> y = conv.apply(x);
-      for (uint32_t i = 0; i < H; ++i) {
-        err[gm[i]] = 2.0 * y[i];
-        err[n - gm[i]] = 2.0 * y[i];
-      }
-      zs = pick(err, n);
+  std::vector<double> x(H);
+  return run_cbc(n, weights, [&](const std::vector<double>& p, std::vector<double>& err) {
+    // y[i] = sum_j omega({g^(i-j) / n}) p(g^-j) = sum over units k of omega({k g^i / n}) p(k).
+    for (uint32_t j = 0; j < H; ++j) x[j] = p[gm[(L - j) % L]];
+    const std::vector<double> y = conv.apply(x);
+    for (uint32_t i = 0; i < H; ++i) {
+      err[gm[i]] = 2.0 * y[i];
+      err[n - gm[i]] = 2.0 * y[i];
     }
-    rule.z.push_back(zs);
-    multiply_in(p, n, zs, weights[s]);
-  }
-  double sum = 0.0;
-  for (double pk : p) sum += pk;
-  rule.worst_case_error = std::sqrt(std::max(0.0, sum / n - 1.0));
-  return rule;
+  });
 }
 
 LatticeRule cbc_lattice_rule_plain(uint32_t n, const std::vector<double>& weights) {
-  check_arguments(n, weights);
-  LatticeRule rule;
-  rule.n = n;
-  rule.weights = weights;
-  std::vector<double> p(n, 1.0), err(n, 0.0);
-  for (size_t s = 0; s < weights.size(); ++s) {
-    uint32_t zs = 1;
-    if (s > 0) {
-      for (uint32_t z = 1; z <= (n - 1) / 2; ++z) {
-        double t = 0.0;  // over units k only, as the fast version (k = 0 adds the same to all)
-        for (uint32_t k = 1; k < n; ++k) t += p[k] * omega(static_cast<uint64_t>(k) * z % n, n);
-        err[z] = t;
-      }
-      zs = pick(err, n);
+  return run_cbc(n, weights, [n](const std::vector<double>& p, std::vector<double>& err) {
+    for (uint32_t z = 1; z <= (n - 1) / 2; ++z) {
+      double t = 0.0;  // over units k only, as the fast version (k = 0 adds the same to all)
+      for (uint32_t k = 1; k < n; ++k) t += p[k] * omega(static_cast<uint64_t>(k) * z % n, n);
+      err[z] = t;
     }
-    rule.z.push_back(zs);
-    multiply_in(p, n, zs, weights[s]);
-  }
-  double sum = 0.0;
-  for (double pk : p) sum += pk;
-  rule.worst_case_error = std::sqrt(std::max(0.0, sum / n - 1.0));
-  return rule;
+  });
 }
 
 }  // namespace tally

@@ -162,14 +162,7 @@ TEST(Lattice, PeriodizingTransformsHelpANonPeriodicIntegrand) {
 }
 
 TEST(Lattice, SpecErrorsNameTheField) {
-  auto pointer_of = [](const json& spec) -> std::string {
-    try {
-      compile_job(spec, JobLimits{});
-    } catch (const SpecError& e) {
-      return e.pointer();
-    }
-    return "<accepted>";
-  };
+  const auto pointer_of = testing::spec_error_pointer;
   const json ok = {{"kind", "integrate"},
                    {"integrand", {{"builtin", "genz"}, {"family", "gaussian"}, {"a", {1, 2, 3}}}},
                    {"estimator", {{"type", "lattice"}, {"points", 1000}, {"weights", {0.5, 0.25, 0.125}}}},
