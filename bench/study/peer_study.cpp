@@ -42,15 +42,6 @@ json tally_stop(const json& est, const peers::Target& t) {
   return {{"rel_error", kRelTarget}, {"confidence", 0.95}, {"time_budget_s", t.max_seconds}, {"max_samples", cap}};
 }
 
-// TALLY_STUDY_FAMILIES=name,name limits the peer study to some families;
-// TALLY_STUDY_INSTANCES=N sets the instances per family and dimension.
-bool family_selected(GenzFamily f) {
-  const char* env = std::getenv("TALLY_STUDY_FAMILIES");
-  if (env == nullptr || *env == 0) return true;
-  const std::string list = std::string(",") + env + ",";
-  return list.find(fmt::format(",{},", genz_family_name(f))) != std::string::npos;
-}
-
 }  // namespace
 
 // tally's estimator per family, as a user would pick it after trying the candidates
@@ -203,11 +194,7 @@ void run_peer_study(const Options& o) {
                  r.runner->stop_reason() == StopReason::error_target,
                  fmt::format("{} {}", stop_reason_name(r.runner->stop_reason()), estimator_label(est)));
         }
-        peers::GenzScalar g;
-        g.family = static_cast<int>(fi);
-        g.d = d;
-        g.a = p.a.data();
-        g.u = p.u.data();
+        const peers::GenzScalar g = peer_integrand(p);
         for (peers::GslMethod m : {peers::GslMethod::plain, peers::GslMethod::miser, peers::GslMethod::vegas}) {
           const peers::PeerResult r = peers::run_gsl(m, g, target, static_cast<unsigned long>(k + 1));
           record(peers::gsl_method_name(m), r.estimate, r.half_width, r.seconds, r.evaluations, r.converged, r.note);

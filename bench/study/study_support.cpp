@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <stdexcept>
 
 #include "common/engine/local_executor.hpp"
@@ -98,6 +99,22 @@ void Csv::row(const std::vector<json>& cells) {
 
 void log(const std::string& line) {
   std::fprintf(stderr, "[study] %s\n", line.c_str());
+}
+
+peers::GenzScalar peer_integrand(const GenzParams& p) {
+  peers::GenzScalar g;
+  g.family = static_cast<int>(p.family);
+  g.d = p.a.size();
+  g.a = p.a.data();
+  g.u = p.u.data();
+  return g;
+}
+
+bool family_selected(GenzFamily f) {
+  const char* env = std::getenv("TALLY_STUDY_FAMILIES");
+  if (env == nullptr || *env == 0) return true;
+  const std::string list = std::string(",") + env + ",";
+  return list.find(fmt::format(",{},", genz_family_name(f))) != std::string::npos;
 }
 
 }  // namespace tally::study

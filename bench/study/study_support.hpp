@@ -13,6 +13,7 @@
 #include "common/engine/job_definition.hpp"
 #include "common/engine/job_runner.hpp"
 #include "common/engine/kernel.hpp"
+#include "bench/peers/genz_scalar.hpp"
 #include "common/integrate/genz.hpp"
 
 namespace tally::study {
@@ -58,6 +59,9 @@ struct SeedStats {
 SeedStats over_seeds(const std::function<json(uint64_t seed)>& spec_of, double exact, int seeds,
                      unsigned threads = 1);
 
+// The same Genz instance as the peers' scalar integrand (p must outlive it).
+peers::GenzScalar peer_integrand(const GenzParams& p);
+
 // An integrate job over [0,1]^d with a Genz built-in.
 json genz_spec(const GenzParams& p, const json& estimator, const json& stop, uint64_t seed);
 
@@ -88,6 +92,10 @@ class Stopwatch {
 
 void log(const std::string& line);
 
+// TALLY_STUDY_FAMILIES=name,name limits the peer studies to some families (all when unset);
+// TALLY_STUDY_INSTANCES=N sets the instances per family and dimension.
+bool family_selected(GenzFamily f);
+
 // The sections; each writes its CSVs under options.out.
 void run_quadrature_study(const Options& o);
 void run_variance_study(const Options& o);
@@ -98,5 +106,6 @@ void run_peer_study(const Options& o);
 void run_peer_tuning(const Options& o);
 void run_vegas_tuning(const Options& o);
 void run_eta_study(const Options& o);
+void run_hard_study(const Options& o);
 
 }  // namespace tally::study

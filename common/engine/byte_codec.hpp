@@ -6,7 +6,10 @@
 // bit-identically). Readers check every length against what is left and never read
 // past their input: malformed bytes throw `Error`, the caller's exception type
 // (CheckpointError, WireError).
+#include <algorithm>
 #include <bit>
+#include <cmath>
+#include <functional>
 #include <cstdint>
 #include <fmt/format.h>
 #include <string>
@@ -118,7 +121,13 @@ class ByteReader {
     if (cap == 0 || cap > (1u << 20)) throw Error(fmt::format("{}: tail capacity {} is out of range", what_, cap));
     std::vector<double> heap(count(8));
     if (heap.size() > cap) throw Error(fmt::format("{}: tail larger than its capacity", what_));
-    for (double& v : heap) v = f64();
+    for (double& v : heap) {
+      v = f64();
+      // A tail keeps positive finite magnitudes only (TailTracker::offer drops the rest).
+      if (!(v > 0.0) || !std::isfinite(v)) throw Error(fmt::format("{}: tail value {} is not a positive magnitude", what_, v));
+    }
+    // Stored as the tracker's min-heap: anything else would be silently reordered.
+    if (!std::is_heap(heap.begin(), heap.end(), std::greater<>())) throw Error(fmt::format("{}: tail is not a heap", what_));
     TailTracker t(cap);
     t.assign(std::move(heap));
     return t;

@@ -37,6 +37,8 @@ using Reader = ByteReader<CheckpointError>;
 
 }  // namespace
 
+uint64_t checkpoint_checksum(std::string_view body) { return fnv1a(body); }
+
 std::string encode_checkpoint(const JobState& s) {
   ByteWriter w;
   w.reserve(64 + 8 * s.partition_samples.size() + 24 * s.channels.size() + 32 * s.trace.size() +
@@ -111,7 +113,9 @@ JobState decode_checkpoint(std::string_view bytes) {
   }
   s.tail = r.tail();
   s.weights = r.weights();
-  if (r.u64() != 0) s.fault = r.fault();
+  const uint64_t has_fault = r.u64();
+  if (has_fault > 1) throw CheckpointError(fmt::format("checkpoint fault flag is {}, not 0 or 1", has_fault));
+  if (has_fault == 1) s.fault = r.fault();
   s.compute_seconds = r.f64();
   s.trace.resize(r.count(32));
   for (TracePoint& p : s.trace) {
@@ -121,6 +125,9 @@ JobState decode_checkpoint(std::string_view bytes) {
     p.std_error = r.f64();
   }
   if (version >= 2) s.kernel_state = r.bytes();
+  if (!r.done()) {
+    throw CheckpointError(fmt::format("checkpoint has {} bytes after its last field", body.size() - sizeof kMagic - r.pos()));
+  }
   return s;
 }
 

@@ -339,8 +339,9 @@ class SweepKernelBase : public IntegrationKernelBase {
   uint64_t evaluations_per_sample() const override { return points_; }
 
  protected:
-  // Fill the scratch uniform rows with points [j0, j0 + n) of sweep `sample`.
-  virtual void sweep_uniforms(Scratch& s, uint64_t sample, uint64_t j0, size_t n) const = 0;
+  // Fill the scratch uniform rows with points [j0, j0 + n) of sweep `sample`. True if
+  // the points carry weights (a transform's Jacobian) in s.pdf, which multiply f.
+  virtual bool sweep_uniforms(Scratch& s, uint64_t sample, uint64_t j0, size_t n) const = 0;
 
   size_t fill(uint64_t first, uint64_t count, double* values, BlockResult& out) const override {
     Scratch& s = scratch();
@@ -354,7 +355,7 @@ class SweepKernelBase : public IntegrationKernelBase {
       for (uint64_t j0 = 0; j0 < points_; j0 += kB) {
         if (block_abandoned()) return static_cast<size_t>(k);  // dropped (block_abandon.hpp)
         const size_t n = static_cast<size_t>(std::min<uint64_t>(kB, points_ - j0));
-        sweep_uniforms(s, sample, j0, n);
+        const bool weighted = sweep_uniforms(s, sample, j0, n);
         D.map_uniform(s.u_ptr.data(), n, s.x_ptr.data());
         p_.integrand->evaluate_batch(s.x_cptr.data(), n, s.f.data());
         if (!all_finite(s.f.data(), n)) {
@@ -367,7 +368,11 @@ class SweepKernelBase : public IntegrationKernelBase {
           }
         }
         double batch = 0.0;
-        for (size_t i = 0; i < n; ++i) batch += s.f[i];
+        if (weighted) {
+          for (size_t i = 0; i < n; ++i) batch += s.f[i] * s.pdf[i];
+        } else {
+          for (size_t i = 0; i < n; ++i) batch += s.f[i];
+        }
         total += batch;
       }
       out.counters.add(IntegrationCounter::evaluations, points_);
@@ -388,7 +393,7 @@ class StratifiedKernel final : public SweepKernelBase {
   }
 
  protected:
-  void sweep_uniforms(Scratch& s, uint64_t sample, uint64_t j0, size_t n) const override {
+  bool sweep_uniforms(Scratch& s, uint64_t sample, uint64_t j0, size_t n) const override {
     const uint32_t U = p_.domain->uniforms();
     const double inv_k = 1.0 / static_cast<double>(k_);
     for (size_t i = 0; i < n; ++i) {
@@ -407,6 +412,7 @@ class StratifiedKernel final : public SweepKernelBase {
         }
       }
     }
+    return false;
   }
 
  private:
@@ -419,7 +425,7 @@ class QmcKernel final : public SweepKernelBase {
       : SweepKernelBase(std::move(p), points), owen_(owen) {}
 
  protected:
-  void sweep_uniforms(Scratch& s, uint64_t sample, uint64_t j0, size_t n) const override {
+  bool sweep_uniforms(Scratch& s, uint64_t sample, uint64_t j0, size_t n) const override {
     const uint32_t U = p_.domain->uniforms();
     const uint64_t scramble = mix64(key_ ^ mix64(sample + 0x51ed27));
     if (owen_) {
@@ -431,7 +437,7 @@ class QmcKernel final : public SweepKernelBase {
           row[i] = std::clamp(rqmc_point(scramble, j0 + i, d), 0x1.0p-54, 1.0 - 0x1.0p-53);
         }
       }
-      return;
+      return false;
     }
     // One scrambled point set per randomization (= sample), built once per thread and
     // reused for the batches of that set.
@@ -444,10 +450,53 @@ class QmcKernel final : public SweepKernelBase {
     std::array<double*, 1024> rows{};
     for (uint32_t d = 0; d < U; ++d) rows[d] = s.urow(d);
     set->fill(static_cast<uint32_t>(j0), n, rows.data());
+    return false;
   }
 
  private:
   bool owen_;
+};
+
+// A randomly shifted rank-1 lattice: point k of shift `sample` is
+// frac(k z / n + Delta), Delta uniform in [0,1)^s from the sample's own counter-based
+// stream (so shifts are independent and a resumed job draws the same ones), then
+// periodized per coordinate. One sample is the mean over the n points of one shift.
+class LatticeKernel final : public SweepKernelBase {
+ public:
+  LatticeKernel(IntegrationProblem p, LatticeRule rule, Periodization per)
+      : SweepKernelBase(std::move(p), rule.n), rule_(std::move(rule)), per_(per) {}
+
+ protected:
+  bool sweep_uniforms(Scratch& s, uint64_t sample, uint64_t j0, size_t n) const override {
+    const uint32_t U = p_.domain->uniforms();
+    const SampleRng shift(key_, sample);
+    const uint64_t N = rule_.n;
+    const double inv_n = 1.0 / static_cast<double>(N);
+    if (per_ == Periodization::cubic) std::fill(s.pdf.begin(), s.pdf.begin() + static_cast<std::ptrdiff_t>(n), 1.0);
+    for (uint32_t d = 0; d < U; ++d) {
+      double* row = s.urow(d);
+      const double delta = shift.uniform(d);
+      const uint64_t z = rule_.z[d];
+      for (size_t i = 0; i < n; ++i) {
+        const uint64_t m = (j0 + i) * z % N;  // exact: j0 + i < n < 2^32, z < n
+        double u = static_cast<double>(m) * inv_n + delta;
+        u -= u >= 1.0 ? 1.0 : 0.0;
+        if (per_ == Periodization::baker) {
+          u = 1.0 - std::fabs(2.0 * u - 1.0);
+        } else if (per_ == Periodization::cubic) {
+          s.pdf[i] *= 6.0 * u * (1.0 - u);
+          u = u * u * (3.0 - 2.0 * u);
+        }
+        // Inside the open cube, as every other estimator's points (1/x, log x stay finite).
+        row[i] = std::clamp(u, 0x1.0p-54, 1.0 - 0x1.0p-53);
+      }
+    }
+    return per_ == Periodization::cubic;
+  }
+
+ private:
+  LatticeRule rule_;
+  Periodization per_;
 };
 
 class RejectionKernel final : public IntegrationKernelBase {
@@ -652,6 +701,9 @@ std::shared_ptr<const Kernel> make_stratified_kernel(IntegrationProblem p, uint3
 }
 std::shared_ptr<const Kernel> make_qmc_kernel(IntegrationProblem p, uint32_t points, bool owen) {
   return std::make_shared<QmcKernel>(std::move(p), points, owen);
+}
+std::shared_ptr<const Kernel> make_lattice_kernel(IntegrationProblem p, LatticeRule rule, Periodization per) {
+  return std::make_shared<LatticeKernel>(std::move(p), std::move(rule), per);
 }
 std::shared_ptr<const Kernel> make_rejection_kernel(IntegrationProblem p, uint32_t max_attempts) {
   return std::make_shared<RejectionKernel>(std::move(p), max_attempts);

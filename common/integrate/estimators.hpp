@@ -5,8 +5,9 @@
 //   importance   f(x) / p(x)                    x ~ p (power law, tabulated, cosine)
 //   stratified   |D| * mean of f over one jittered sweep of k^s strata
 //   qmc          |D| * mean of f over one scrambled Sobol point set (one randomization)
+//   lattice      |D| * mean of f over one randomly shifted rank-1 lattice (one shift)
 //   rejection    f(x) * |D|                     x from the bounding box, accepted if in D
-// Sweep-based estimators (stratified, qmc) count one sweep as one sample, so the
+// Sweep-based estimators (stratified, qmc, lattice) count one sweep as one sample, so the
 // spread across sweeps gives an honest error bar (independent randomizations).
 #include <memory>
 #include <optional>
@@ -15,6 +16,7 @@
 #include "common/engine/kernel.hpp"
 #include "common/integrate/domain.hpp"
 #include "common/integrate/integrand.hpp"
+#include "common/integrate/lattice_rule.hpp"
 
 namespace tally {
 
@@ -42,6 +44,8 @@ std::shared_ptr<const Kernel> make_stratified_kernel(IntegrationProblem p, uint3
                                                      uint32_t stratified_dims);
 // owen = false: affine matrix scramble (fast, default); true: nested uniform scramble.
 std::shared_ptr<const Kernel> make_qmc_kernel(IntegrationProblem p, uint32_t points, bool owen = false);
+// rule.z has one entry per uniform of the domain; per: the periodizing transform.
+std::shared_ptr<const Kernel> make_lattice_kernel(IntegrationProblem p, LatticeRule rule, Periodization per);
 std::shared_ptr<const Kernel> make_rejection_kernel(IntegrationProblem p, uint32_t max_attempts);
 // Tensor-product trapezoid rule with n points per dimension (deterministic; one
 // "sample"), T(n) and T(m), m = (n + 1) / 2, for an error estimate. The grids are

@@ -19,14 +19,39 @@ struct DensityPlan {
   std::optional<uint64_t> cells;  // tabulated
 };
 
+// One estimator the automatic choice tried in its pilot (auto_estimator.hpp).
+struct AutoCandidate {
+  std::string estimator;     // "uniform" | "qmc" | "lattice"
+  std::string periodize;     // lattice: "baker" | "none"; empty otherwise
+  uint64_t pilot_points_small = 0, pilot_points_large = 0;  // points per sample in the pilot (1 for uniform)
+  double sd_small = 0.0, sd_large = 0.0;  // sd of one sample at those sizes (non-finite: the pilot failed)
+  double rate = 0.5;          // fitted: the sd of the estimate falls as evaluations^-rate
+  uint64_t points = 1;        // points per sample it would run with
+  double predicted_evaluations = 0.0;  // to the target (infinite: unusable)
+};
+
+// What `"estimator": {"type": "auto"}` chose and why.
+struct AutoSelection {
+  std::vector<AutoCandidate> candidates;
+  size_t chosen = 0;
+  uint64_t pilot_evaluations = 0;
+  double target_half_width = 0.0;  // the absolute half-width the prediction aimed at
+  std::string reason;              // one sentence, for people
+};
+
 // The estimator and its settings (the fields each estimator type sets, docs/jobs.md).
 struct EstimatorPlan {
+  std::optional<AutoSelection> selection;  // set when the spec asked for "auto"
   std::string type;
   std::optional<uint64_t> components;  // vector integrands
   std::optional<DensityPlan> density;  // importance
   std::optional<uint64_t> strata_per_dim, stratified_dims;  // stratified
   std::optional<uint64_t> points_per_sample;                // stratified, qmc
   std::optional<std::string> sequence, scramble;            // qmc
+  std::optional<std::string> construction, periodize;       // lattice ...
+  std::vector<uint64_t> generating_vector;
+  std::vector<double> weights;
+  std::optional<double> worst_case_error;                   // ... lattice
   std::optional<uint64_t> bins;                             // vegas ...
   std::optional<double> alpha;
   std::optional<uint64_t> warmup_passes, max_pass_samples;

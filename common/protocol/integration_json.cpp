@@ -46,8 +46,28 @@ json domain_json(const DomainInfo& info) {
   return j;
 }
 
+json auto_selection_json(const AutoSelection& a) {
+  json cands = json::array();
+  for (const AutoCandidate& c : a.candidates) {
+    json e = {{"estimator", c.estimator},
+              {"pilot_points", {c.pilot_points_small, c.pilot_points_large}},
+              {"pilot_sd", {finite_or_null(c.sd_small), finite_or_null(c.sd_large)}},
+              {"rate", c.rate},
+              {"points_per_sample", c.points},
+              {"predicted_evaluations", finite_or_null(c.predicted_evaluations)}};
+    if (!c.periodize.empty()) e["periodize"] = c.periodize;
+    cands.push_back(std::move(e));
+  }
+  return {{"chosen", a.chosen},
+          {"reason", a.reason},
+          {"target_half_width", a.target_half_width},
+          {"pilot_evaluations", a.pilot_evaluations},
+          {"candidates", std::move(cands)}};
+}
+
 json estimator_plan_json(const EstimatorPlan& p) {
   json j = {{"type", p.type}};
+  if (p.selection) j["auto"] = auto_selection_json(*p.selection);
   put(j, "components", p.components);
   if (p.density) {
     json d = {{"type", p.density->type}};
@@ -60,6 +80,11 @@ json estimator_plan_json(const EstimatorPlan& p) {
   put(j, "points_per_sample", p.points_per_sample);
   put(j, "sequence", p.sequence);
   put(j, "scramble", p.scramble);
+  put(j, "construction", p.construction);
+  put(j, "periodize", p.periodize);
+  if (!p.generating_vector.empty()) j["generating_vector"] = p.generating_vector;
+  if (!p.weights.empty()) j["weights"] = p.weights;
+  put(j, "worst_case_error", p.worst_case_error);
   put(j, "bins", p.bins);
   put(j, "alpha", p.alpha);
   put(j, "warmup_passes", p.warmup_passes);

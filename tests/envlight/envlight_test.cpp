@@ -18,6 +18,7 @@
 #include "common/rng/counter_rng.hpp"
 #include "envlight/envlight_support.hpp"
 #include "support/chi_square.hpp"
+#include "support/requested_image_module.hpp"
 
 namespace tally::test {
 namespace {
@@ -535,6 +536,9 @@ TEST(EnvLight, BadInputsNameTheField) {
   // A good map compiles.
   EXPECT_EQ(error_of(spec(sky_map("ok.exr", 2.0, 45.0)), lim), "<no error>");
 }
+
+// envlight.<backend>_module: the module ctest asked for is the one loaded.
+TEST(ImageModule, IsTheOneRequested) { test::expect_the_requested_image_module(); }
 
 }  // namespace
 }  // namespace tally::test

@@ -32,6 +32,7 @@
 
 #if __has_include("common/image/image_io.hpp")
 #include "common/image/image_io.hpp"
+#include "support/requested_image_module.hpp"
 #define TALLY_HAVE_IMAGE_IO 1
 #endif
 
@@ -292,6 +293,9 @@ TEST(ServerJobs, VegasAndCubatureJobsOverHttpEqualRunLocal) {
 INSTANTIATE_TEST_SUITE_P(Examples, Golden,
                          ::testing::Values("unit_disk_expression", "gaussian_uniform", "gaussian_qmc", "inv_sqrt_importance",
                                            "lecture_lighting_point", "preview_image", "lecture_lighting_image"));
+
+// golden.<backend>_module: the module ctest asked for is the one loaded.
+TEST(ImageModule, IsTheOneRequested) { test::expect_the_requested_image_module(); }
 
 }  // namespace
 }  // namespace tally::test

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include "support/requested_image_module.hpp"
 
 namespace tally {
 namespace {
@@ -131,6 +132,9 @@ TEST(ImageIo, RejectsInconsistentSnapshot) {
   s.samples.pop_back();
   EXPECT_THROW(encode_exr(s, {}), std::runtime_error);
 }
+
+// image.<backend>_module: the module ctest asked for is the one loaded.
+TEST(ImageModule, IsTheOneRequested) { test::expect_the_requested_image_module(); }
 
 }  // namespace
 }  // namespace tally

@@ -17,6 +17,10 @@ const json kSpecs[] = {
      {"estimator", {{"type", "qmc"}, {"points", 512}}}, {"stop", {{"max_samples", 300}}}},
     {{"kind", "integrate"}, {"seed", 13}, {"integrand", {{"expression", "exp(-x0*x1)"}}},
      {"domain", {{"type", "disk"}}}, {"estimator", {{"type", "rejection"}}}, {"stop", {{"rel_error", 1e-4}}}},
+    // Shifted lattice rules (issue 31): the shifts of a resumed job are the same draws.
+    {{"kind", "integrate"}, {"seed", 14},
+     {"integrand", {{"builtin", "genz"}, {"family", "gaussian"}, {"a", {1.3, 2.1, 0.7, 1.1, 0.9, 1.7, 0.5, 1.2}}}},
+     {"estimator", {{"type", "lattice"}, {"points", 257}, {"periodize", "cubic"}}}, {"stop", {{"max_samples", 300}}}},
 };
 
 using testing::expect_same_state;

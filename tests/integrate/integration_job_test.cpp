@@ -271,14 +271,7 @@ TEST(IntegrationJob, NanIsReportedWithThePoint) {
 }
 
 TEST(IntegrationJob, SpecErrorsNameTheField) {
-  auto pointer_of = [](const json& spec) -> std::string {
-    try {
-      compile_job(spec, JobLimits{});
-    } catch (const SpecError& e) {
-      return e.pointer();
-    }
-    return "<accepted>";
-  };
+  const auto pointer_of = testing::spec_error_pointer;
   const json ok = {{"kind", "integrate"}, {"integrand", {{"builtin", "unit_disk"}}}, {"stop", {{"max_samples", 10}}}};
   EXPECT_EQ(pointer_of(ok), "<accepted>");
   json j = ok;

@@ -13,6 +13,7 @@
 #include "common/integrate/integration_counters.hpp"
 #include "common/jobs/job_factory.hpp"
 #include "common/protocol/kind_json.hpp"
+#include "common/protocol/spec_reader.hpp"
 
 namespace tally::testing {
 
@@ -62,6 +63,16 @@ inline Ran resume_spec(const nlohmann::json& spec, JobState state, unsigned thre
   r.runner = std::make_unique<JobRunner>(r.job->kernel(), r.job->stop_rule(), JobCaps{}, std::move(state));
   run_local(*r.runner, threads);
   return r;
+}
+
+// The JSON pointer compile_job's SpecError names for `spec`, or "<accepted>".
+inline std::string spec_error_pointer(const nlohmann::json& spec) {
+  try {
+    compile_job(spec, JobLimits{});
+  } catch (const SpecError& e) {
+    return e.pointer();
+  }
+  return "<accepted>";
 }
 
 // Every part of two runs' states that a deterministic job reproduces bit for bit.

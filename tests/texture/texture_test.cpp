@@ -23,6 +23,7 @@
 #include "common/lighting/texture.hpp"
 #include "gltf/gltf_writer.hpp"
 #include "lighting/lighting_test_support.hpp"
+#include "support/requested_image_module.hpp"
 
 namespace tally {
 namespace {
@@ -535,6 +536,9 @@ TEST(Texture, BadMtlTexturesFailWithErrorsNamingTheField) {
   EXPECT_EQ(error_of(scene, lim),
             "/scene/shapes/0/obj: material \"m/quad.obj#checker\" has a texture, but face 1 of its faces has no vt");
 }
+
+// texture.<backend>_module: the module ctest asked for is the one loaded.
+TEST(ImageModule, IsTheOneRequested) { test::expect_the_requested_image_module(); }
 
 }  // namespace
 }  // namespace tally

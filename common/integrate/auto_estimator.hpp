@@ -1,0 +1,27 @@
+#pragma once
+// The automatic estimator choice (`"estimator": {"type": "auto"}`, issue 31): a short
+// pilot of every candidate (plain Monte Carlo, scrambled Sobol', the CBC lattice with
+// baker's transform and without) on the job's own integrand, from a stream of its own.
+// Each randomized-QMC candidate runs 8 randomizations at two point-set sizes; the sd of
+// one randomization at both sizes gives its rate (sd ~ points^-rate, clamped to [0.5,
+// 1.5]), which predicts the evaluations each needs to reach the target half-width at the
+// best point-set size in 2^10..2^16 (at least 16 randomizations). The candidate with the
+// fewest predicted evaluations wins. Cost is counted in evaluations, not seconds, so the
+// choice is the same on every machine and every compile of the spec (workers, resume).
+#include <cstdint>
+
+#include "common/integrate/estimators.hpp"
+#include "common/integrate/integration_plan.hpp"
+
+namespace tally {
+
+struct AutoTarget {
+  double abs_error = 0.0;  // 0: none
+  double rel_error = 0.0;  // 0: none; with neither, a nominal 1e-4 relative is used
+  double confidence = 0.95;
+};
+
+// Deterministic in (problem, target). Scalar integrands only.
+AutoSelection select_estimator(const IntegrationProblem& problem, const AutoTarget& target);
+
+}  // namespace tally

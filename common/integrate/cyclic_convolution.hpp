@@ -1,0 +1,29 @@
+#pragma once
+// Cyclic convolution of two real sequences of one length L by a zero-padded radix-2
+// FFT: y[i] = sum_j c[(i - j) mod L] x[j], O(L log L). It exists for the fast
+// component-by-component lattice construction (lattice_rule.cpp), whose circulant has
+// the length n - 1 of a prime n's multiplicative group, not a power of two. (No
+// packaged FFT library is a dependency of this project; the transform is 40 lines.)
+#include <complex>
+#include <vector>
+
+namespace tally {
+
+// Precomputes the transform of `c` once, for many convolutions with the same c.
+class CyclicConvolution {
+ public:
+  explicit CyclicConvolution(const std::vector<double>& c);
+  size_t length() const { return length_; }
+  // y[i] = sum_j c[(i - j) mod L] x[j] for i < L; x.size() must be L.
+  std::vector<double> apply(const std::vector<double>& x) const;
+
+ private:
+  size_t length_ = 0;
+  size_t fft_size_ = 0;
+  std::vector<std::complex<double>> c_hat_;
+};
+
+// In-place radix-2 FFT of a power-of-two length (inverse: conjugate twiddles, no 1/N).
+void fft_radix2(std::vector<std::complex<double>>& a, bool inverse);
+
+}  // namespace tally
