@@ -78,7 +78,9 @@ std::filesystem::path resolve_scene_file(const std::string& name, const JobLimit
   }
   const std::filesystem::path p = stored_asset_path(limits.asset_store, *hex);
   std::error_code ec;
-  if (!std::filesystem::is_regular_file(std::filesystem::symlink_status(p, ec))) {
+  // Not the submitter's and not stored read alike: the same error, the same pointer.
+  const bool readable = !limits.may_read_asset || limits.may_read_asset(*hex);
+  if (!readable || !std::filesystem::is_regular_file(std::filesystem::symlink_status(p, ec))) {
     throw SpecError(pointer, fmt::format("asset {} is not stored on this server; upload it with PUT /v1/assets/{}",
                                          name, name));
   }

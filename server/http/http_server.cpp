@@ -269,11 +269,14 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
     arm_read_timer();
     body_parser_->get().body().data = part_.data();
     body_parser_->get().body().size = part_.size();
-    http::async_read(stream_, buffer_, *body_parser_, [self = shared_from_this()](beast::error_code ec, size_t) {
+    // read_some: each part goes to the sink as it arrives, so a limit (size, quota) is
+    // enforced as soon as the running total passes it, not once a whole part is filled.
+    http::async_read_some(stream_, buffer_, *body_parser_, [self = shared_from_this()](beast::error_code ec, size_t) {
       if (ec == http::error::need_buffer) ec = {};
       if (ec || self->read_timed_out_) return self->on_read_failure(ec);
       self->read_timer_.cancel();
       const size_t n = self->part_.size() - self->body_parser_->get().body().size;
+      if (n == 0) return self->read_body_part();  // framing only (a chunk header): nothing to hand over
       net::post(self->shared_.blocking, [self, n] {
         std::optional<HttpResponse> early = self->sink_->write(std::string_view(self->part_.data(), n));
         net::post(self->stream_.get_executor(), [self, early = std::move(early)]() mutable {
