@@ -84,12 +84,15 @@ std::optional<HttpResponse> parse_error_response(beast::error_code ec, const Htt
   return std::nullopt;
 }
 
-// Framing the parser accepted but we must not (RFC 9112 §6.3).
-std::optional<HttpResponse> framing_response(const HttpRequest& r) {
+// Framing the parser accepted but we must not (RFC 9112 §3.2 Host, §6.3 Transfer-Encoding).
+std::optional<HttpResponse> framing_response(const HttpRequest& r, unsigned version) {
   std::string te;
+  size_t hosts = 0;
   for (const auto& [k, v] : r.headers) {
     if (k == "transfer-encoding") te += (te.empty() ? "" : ", ") + v;
+    if (k == "host") ++hosts;
   }
+  if (auto p = host_problem(hosts, version)) return problem_response(p->status, p->detail);
   if (auto p = transfer_encoding_problem(te)) return problem_response(p->status, p->detail);
   return std::nullopt;
 }
@@ -223,7 +226,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   void on_header(beast::error_code ec) {
     if (ec || read_timed_out_) return on_read_failure(ec);
     HttpRequest head = to_http_head(header_parser_->get().base());
-    if (auto res = framing_response(head)) {
+    if (auto res = framing_response(head, header_parser_->get().version())) {
       read_timer_.cancel();
       return send(std::move(*res), false);
     }
@@ -661,7 +664,7 @@ std::string respond_to_bytes(std::string_view raw, const HttpServerConfig& confi
     const bool keep_alive = req.keep_alive();
     const unsigned version = req.version();
     HttpRequest r = to_http_request(req);
-    if (auto res = framing_response(r)) {
+    if (auto res = framing_response(r, version)) {
       emit(std::move(*res), false, version);
       break;
     }
