@@ -147,6 +147,9 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   }
 
   void run() {
+    beast::error_code peer_ec;
+    const tcp::endpoint peer = lowest().socket().remote_endpoint(peer_ec);
+    if (!peer_ec) peer_ = peer.address().to_string();
     net::dispatch(stream_.get_executor(), [self = shared_from_this()] {
       if constexpr (StreamTraits<Stream>::tls) {
         // TLS first (within the read timeout); a client that never finishes it is cut off.
@@ -226,6 +229,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   void on_header(beast::error_code ec) {
     if (ec || read_timed_out_) return on_read_failure(ec);
     HttpRequest head = to_http_head(header_parser_->get().base());
+    head.peer_address = peer_;
     if (auto res = framing_response(head, header_parser_->get().version())) {
       read_timer_.cancel();
       return send(std::move(*res), false);
@@ -336,6 +340,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
     BeastRequest req = parser_->release();
     parser_.reset();
     HttpRequest r = to_http_request(req);
+    r.peer_address = peer_;
     const Lane lane = shared_.handler.lane(r);
     if (lane == Lane::slow && shared_.slow_requests.fetch_add(1) >= shared_.config.max_slow_requests) {
       shared_.slow_requests.fetch_sub(1);
@@ -478,6 +483,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   std::string continue_;
   bool keep_alive_ = false;
   unsigned version_ = 11;
+  std::string peer_;  // the client's address (HttpRequest::peer_address)
   // streaming
   std::shared_ptr<EventStream> events_;
   std::optional<http::response<http::empty_body>> stream_res_;
