@@ -375,7 +375,7 @@ TEST(NoAuthWire, ForeignHostIs403AndMissingOrRepeatedHostIs400) {
   };
   const std::string spec = json{{"kind", "integrate"}, {"integrand", "x"}, {"domain", {{0, 1}}},
                                 {"stop", {{"max_samples", 1000}}}}.dump();
-  for (const std::string host : {"attacker.example", "attacker.example:" + port, "127.0.0.2:" + port}) {
+  for (const std::string& host : {std::string("attacker.example"), "attacker.example:" + port, "127.0.0.2:" + port}) {
     const std::string get = exchange("GET", "Host: " + host + "\r\n");
     EXPECT_EQ(get.substr(0, 13), "HTTP/1.1 403 ") << get;
     EXPECT_EQ(detail_of(get), "Host \"" + host.substr(0, host.find(':')) +
