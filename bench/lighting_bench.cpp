@@ -14,6 +14,7 @@
 #include "common/lighting/lighting_spec.hpp"
 #include "common/protocol/lighting_json.hpp"
 #include "common/lighting/scene_json.hpp"
+#include "common/lighting/localize_scene.hpp"
 #include "common/rng/counter_rng.hpp"
 #include "common/sampling/sphere.hpp"
 

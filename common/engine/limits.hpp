@@ -5,7 +5,9 @@
 // JobCaps is the part the runner enforces while a job runs, derived from it.
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <string>
+#include <string_view>
 
 namespace tally {
 
@@ -35,6 +37,11 @@ struct JobLimits {
   // The content-addressed asset store ("sha256:<hex>" names in scenes, see
   // common/lighting/asset_resolver.hpp); empty = no store, such names are refused.
   std::string asset_store;
+  // Which stored assets the submitter may read (the server sets it per request: a
+  // tenant reads the assets it uploaded). Empty: every stored asset. A "sha256:" name
+  // it refuses reads exactly as one that is not stored (no existence oracle), wherever
+  // the scene names it: in the spec, or inside a glTF or OBJ (buffers, images, mtllib).
+  std::function<bool(std::string_view hex)> may_read_asset;
 
   JobCaps caps() const { return JobCaps{max_samples, max_seconds}; }
 };

@@ -9,6 +9,7 @@
 // directory, no symlink or FIFO, a size cap, and a SpecError naming the field's
 // JSON pointer (a missing stored asset is named by its hash).
 #include <filesystem>
+#include <functional>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -48,6 +49,21 @@ inline std::filesystem::path stored_asset_path(const std::filesystem::path& stor
   return store / std::string(hex);
 }
 
+// Returns the bytes of the file `name` (a path inside the asset directory, or a
+// "sha256:" reference); throws SpecError(pointer) when it may not or cannot be read.
+using AssetReader = std::function<std::string(const std::string& name, const std::string& pointer)>;
+
+// Resolves `relative` inside `asset_dir`: no absolute paths, no "..", and no symlink
+// that leads outside. Throws SpecError(pointer) otherwise.
+std::filesystem::path resolve_asset(const std::string& asset_dir, const std::string& relative,
+                                    const std::string& pointer);
+
+// The bytes of a file resolve_asset or resolve_scene_file returned: opened without
+// following a symlink and without blocking, and only if it is a regular file of at most
+// `max_bytes`.
+std::string read_asset_file(const std::filesystem::path& path, const std::string& pointer,
+                            size_t max_bytes = size_t{1} << 30);
+
 // The file `name` (a scene field at `pointer`) stands for. Throws SpecError(pointer):
 // a malformed reference, no store configured, an asset not stored ("asset sha256:…
 // is not stored on this server; upload it with PUT /v1/assets/sha256:…"), or for a
@@ -57,5 +73,9 @@ std::filesystem::path resolve_scene_file(const std::string& name, const JobLimit
 // resolve_scene_file + read_asset_file (regular file only, no symlink, size cap).
 std::string read_scene_file(const std::string& name, const JobLimits& limits, const std::string& pointer,
                             size_t max_bytes = size_t{1} << 30);
+
+// The reader every file a scene names goes through (OBJ, .mtl, glTF and its buffers,
+// textures, environment maps): read_scene_file with these limits.
+AssetReader scene_asset_reader(const JobLimits& limits);
 
 }  // namespace tally

@@ -16,13 +16,10 @@
 #include <variant>
 
 #include "common/engine/limits.hpp"
+#include "common/lighting/asset_resolver.hpp"
 #include "common/lighting/scene.hpp"
 
 namespace tally {
-
-// Returns the bytes of the asset `relative` (a path relative to the asset directory);
-// throws SpecError(pointer) when it may not or cannot be read.
-using AssetReader = std::function<std::string(const std::string& relative, const std::string& pointer)>;
 
 struct GltfRequest {
   std::string file;      // relative path of the .gltf / .glb

@@ -11,6 +11,7 @@
 #include "common/lighting/image_kernel.hpp"
 #include "common/lighting/point_kernel.hpp"
 #include "common/lighting/scene_json.hpp"
+#include "common/lighting/localize_scene.hpp"
 #include "common/protocol/stop_rule_json.hpp"
 #include "common/stats/confidence.hpp"
 

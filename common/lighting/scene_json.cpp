@@ -9,13 +9,7 @@
 #include <fmt/format.h>
 #include <tiny_obj_loader.h>
 
-#include <fcntl.h>
-#include <sys/stat.h>
-#include <unistd.h>
-
-#include <cerrno>
 #include <cmath>
-#include <cstring>
 #include <limits>
 #include <map>
 #include <optional>
@@ -449,12 +443,6 @@ DeltaLight parse_delta_light(SpecReader& r, const std::string& type) {
 
 }  // namespace
 
-AssetReader scene_asset_reader(const JobLimits& limits) {
-  return [limits](const std::string& name, const std::string& pointer) {
-    return read_scene_file(name, limits, pointer);
-  };
-}
-
 Vec3 read_vec3(SpecReader& r, std::string_view key) {
   return to_vec3(r.numbers(key, 3, 3, -kCoordLimit, kCoordLimit));
 }
@@ -481,62 +469,6 @@ uint32_t parse_material_ref(const nlohmann::json& j, const std::string& pointer,
     return static_cast<uint32_t>(scene.materials.size() - 1);
   }
   throw SpecError(pointer, "must be a material name or a material object");
-}
-
-std::string read_asset_file(const std::filesystem::path& path, const std::string& pointer, size_t max_bytes) {
-  // O_NOFOLLOW and O_NONBLOCK: a symlink or FIFO swapped in after resolve_asset's
-  // checks neither escapes nor blocks; fstat on the open descriptor decides.
-  const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_NOFOLLOW | O_CLOEXEC);
-  if (fd < 0) throw SpecError(pointer, fmt::format("cannot open asset: {}", std::strerror(errno)));
-  struct Closer {
-    int fd;
-    ~Closer() { ::close(fd); }
-  } closer{fd};
-  struct stat st {};
-  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) throw SpecError(pointer, "is not a regular file");
-  if (static_cast<uint64_t>(st.st_size) > max_bytes) {
-    throw SpecError(pointer, fmt::format("asset is larger than {} bytes", max_bytes));
-  }
-  std::string out(static_cast<size_t>(st.st_size), '\0');
-  size_t got = 0;
-  while (got < out.size()) {
-    const ssize_t n = ::read(fd, out.data() + got, out.size() - got);
-    if (n < 0 && errno == EINTR) continue;
-    if (n < 0) throw SpecError(pointer, fmt::format("cannot read asset: {}", std::strerror(errno)));
-    if (n == 0) break;  // the file shrank
-    got += static_cast<size_t>(n);
-  }
-  out.resize(got);
-  return out;
-}
-
-std::filesystem::path resolve_asset(const std::string& asset_dir, const std::string& relative,
-                                    const std::string& pointer) {
-  namespace fs = std::filesystem;
-  if (asset_dir.empty()) {
-    // Any scene file (OBJ, glTF, .bin, texture, map) lands here: name none of them by kind.
-    throw SpecError(pointer, fmt::format("\"{}\" is a file name, but this server has no asset directory (--asset-dir): "
-                                         "upload the file and name it \"sha256:<hex>\" (tally submit and the Python "
-                                         "client do both)",
-                                         relative));
-  }
-  const fs::path rel(relative);
-  if (rel.empty() || rel.is_absolute() || rel.has_root_name() || rel.has_root_directory()) {
-    throw SpecError(pointer, "must be a relative path inside the asset directory");
-  }
-  for (const auto& part : rel) {
-    if (part == "..") throw SpecError(pointer, "must not contain \"..\"");
-  }
-  std::error_code ec;
-  const fs::path root = fs::canonical(asset_dir, ec);
-  if (ec) throw SpecError(pointer, "the asset directory does not exist");
-  const fs::path full = fs::canonical(root / rel, ec);  // resolves symlinks
-  if (ec) throw SpecError(pointer, fmt::format("asset \"{}\" not found", relative));
-  const auto [root_end, unused] = std::mismatch(root.begin(), root.end(), full.begin(), full.end());
-  (void)unused;
-  if (root_end != root.end()) throw SpecError(pointer, "resolves outside the asset directory");
-  if (!fs::is_regular_file(full, ec)) throw SpecError(pointer, "is not a regular file");
-  return full;
 }
 
 namespace {
@@ -676,33 +608,6 @@ Scene parse_scene(SpecReader& r, const JobLimits& limits) {
   }
   r.finish();
   return scene;
-}
-
-void localize_scene(Scene& scene) {
-  const SceneBounds b = scene_bounds(scene);
-  const Vec3 origin = b.empty() ? Vec3{} : (b.lo + b.hi) * 0.5;
-  scene.origin = origin;
-  auto round_f = [](const Vec3& v) {
-    return Vec3{static_cast<double>(static_cast<float>(v.x)), static_cast<double>(static_cast<float>(v.y)),
-                static_cast<double>(static_cast<float>(v.z))};
-  };
-  for (Shape& s : scene.shapes) {
-    for (Vec3& v : s.vertices) v = round_f(v - origin);
-    s.center = round_f(s.center - origin);
-    s.radius = static_cast<double>(static_cast<float>(s.radius));
-    if (s.type == ShapeType::quad) {
-      s.corner = s.vertices[0];
-      s.edge_u = s.vertices[1] - s.vertices[0];
-      s.edge_v = s.vertices[3] - s.vertices[0];
-    }
-  }
-  for (DeltaLight& l : scene.delta_lights) {
-    if (l.type != DeltaLightType::directional) l.position = l.position - origin;
-  }
-  if (scene.camera) {
-    scene.camera->position = scene.camera->position - origin;
-    scene.camera->look_at = scene.camera->look_at - origin;
-  }
 }
 
 }  // namespace tally

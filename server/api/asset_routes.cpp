@@ -22,6 +22,7 @@ int status_of(const AssetError& e) {
     case AssetError::Kind::too_large: return 413;
     case AssetError::Kind::quota: return 403;
     case AssetError::Kind::mismatch: return 422;
+    case AssetError::Kind::no_space: return 507;  // Insufficient Storage (RFC 4918): the disk is full
     case AssetError::Kind::io: break;
   }
   return 500;
@@ -130,6 +131,13 @@ HttpResponse RequestHandler::head_asset(const HttpRequest& req, const PathParams
   r.status = size ? 200 : 404;  // another tenant's asset is indistinguishable from a missing one
   if (size) r.set_header("X-Asset-Bytes", std::to_string(*size));
   return r;
+}
+
+std::function<bool(std::string_view)> RequestHandler::asset_reader_of(const Principal& p) const {
+  if (!config_.assets || p.is_admin()) return {};  // admins (and a server without access control) read every asset
+  return [store = config_.assets, owner = p.name](std::string_view hex) {
+    return store->find(std::string(hex), owner, false).has_value();
+  };
 }
 
 void RequestHandler::check_assets(const HttpRequest& req, const nlohmann::json& spec) const {

@@ -62,6 +62,7 @@ Submitter RequestHandler::submitter(const HttpRequest& req) const {
   limits.max_samples = std::min<uint64_t>(limits.max_samples, q.max_samples);
   limits.max_seconds = std::min(limits.max_seconds, q.max_seconds);
   limits.max_pixels = std::min<uint64_t>(limits.max_pixels, q.max_pixels);
+  limits.may_read_asset = asset_reader_of(p);
   s.limits = limits;
   return s;
 }

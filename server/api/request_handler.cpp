@@ -2,7 +2,9 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 
 #include "common/protocol/spec_reader.hpp"
 #include "server/api/json_depth.hpp"
@@ -180,6 +182,18 @@ json RequestHandler::parse_json_body(const HttpRequest& request) const {
 // ---- browser sessions: EventSource cannot send an Authorization header, so the
 // page trades a token for an HttpOnly, SameSite=Strict cookie once.
 
+namespace {
+
+// 429 with Retry-After (whole seconds, at least 1) when a login rate limit says wait.
+void refuse_login_if(double wait, const std::string& whose) {
+  if (wait <= 0) return;
+  HttpError e(429, fmt::format("too many logins {}; retry in {:.0f} s", whose, std::ceil(wait)));
+  e.headers.emplace_back("Retry-After", std::to_string(std::max(1L, static_cast<long>(std::ceil(wait)))));
+  throw e;
+}
+
+}  // namespace
+
 HttpResponse RequestHandler::login(const HttpRequest& req, const PathParams&) {
   const json body = parse_json_body(req);
   SpecReader rd(body, "");
@@ -187,6 +201,8 @@ HttpResponse RequestHandler::login(const HttpRequest& req, const PathParams&) {
   rd.finish();
   AccessControl* access = config_.access.access;
   if (!access) throw HttpError(404, "access control is off: no login is needed");
+  // Every attempt counts against its address, before the token is looked at.
+  refuse_login_if(access->take_login_attempt(req.peer_address), "from this address");
   const auto who = is_b64token(token) ? access->authenticate_token(token) : std::nullopt;
   if (!who) {
     HttpError e(401, "unknown or revoked token");
@@ -194,6 +210,7 @@ HttpResponse RequestHandler::login(const HttpRequest& req, const PathParams&) {
     throw e;
   }
   if (who->role == Role::metrics) throw HttpError(403, "role metrics may not open a browser session");
+  refuse_login_if(access->take_login(*who), fmt::format("for \"{}\"", who->name));
   const std::string sid = access->open_session(*who);
   HttpResponse r = json_response(200, {{"name", who->name}, {"role", std::string(role_name(who->role))},
                                        {"access_control", true}});

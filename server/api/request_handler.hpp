@@ -88,6 +88,9 @@ class RequestHandler {
   // 422 naming the first "sha256:" reference of `spec` the caller cannot use (not
   // stored, or stored only by another tenant: indistinguishable).
   void check_assets(const HttpRequest& request, const nlohmann::json& spec) const;
+  // JobLimits::may_read_asset for `p`: the stored assets it uploaded (every one for an
+  // admin), so a "sha256:" name inside a glTF or OBJ is checked as one in the spec.
+  std::function<bool(std::string_view)> asset_reader_of(const Principal& p) const;
   // The one lookup of every job route: the job if the caller may see it, else 404
   // (another tenant's job is indistinguishable from a missing one).
   std::shared_ptr<Job> visible_job(const HttpRequest& request, const std::string& id) const;

@@ -1,5 +1,6 @@
 #include "server/assets/asset_retention.hpp"
 
+#include "common/lighting/asset_resolver.hpp"
 #include "common/log/log.hpp"
 #include "server/assets/asset_refs.hpp"
 #include "server/jobs/job_manager.hpp"
@@ -8,8 +9,28 @@ namespace tally {
 
 RetentionResult sweep_unreferenced_assets(AssetStore& store, const JobManager& manager, std::chrono::seconds min_age) {
   std::set<std::string> referenced;
+  std::vector<std::string> to_scan;  // named, not yet read for the names inside it
+  auto name = [&](const std::string& hex) {
+    if (referenced.insert(hex).second) to_scan.push_back(hex);
+  };
   for (const auto& job : manager.list()) {
-    for (const AssetRef& a : asset_refs(job->spec())) referenced.insert(a.hex);
+    for (const AssetRef& a : asset_refs(job->spec())) name(a.hex);
+  }
+  // What the named files name in turn (a glTF's .bin, an OBJ's .mtl and its textures).
+  while (!to_scan.empty()) {
+    const std::string hex = std::move(to_scan.back());
+    to_scan.pop_back();
+    const std::filesystem::path blob = stored_asset_path(store.blob_dir(), hex);
+    std::error_code ec;
+    if (!std::filesystem::exists(blob, ec)) continue;  // named but not stored
+    try {
+      for (const std::string& inner : asset_refs_in_file(blob)) name(inner);
+    } catch (const std::exception& e) {
+      // Unreadable now: what it names cannot be known, so nothing is removed this time.
+      log::warn("asset retention: cannot read sha256:{} for the assets it names ({}); the sweep is skipped", hex,
+                e.what());
+      return RetentionResult{};
+    }
   }
   const RetentionResult r = store.sweep(referenced, min_age);
   log::info("asset retention: {} removed ({} bytes), {} kept ({} named by jobs)", r.removed, r.removed_bytes, r.kept,

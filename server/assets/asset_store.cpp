@@ -6,6 +6,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 
@@ -29,18 +30,23 @@ std::string hex_of(const unsigned char* p, size_t n) {
   return out;
 }
 
+AssetError::Kind kind_of(int err) {
+  return err == ENOSPC || err == EDQUOT ? AssetError::Kind::no_space : AssetError::Kind::io;
+}
+
 void fsync_dir(const fs::path& dir) {
   const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (fd < 0) throw AssetError(AssetError::Kind::io, fmt::format("cannot open {}: {}", dir.string(), std::strerror(errno)));
+  if (fd < 0) throw AssetError(kind_of(errno), fmt::format("cannot open {}: {}", dir.string(), std::strerror(errno)));
   const int rc = ::fsync(fd);
+  const int err = errno;
   ::close(fd);
-  if (rc != 0) throw AssetError(AssetError::Kind::io, fmt::format("cannot fsync {}: {}", dir.string(), std::strerror(errno)));
+  if (rc != 0) throw AssetError(kind_of(err), fmt::format("cannot fsync {}: {}", dir.string(), std::strerror(err)));
 }
 
 // An empty file, durable (owner records).
 void touch_durable(const fs::path& p) {
   const int fd = ::open(p.c_str(), O_WRONLY | O_CREAT | O_CLOEXEC, 0644);
-  if (fd < 0) throw AssetError(AssetError::Kind::io, fmt::format("cannot create {}: {}", p.string(), std::strerror(errno)));
+  if (fd < 0) throw AssetError(kind_of(errno), fmt::format("cannot create {}: {}", p.string(), std::strerror(errno)));
   ::close(fd);
   fsync_dir(p.parent_path());
 }
@@ -83,6 +89,17 @@ void AssetUpload::abort() noexcept {
   done_ = true;
 }
 
+void AssetUpload::fail_io(const char* what, int err) {
+  abort();
+  const bool full = kind_of(err) == AssetError::Kind::no_space;
+  log::warn("asset sha256:{}: {}: {} (principal \"{}\", {} bytes received)", hex_, what, std::strerror(err), owner_,
+            bytes_);
+  throw AssetError(full ? AssetError::Kind::no_space : AssetError::Kind::io,
+                   full ? fmt::format("{}: the server's disk is full ({}); nothing was kept, retry later", what,
+                                      std::strerror(err))
+                        : fmt::format("{}: {}", what, std::strerror(err)));
+}
+
 void AssetUpload::write(std::string_view chunk) {
   if (done_) throw AssetError(AssetError::Kind::io, "the upload is already finished");
   if (chunk.size() > limit_ - bytes_) {
@@ -90,16 +107,19 @@ void AssetUpload::write(std::string_view chunk) {
     throw AssetError(AssetError::Kind::too_large,
                      fmt::format("the asset exceeds the server's limit of {} bytes (--max-asset-bytes)", limit_));
   }
+  if (chunk.size() > allowance_ - std::min(allowance_, bytes_)) {
+    abort();
+    throw AssetError(AssetError::Kind::quota,
+                     fmt::format("asset quota exceeded: {} bytes stored, this asset is more than {} bytes, the quota "
+                                 "is {} bytes",
+                                 used_at_begin_, bytes_ + chunk.size() - 1, quota_));
+  }
   bytes_ += chunk.size();
   hash_->update(chunk);
   while (fd_ >= 0 && !chunk.empty()) {
     const ssize_t n = ::write(fd_, chunk.data(), chunk.size());
     if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) {
-      const std::string why = std::strerror(errno);
-      abort();
-      throw AssetError(AssetError::Kind::io, fmt::format("cannot write the asset: {}", why));
-    }
+    if (n <= 0) fail_io("cannot write the asset", n == 0 ? ENOSPC : errno);
     chunk.remove_prefix(static_cast<size_t>(n));
   }
 }
@@ -112,11 +132,7 @@ bool AssetUpload::finish() {
     throw AssetError(AssetError::Kind::mismatch,
                      fmt::format("the body's SHA-256 is {} but the asset is named sha256:{}; nothing was kept", got, hex_));
   }
-  if (fd_ >= 0 && ::fsync(fd_) != 0) {
-    const std::string why = std::strerror(errno);
-    abort();
-    throw AssetError(AssetError::Kind::io, fmt::format("cannot fsync the asset: {}", why));
-  }
+  if (fd_ >= 0 && ::fsync(fd_) != 0) fail_io("cannot fsync the asset", errno);
   std::lock_guard lock(store_.mu_);
   const fs::path blob = stored_asset_path(store_.blob_dir(), hex_);
   const fs::path owner_record = store_.owner_dir(owner_) / hex_;
@@ -141,10 +157,7 @@ bool AssetUpload::finish() {
     ::close(fd_);
     fd_ = -1;
     fs::rename(tmp_, blob, ec);
-    if (ec) {
-      abort();
-      throw AssetError(AssetError::Kind::io, fmt::format("cannot store the asset: {}", ec.message()));
-    }
+    if (ec) fail_io("cannot store the asset", ec.value());
     tmp_.clear();
     fsync_dir(store_.blob_dir());
     created = true;
@@ -218,21 +231,25 @@ std::unique_ptr<AssetUpload> AssetStore::begin(const std::string& hex, const std
   std::lock_guard lock(mu_);
   std::error_code ec;
   const bool owned = fs::exists(owner_dir(owner) / hex, ec);
-  if (!owned && content_length) {
+  if (!owned && quota != UINT64_MAX) {
     const uint64_t used = usage_locked(owner);
-    if (*content_length > quota || used > quota - *content_length) {
+    if (content_length && (*content_length > quota || used > quota - *content_length)) {
       throw AssetError(AssetError::Kind::quota,
                        fmt::format("asset quota exceeded: {} bytes stored, this asset is {} bytes, the quota is {} bytes",
                                    used, *content_length, quota));
     }
+    // What is left, enforced by write as the bytes arrive (finish checks again under the
+    // lock: uploads running side by side each see the usage at their start).
+    up->allowance_ = used >= quota ? 0 : quota - used;
+    up->used_at_begin_ = used;
   }
   if (!fs::exists(stored_asset_path(blob_dir(), hex), ec)) {
     up->tmp_ = root_ / "tmp" / fmt::format("{}.{}.part", hex, ++next_tmp_);
     up->fd_ = ::open(up->tmp_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
     if (up->fd_ < 0) {
-      const std::string why = std::strerror(errno);
+      const int err = errno;
       up->tmp_.clear();
-      throw AssetError(AssetError::Kind::io, fmt::format("cannot create the upload file: {}", why));
+      up->fail_io("cannot create the upload file", err);
     }
   }
   return up;

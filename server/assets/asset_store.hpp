@@ -24,7 +24,8 @@ namespace tally {
 
 class AssetError : public std::runtime_error {
  public:
-  enum class Kind { bad_name, too_large, quota, mismatch, io };
+  // no_space: the disk (or the file system's quota) is full (ENOSPC, EDQUOT): 507.
+  enum class Kind { bad_name, too_large, quota, mismatch, io, no_space };
   AssetError(Kind k, const std::string& what) : std::runtime_error(what), kind_(k) {}
   Kind kind() const noexcept { return kind_; }
 
@@ -42,7 +43,11 @@ class AssetUpload {
   AssetUpload(const AssetUpload&) = delete;
   AssetUpload& operator=(const AssetUpload&) = delete;
 
-  // Hashes and writes the next part; throws AssetError(too_large) past the limit.
+  // Hashes and writes the next part. Throws, with the temp file removed, as soon as the
+  // running total passes a limit: AssetError(too_large) past --max-asset-bytes,
+  // AssetError(quota) past what the owner's quota leaves (a chunked body declares no
+  // length, so this is where its quota is enforced); AssetError(no_space) on a full
+  // disk, AssetError(io) on another write error.
   void write(std::string_view chunk);
   // The whole body arrived: verifies the hash, makes the asset durable and records
   // the owner. Returns true when the bytes were new to the store (false: they were
@@ -53,11 +58,14 @@ class AssetUpload {
  private:
   friend class AssetStore;
   AssetUpload(AssetStore& store, std::string hex, std::string owner, uint64_t limit, uint64_t quota);
+  [[noreturn]] void fail_io(const char* what, int err);
   void abort() noexcept;
   struct Hasher;
   AssetStore& store_;
   std::string hex_, owner_;
   uint64_t limit_, quota_;
+  uint64_t allowance_ = UINT64_MAX;  // bytes the owner's quota leaves for this asset (begin)
+  uint64_t used_at_begin_ = 0;       // the owner's usage when the upload began (for the message)
   uint64_t bytes_ = 0;
   std::unique_ptr<Hasher> hash_;
   int fd_ = -1;  // -1: the bytes are already stored, only hashed (not rewritten)
@@ -85,7 +93,8 @@ class AssetStore {
 
   // Starts a PUT of `hex` by `owner` whose body declares `content_length` bytes (nullopt:
   // chunked). Throws AssetError: bad_name, too_large (over --max-asset-bytes), quota
-  // (`quota` bytes in all for this owner).
+  // (`quota` bytes in all for this owner), no_space (the temp file cannot be created on a
+  // full disk). A chunked body is held to both limits as its bytes arrive (write).
   std::unique_ptr<AssetUpload> begin(const std::string& hex, const std::string& owner,
                                      std::optional<uint64_t> content_length, uint64_t quota);
 

@@ -5,7 +5,6 @@
 namespace tally {
 
 namespace {
-constexpr size_t kMaxSessions = 10000;
 
 double now_s() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
@@ -122,18 +121,34 @@ std::string AccessControl::open_session(const Principal& p, double lifetime_s) {
   const std::string id = generate_session_id();
   std::lock_guard lock(mu_);
   drop_expired_sessions_locked();
-  if (sessions_.size() >= kMaxSessions) {
-    // Bounded: the session closest to expiry makes room.
-    auto oldest = sessions_.begin();
-    for (auto it = sessions_.begin(); it != sessions_.end(); ++it) {
-      if (it->second.expires < oldest->second.expires) oldest = it;
-    }
-    oldest->second.revocation->revoke();
-    sessions_.erase(oldest);
-  }
   Session s;
   for (const Entry& e : entries_) {
     if (e.entry.name == p.name) s.token_sha256 = e.entry.token_sha256;
+  }
+  // Bounded, and fair: the room is made by the caller itself when it holds its share,
+  // else by whoever holds the most sessions (the session of theirs closest to expiry).
+  std::map<std::string_view, size_t> held;
+  for (const auto& [id, x] : sessions_) ++held[x.token_sha256];
+  std::string_view evict_from;
+  if (held[s.token_sha256] >= kMaxSessionsPerPrincipal) {
+    evict_from = s.token_sha256;
+  } else if (sessions_.size() >= kMaxSessions) {
+    size_t most = 0;
+    for (const auto& [who, n] : held) {
+      if (n > most) {
+        most = n;
+        evict_from = who;
+      }
+    }
+  }
+  if (!evict_from.empty()) {
+    auto oldest = sessions_.end();
+    for (auto it = sessions_.begin(); it != sessions_.end(); ++it) {
+      if (it->second.token_sha256 != evict_from) continue;
+      if (oldest == sessions_.end() || it->second.expires < oldest->second.expires) oldest = it;
+    }
+    oldest->second.revocation->revoke();
+    sessions_.erase(oldest);
   }
   s.expires = std::chrono::steady_clock::now() +
               std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(lifetime_s));
@@ -162,6 +177,15 @@ double AccessControl::take_request(const Principal& p) {
     it = buckets_.emplace(p.name, TokenBucket(p.quotas.requests_per_second, p.quotas.burst, now)).first;
   }
   return it->second.take(now);
+}
+
+double AccessControl::take_login_attempt(std::string_view address) { return logins_.take_address(address, now_s()); }
+
+double AccessControl::take_login(const Principal& p) { return logins_.take_principal(p.name, now_s()); }
+
+size_t AccessControl::session_count() const {
+  std::lock_guard lock(mu_);
+  return sessions_.size();
 }
 
 size_t AccessControl::principal_count() const {

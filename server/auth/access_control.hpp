@@ -12,6 +12,7 @@
 #include <string_view>
 
 #include "server/auth/auth_file.hpp"
+#include "server/auth/login_limiter.hpp"
 #include "server/auth/principal.hpp"
 #include "server/auth/revocation.hpp"
 #include "server/auth/token_bucket.hpp"
@@ -37,12 +38,22 @@ class AccessControl {
   std::optional<Principal> authenticate_token(std::string_view token) const;
   std::optional<Principal> authenticate_session(std::string_view session_id);
 
-  // A new browser session for `p` (from a bearer token); returns its id.
+  // A new browser session for `p` (from a bearer token); returns its id. A principal
+  // holds at most kMaxSessionsPerPrincipal: beyond, its own oldest session ends. When
+  // all principals together hold kMaxSessions, the oldest session of the principal
+  // holding the most ends: one caller's logins never end another's session.
   std::string open_session(const Principal& p, double lifetime_s = 12 * 3600.0);
+  static constexpr size_t kMaxSessions = 10000;
+  static constexpr size_t kMaxSessionsPerPrincipal = 64;
+  size_t session_count() const;
   void close_session(std::string_view session_id);
 
   // 0: the request may proceed; else seconds to wait (Retry-After).
   double take_request(const Principal& p);
+  // The login rate limits (login_limiter.hpp), 0 or seconds to wait: a login attempt
+  // from `address` (before the token is checked), and one by `p` (after).
+  double take_login_attempt(std::string_view address);
+  double take_login(const Principal& p);
 
   size_t principal_count() const;
 
@@ -63,6 +74,7 @@ class AccessControl {
   std::vector<Entry> entries_;
   std::map<std::string, Session, std::less<>> sessions_;  // keyed by the SHA-256 of the session id
   std::map<std::string, TokenBucket, std::less<>> buckets_;  // by principal name
+  LoginLimiter logins_;
 };
 
 }  // namespace tally

@@ -17,6 +17,16 @@ std::string_view trim(std::string_view s) {
 
 }  // namespace
 
+std::optional<FramingProblem> host_problem(size_t host_fields, unsigned version) {
+  if (host_fields > 1) {
+    return FramingProblem{400, "the request has more than one Host header (RFC 9112 section 3.2)"};
+  }
+  if (host_fields == 0 && version >= 11) {
+    return FramingProblem{400, "an HTTP/1.1 request needs a Host header (RFC 9112 section 3.2)"};
+  }
+  return std::nullopt;
+}
+
 std::optional<FramingProblem> transfer_encoding_problem(std::string_view te) {
   if (trim(te).empty()) return std::nullopt;
   std::vector<std::string_view> codings;

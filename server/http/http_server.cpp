@@ -84,12 +84,15 @@ std::optional<HttpResponse> parse_error_response(beast::error_code ec, const Htt
   return std::nullopt;
 }
 
-// Framing the parser accepted but we must not (RFC 9112 §6.3).
-std::optional<HttpResponse> framing_response(const HttpRequest& r) {
+// Framing the parser accepted but we must not (RFC 9112 §3.2 Host, §6.3 Transfer-Encoding).
+std::optional<HttpResponse> framing_response(const HttpRequest& r, unsigned version) {
   std::string te;
+  size_t hosts = 0;
   for (const auto& [k, v] : r.headers) {
     if (k == "transfer-encoding") te += (te.empty() ? "" : ", ") + v;
+    if (k == "host") ++hosts;
   }
+  if (auto p = host_problem(hosts, version)) return problem_response(p->status, p->detail);
   if (auto p = transfer_encoding_problem(te)) return problem_response(p->status, p->detail);
   return std::nullopt;
 }
@@ -144,6 +147,9 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   }
 
   void run() {
+    beast::error_code peer_ec;
+    const tcp::endpoint peer = lowest().socket().remote_endpoint(peer_ec);
+    if (!peer_ec) peer_ = peer.address().to_string();
     net::dispatch(stream_.get_executor(), [self = shared_from_this()] {
       if constexpr (StreamTraits<Stream>::tls) {
         // TLS first (within the read timeout); a client that never finishes it is cut off.
@@ -223,7 +229,8 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   void on_header(beast::error_code ec) {
     if (ec || read_timed_out_) return on_read_failure(ec);
     HttpRequest head = to_http_head(header_parser_->get().base());
-    if (auto res = framing_response(head)) {
+    head.peer_address = peer_;
+    if (auto res = framing_response(head, header_parser_->get().version())) {
       read_timer_.cancel();
       return send(std::move(*res), false);
     }
@@ -269,11 +276,14 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
     arm_read_timer();
     body_parser_->get().body().data = part_.data();
     body_parser_->get().body().size = part_.size();
-    http::async_read(stream_, buffer_, *body_parser_, [self = shared_from_this()](beast::error_code ec, size_t) {
+    // read_some: each part goes to the sink as it arrives, so a limit (size, quota) is
+    // enforced as soon as the running total passes it, not once a whole part is filled.
+    http::async_read_some(stream_, buffer_, *body_parser_, [self = shared_from_this()](beast::error_code ec, size_t) {
       if (ec == http::error::need_buffer) ec = {};
       if (ec || self->read_timed_out_) return self->on_read_failure(ec);
       self->read_timer_.cancel();
       const size_t n = self->part_.size() - self->body_parser_->get().body().size;
+      if (n == 0) return self->read_body_part();  // framing only (a chunk header): nothing to hand over
       net::post(self->shared_.blocking, [self, n] {
         std::optional<HttpResponse> early = self->sink_->write(std::string_view(self->part_.data(), n));
         net::post(self->stream_.get_executor(), [self, early = std::move(early)]() mutable {
@@ -330,6 +340,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
     BeastRequest req = parser_->release();
     parser_.reset();
     HttpRequest r = to_http_request(req);
+    r.peer_address = peer_;
     const Lane lane = shared_.handler.lane(r);
     if (lane == Lane::slow && shared_.slow_requests.fetch_add(1) >= shared_.config.max_slow_requests) {
       shared_.slow_requests.fetch_sub(1);
@@ -472,6 +483,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   std::string continue_;
   bool keep_alive_ = false;
   unsigned version_ = 11;
+  std::string peer_;  // the client's address (HttpRequest::peer_address)
   // streaming
   std::shared_ptr<EventStream> events_;
   std::optional<http::response<http::empty_body>> stream_res_;
@@ -658,7 +670,7 @@ std::string respond_to_bytes(std::string_view raw, const HttpServerConfig& confi
     const bool keep_alive = req.keep_alive();
     const unsigned version = req.version();
     HttpRequest r = to_http_request(req);
-    if (auto res = framing_response(r)) {
+    if (auto res = framing_response(r, version)) {
       emit(std::move(*res), false, version);
       break;
     }

@@ -26,6 +26,9 @@ struct HttpRequest {
   std::string target;  // path and query, e.g. "/v1/jobs?state=running"
   std::vector<std::pair<std::string, std::string>> headers;  // names in lower case
   std::string body;
+  // The client's IP address (no port), set by the listener; empty without a socket.
+  // What per-address limits count (behind a reverse proxy: the proxy's address).
+  std::string peer_address;
   // The caller, set by the request handler's authorize step before any route runs.
   std::shared_ptr<const Principal> principal;
 

@@ -181,11 +181,37 @@ JobRecorder::~JobRecorder() {
   if (retrier_.joinable()) retrier_.join();
 }
 
+void JobRecorder::probe_store() {
+  const uint64_t failures = health_.failures();
+  try {
+    if (!store_.probe()) return;
+  } catch (const std::exception& e) {
+    // Still failing: /readyz keeps naming the last save's cause; at debug, once a second.
+    if (log::enabled(log::Level::debug)) log::write(log::Level::debug, {}, fmt::format("store probe failed: {}", e.what()));
+    return;
+  }
+  if (health_.failures() != failures) return;  // a save failed meanwhile: it says more than the probe
+  health_.succeeded();
+  log::info("the job store takes writes again (a probe write succeeded); ready for new jobs");
+}
+
 void JobRecorder::retry_saves(std::stop_token st) {
   std::unique_lock lock(retry_mu_);
+  auto next_probe = std::chrono::steady_clock::now();
   while (!st.stop_requested()) {
     retry_cv_.wait_for(lock, st, std::chrono::milliseconds(200), [] { return false; });
-    if (st.stop_requested() || retry_.empty()) continue;
+    if (st.stop_requested()) continue;
+    if (retry_.empty()) {
+      // Nothing to retry (a failed submit is not kept), yet the store was failing: a probe
+      // write, at most once a second, tells when it takes writes again.
+      if (health_.problem() && std::chrono::steady_clock::now() >= next_probe) {
+        next_probe = std::chrono::steady_clock::now() + kProbeInterval;
+        lock.unlock();
+        probe_store();
+        lock.lock();
+      }
+      continue;
+    }
     auto pending = std::move(retry_);
     retry_.clear();
     lock.unlock();

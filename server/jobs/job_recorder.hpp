@@ -3,6 +3,7 @@
 // checkpoints and at the end, and how a restart turns stored rows back into jobs.
 // Failures never take a job down silently: each is logged at warn with the job id
 // and what it means for the job.
+#include <chrono>
 #include <condition_variable>
 #include <functional>
 #include <map>
@@ -101,6 +102,10 @@ class JobRecorder {
   Pending take(Job& job, bool with_checkpoint, const JobEnding* ending = nullptr) const;
   bool store(Job& job, Pending pending, bool retry);
   void retry_saves(std::stop_token st);
+  // While the store fails with nothing to retry: JobStore::probe, and on success the
+  // store reads healthy again (/readyz 200 without waiting for a submit).
+  void probe_store();
+  static constexpr std::chrono::seconds kProbeInterval{1};
   void write_checkpoints(std::stop_token st);
   void write_finals(std::stop_token st);
 

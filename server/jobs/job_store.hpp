@@ -40,6 +40,12 @@ class JobStore {
   virtual bool remove(const std::string& id) = 0;
   // Counts server starts; event ids are made unique across restarts with it.
   virtual uint64_t next_epoch() = 0;
+  // A small durable write that says whether the store takes writes (again, after a full
+  // disk): throws as save does while it does not. The recorder calls it off the request
+  // threads while the last save failed and no failed save waits to be retried, so
+  // readiness recovers without a submit. False: this store has no such write (then only
+  // a save clears the failure).
+  virtual bool probe() { return false; }
   // Set when the store was found damaged at open and salvaged: what was moved
   // aside and what was lost (one line for the log and /readyz).
   virtual std::optional<std::string> damage() const { return std::nullopt; }

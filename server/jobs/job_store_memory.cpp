@@ -11,6 +11,7 @@ namespace {
 
 class MemoryJobStore final : public JobStore {
  public:
+  bool probe() override { return true; }
   void save(const StoredJob& j) override {
     std::lock_guard lock(mu_);
     auto [it, inserted] = jobs_.try_emplace(j.id, j);

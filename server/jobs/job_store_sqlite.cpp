@@ -134,6 +134,15 @@ class SqliteJobStore final : public JobStore {
     return st.exec() > 0;
   }
 
+  bool probe() override {
+    std::lock_guard lock(mu_);
+    SQLite::Transaction tx(db_);
+    db_.exec("INSERT INTO meta (key, value) VALUES ('probe', 1)"
+             " ON CONFLICT(key) DO UPDATE SET value = value + 1");
+    tx.commit();
+    return true;
+  }
+
   uint64_t next_epoch() override {
     std::lock_guard lock(mu_);
     SQLite::Transaction tx(db_);

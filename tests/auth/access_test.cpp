@@ -8,12 +8,14 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <chrono>
 #include <filesystem>
 
 #include "common/protocol/spec_reader.hpp"
 #include "server/auth/access_control.hpp"
 #include "server/auth/auth_file.hpp"
 #include "server/auth/token.hpp"
+#include "server/auth/login_limiter.hpp"
 #include "server/auth/token_bucket.hpp"
 #include "server/http/event_stream.hpp"
 #include "server_test_support.hpp"
@@ -385,6 +387,89 @@ TEST(Session, LoginGivesAStrictHttpOnlyCookieOriginCheckedAndLogoutEndsStreams) 
   expect_problem(a.h.call("GET", "/v1/jobs", {}, "", with_cookie), 401, "after logout");
   EXPECT_EQ(a.as(p.alice, "GET", "/v1/jobs").status, 200) << "the token itself still works";
   a.as(p.alice, "DELETE", "/v1/jobs/" + id);
+}
+
+// Issue 27 N8: POST /v1/session had no rate limit, and a full session table (10,000) ended
+// the session closest to expiry, anyone's: a reader's 10,050 logins in 7.7 s ended the
+// admin's browser session. Now one principal's logins are limited (a burst of 10, then
+// one per 6 s; beyond, 429 with Retry-After) and the admin's session survives.
+TEST(Session, OnePrincipalsLoginFloodIs429AndEndsNoOtherSession) {
+  Principals p;
+  AuthHarness a(p);
+  const HttpRequest::Headers here = {{"host", "127.0.0.1:8080"}};
+  auto login = [&](const std::string& token) {
+    return a.h.call("POST", "/v1/session", json{{"token", token}}.dump(), "application/json", here);
+  };
+  const HttpResponse admin_in = login(p.admin);
+  ASSERT_EQ(admin_in.status, 200) << admin_in.body;
+  HttpRequest::Headers admin_cookie = here;
+  admin_cookie.emplace_back("cookie", cookie_from(admin_in));
+  const auto t0 = std::chrono::steady_clock::now();
+  int ok = 0, limited = 0;
+  for (int i = 0; i < 10050; ++i) {
+    const HttpResponse r = login(p.rita);
+    if (r.status == 200) {
+      ++ok;
+    } else {
+      ASSERT_EQ(r.status, 429) << r.body;
+      if (limited++ == 0) {
+        expect_problem(r, 429, "the first refused login");
+        const int wait = std::stoi(std::string(r.header("Retry-After")));
+        EXPECT_GE(wait, 1);
+        EXPECT_LE(wait, 6);  // one token every 6 s
+        EXPECT_NE(json::parse(r.body).at("detail").get<std::string>().find("too many logins for \"rita\""),
+                  std::string::npos)
+            << r.body;
+      }
+    }
+  }
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  // The burst, plus what the loop's own duration refilled at one per 6 s.
+  EXPECT_GE(ok, 10);
+  EXPECT_LE(ok, 10 + static_cast<int>(seconds / 6.0) + 1) << seconds << " s";
+  EXPECT_EQ(ok + limited, 10050);
+  const HttpResponse me = a.h.call("GET", "/v1/session", {}, "", admin_cookie);
+  ASSERT_EQ(me.status, 200) << "the admin's session survives: " << me.body;
+  EXPECT_EQ(json::parse(me.body).at("name"), "root");
+  // Another principal is not held back by rita's limit.
+  EXPECT_EQ(login(p.alice).status, 200);
+}
+
+// Sessions opened past the rate limit's reach (slowly, over hours) are bounded per
+// principal: at kMaxSessionsPerPrincipal, a principal's new session ends its own oldest.
+TEST(Session, APrincipalPastItsShareEndsItsOwnOldestSession) {
+  Principals p;
+  AccessControl ac(p.file());
+  const auto root = ac.authenticate_token(p.admin), rita = ac.authenticate_token(p.rita);
+  ASSERT_TRUE(root && rita);
+  const std::string admin_sid = ac.open_session(*root);
+  std::vector<std::string> rita_sids;
+  for (size_t i = 0; i < AccessControl::kMaxSessionsPerPrincipal + 10; ++i) {
+    rita_sids.push_back(ac.open_session(*rita, 3600.0 + static_cast<double>(i)));  // later ones expire later
+  }
+  EXPECT_EQ(ac.session_count(), AccessControl::kMaxSessionsPerPrincipal + 1);
+  ASSERT_TRUE(ac.authenticate_session(admin_sid).has_value());
+  EXPECT_EQ(ac.authenticate_session(admin_sid)->name, "root");
+  for (size_t i = 0; i < rita_sids.size(); ++i) {
+    EXPECT_EQ(ac.authenticate_session(rita_sids[i]).has_value(), i >= 10) << "rita's session " << i;
+  }
+}
+
+TEST(LoginLimiter, PerAddressAndPerPrincipalBucketsExactly) {
+  LoginLimiter l(LoginRate{0.5, 2}, LoginRate{1.0, 3});
+  for (int i = 0; i < 3; ++i) EXPECT_EQ(l.take_address("10.0.0.1", 100.0), 0.0);
+  EXPECT_DOUBLE_EQ(l.take_address("10.0.0.1", 100.0), 1.0);  // one a second
+  EXPECT_EQ(l.take_address("10.0.0.2", 100.0), 0.0);         // another address: its own bucket
+  EXPECT_EQ(l.take_address("", 100.0), 0.0);                 // no socket: not limited by address
+  EXPECT_EQ(l.take_address("10.0.0.1", 101.0), 0.0);
+  EXPECT_EQ(l.take_principal("rita", 100.0), 0.0);
+  EXPECT_EQ(l.take_principal("rita", 100.0), 0.0);
+  EXPECT_DOUBLE_EQ(l.take_principal("rita", 100.0), 2.0);  // one every 2 s
+  EXPECT_EQ(l.take_principal("root", 100.0), 0.0);
+  EXPECT_EQ(l.take_principal("rita", 102.0), 0.0);
+  // The defaults the server uses.
+  EXPECT_DOUBLE_EQ(LoginLimiter::kPerPrincipal.burst, 10.0);
+  EXPECT_DOUBLE_EQ(1.0 / LoginLimiter::kPerPrincipal.per_second, 6.0);
 }
 
 TEST(Metrics, OffLoopbackOnlyAdminOrMetricsRole) {

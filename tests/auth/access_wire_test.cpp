@@ -353,6 +353,49 @@ TEST(SecureByDefault, RefusesToListenOffLoopbackWithoutAuth) {
   EXPECT_EQ(rcb, 2) << "an unreadable auth file stops the start: " << outb;
 }
 
+// Over the wire, the default server: loopback, no --auth-file. Its only defence against
+// DNS rebinding (a page on attacker.example whose name now resolves to 127.0.0.1) is the
+// Host check (server/auth/authorize.cpp check_host): a foreign Host is 403 naming the
+// host, on reads and writes, and nothing is done; this machine's names are served. A
+// second Host line (which one would the check read?) and a missing one are 400 (RFC 9112
+// section 3.2) before any route runs.
+TEST(NoAuthWire, ForeignHostIs403AndMissingOrRepeatedHostIs400) {
+  TempDir dir;
+  ServerProcess server(dir.path / "data");
+  HttpClient c = server.client();
+  const std::string port = std::to_string(server.port());
+  auto exchange = [&](const std::string& method, const std::string& headers, const std::string& body = {}) {
+    std::string raw = method + " /v1/jobs HTTP/1.1\r\n" + headers + "Connection: close\r\n";
+    if (!body.empty()) raw += "Content-Type: application/json\r\nContent-Length: " + std::to_string(body.size()) + "\r\n";
+    return c.raw_exchange(raw + "\r\n" + body);
+  };
+  auto detail_of = [](const std::string& answer) {
+    const json p = json::parse(answer.substr(answer.find("\r\n\r\n") + 4), nullptr, false);
+    return p.is_object() ? p.value("detail", "") : std::string();
+  };
+  const std::string spec = json{{"kind", "integrate"}, {"integrand", "x"}, {"domain", {{0, 1}}},
+                                {"stop", {{"max_samples", 1000}}}}.dump();
+  for (const std::string& host : {std::string("attacker.example"), "attacker.example:" + port, "127.0.0.2:" + port}) {
+    const std::string get = exchange("GET", "Host: " + host + "\r\n");
+    EXPECT_EQ(get.substr(0, 13), "HTTP/1.1 403 ") << get;
+    EXPECT_EQ(detail_of(get), "Host \"" + host.substr(0, host.find(':')) +
+                                  "\" is not allowed (server without access control; add it with --allowed-host)")
+        << get;
+    const std::string post = exchange("POST", "Host: " + host + "\r\n", spec);
+    EXPECT_EQ(post.substr(0, 13), "HTTP/1.1 403 ") << post;
+  }
+  EXPECT_EQ(get_json(c, "/v1/jobs").at("jobs").size(), 0u) << "a refused POST made no job";
+  EXPECT_EQ(exchange("GET", "Host: 127.0.0.1:" + port + "\r\n").substr(0, 13), "HTTP/1.1 200 ");
+  EXPECT_EQ(exchange("GET", "Host: localhost:" + port + "\r\n").substr(0, 13), "HTTP/1.1 200 ");
+  const std::string dup = exchange("GET", "Host: 127.0.0.1:" + port + "\r\nHost: attacker.example\r\n");
+  EXPECT_EQ(dup.substr(0, 13), "HTTP/1.1 400 ") << dup;
+  EXPECT_EQ(detail_of(dup), "the request has more than one Host header (RFC 9112 section 3.2)") << dup;
+  const std::string none = exchange("GET", "");
+  EXPECT_EQ(none.substr(0, 13), "HTTP/1.1 400 ") << none;
+  EXPECT_EQ(detail_of(none), "an HTTP/1.1 request needs a Host header (RFC 9112 section 3.2)") << none;
+  EXPECT_EQ(server.terminate(), 0);
+}
+
 TEST(TokenNew, PrintsTheTokenOnceAndTheEntryWithItsHash) {
   const auto [rc, out] = run(std::string(TALLY_SERVER_BIN) + " token new alice --role reader", /*with_stderr=*/false);
   ASSERT_EQ(rc, 0) << out;

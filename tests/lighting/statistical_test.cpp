@@ -6,6 +6,7 @@
 #include "common/lighting/accel.hpp"
 #include "common/lighting/light_set.hpp"
 #include "common/lighting/scene_json.hpp"
+#include "common/lighting/localize_scene.hpp"
 #include "common/rng/counter_rng.hpp"
 #include "common/sampling/safe_math.hpp"
 #include "lighting/lighting_test_support.hpp"

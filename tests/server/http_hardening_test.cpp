@@ -61,6 +61,34 @@ TEST(HttpFraming, SmuggledSecondRequestIsNotAnswered) {
   EXPECT_EQ(count(two, "HTTP/1.1 200 OK"), 2u) << two;
 }
 
+// Issue 27 N14: with two Host lines the first one won (a proxy or a check reading the
+// other one sees another authority), and an HTTP/1.1 request without Host got 200.
+// RFC 9112 section 3.2: 400 for both, before any route runs; HTTP/1.0 may omit Host.
+TEST(HttpFraming, HostMissingOrRepeatedIs400) {
+  Harness h;
+  HttpServerConfig cfg;
+  const std::string dup =
+      respond_to_bytes("GET /livez HTTP/1.1\r\nHost: 127.0.0.1\r\nHost: attacker.example\r\n\r\n", cfg, *h.handler);
+  EXPECT_EQ(dup.rfind("HTTP/1.1 400 Bad Request\r\n", 0), 0u) << dup;
+  EXPECT_NE(dup.find("more than one Host header"), std::string::npos) << dup;
+  EXPECT_NE(dup.find("Connection: close"), std::string::npos) << dup;
+  const std::string none = respond_to_bytes("GET /livez HTTP/1.1\r\n\r\n", cfg, *h.handler);
+  EXPECT_EQ(none.rfind("HTTP/1.1 400 Bad Request\r\n", 0), 0u) << none;
+  EXPECT_NE(none.find("an HTTP/1.1 request needs a Host header"), std::string::npos) << none;
+  // The rules hold for a streamed-body route's header too (checked before the route).
+  const std::string put = respond_to_bytes("PUT /v1/assets/sha256:" + std::string(64, 'a') +
+                                               " HTTP/1.1\r\nContent-Length: 1\r\n\r\nx",
+                                           cfg, *h.handler);
+  EXPECT_EQ(put.rfind("HTTP/1.1 400 Bad Request\r\n", 0), 0u) << put;
+  const std::string one = respond_to_bytes("GET /livez HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n", cfg, *h.handler);
+  EXPECT_EQ(one.rfind("HTTP/1.1 200 OK\r\n", 0), 0u) << one;
+  const std::string http10 = respond_to_bytes("GET /livez HTTP/1.0\r\n\r\n", cfg, *h.handler);
+  EXPECT_EQ(http10.rfind("HTTP/1.0 200 OK\r\n", 0), 0u) << http10;
+  EXPECT_FALSE(host_problem(1, 11).has_value());
+  EXPECT_FALSE(host_problem(0, 10).has_value());
+  EXPECT_EQ(host_problem(2, 10)->status, 400);
+}
+
 TEST(HttpFraming, RequestCutOffGets408) {
   Harness h;
   HttpServerConfig cfg;

@@ -183,12 +183,25 @@ TEST(Memory, JobWaitsUntilItsStateFitsAndThenStarts) {
 
 // ---------------------------------------------------------------- finished jobs on disk
 
+// The events a new watcher of the job gets (NDJSON), each from "event" on (event ids
+// carry the server's epoch), joined with "|".
+std::string snapshot_events(Harness& h, const std::string& id) {
+  HttpResponse r = h.call("GET", "/v1/jobs/" + id + "/events", {}, "", {{"accept", "application/x-ndjson"}});
+  std::string text;
+  for (int i = 0; i < 100 && r.stream && r.stream->poll(text);) ++i;
+  std::string out;
+  for (size_t p = 0; (p = text.find("\"event\"", p)) != std::string::npos; ++p) {
+    out += text.substr(p, text.find('\n', p) - p) + "|";
+  }
+  return out;
+}
+
 // Before: every finished job's pixels were loaded at start (two 2048² jobs: 20 s,
 // 2.5 GB to open the port). Now a restart reads no state; the documents are the same
 // bytes, and the image is read back from the store when asked for.
 TEST(Memory, FinishedImageJobStaysOnDiskAcrossRestart) {
   TempDir dir;
-  std::string id, status, list, tile, exr;
+  std::string id, status, list, tile, exr, events;
   {
     AnyHarness h(config(2), open_sqlite_store(dir.path.string()));
     id = h.submit(image_spec(48, 32, 64));
@@ -196,6 +209,12 @@ TEST(Memory, FinishedImageJobStaysOnDiskAcrossRestart) {
     // Its state has left memory; the views read the kept facts.
     EXPECT_TRUE(wait_until([&] { return h.metric("tally_memory_used_bytes") == 0; }, 10));
     status = h.call("GET", "/v1/jobs/" + id).body;
+    // A new watcher of the finished job: its state, its last progress, its end.
+    events = snapshot_events(h, id);
+    EXPECT_EQ(events.rfind("\"event\":\"state\"", 0), 0u) << events;
+    EXPECT_NE(events.find("|\"event\":\"progress\",\"data\":{"), std::string::npos) << events;
+    EXPECT_NE(events.find("|\"event\":\"end\",\"data\":{"), std::string::npos) << events;
+    EXPECT_NE(events.find("\"succeeded\""), std::string::npos) << events;
     list = h.call("GET", "/v1/jobs").body;
     const HttpResponse t = h.call("GET", "/v1/jobs/" + id + "/tiles/0");
     ASSERT_EQ(t.status, 200) << t.body;
@@ -218,7 +237,10 @@ TEST(Memory, FinishedImageJobStaysOnDiskAcrossRestart) {
 #ifdef TALLY_HAVE_IMAGE_IO
   EXPECT_EQ(without_cap_date(h.call("GET", "/v1/jobs/" + id + "/image.exr").body), exr);
 #endif
-  // A new watcher of the finished job gets the same snapshot events as before.
+  // A new watcher of the finished job gets the same snapshot events as before, byte
+  // for byte after the event id, without reading the state back.
+  EXPECT_EQ(snapshot_events(h, id), events);
+  EXPECT_EQ(h.metric("tally_finished_state_loads_total"), 1);
   // Extending reads the state back and goes on from it.
   const HttpResponse ext = h.call("POST", "/v1/jobs/" + id + "/extend", R"({"max_samples": 128})");
   EXPECT_EQ(ext.status, 202) << ext.body;
@@ -239,17 +261,6 @@ TEST(Memory, RestartServesTheSameDocumentsWithoutLoadingState) {
     json st = h.call_json("GET", "/v1/jobs/" + id);
     st.erase("timing");
     return st.dump();
-  };
-  const auto snapshot_events = [](Harness& h, const std::string& id) {
-    HttpResponse r = h.call("GET", "/v1/jobs/" + id + "/events", {}, "", {{"accept", "application/x-ndjson"}});
-    std::string text;
-    for (int i = 0; i < 100 && r.stream && r.stream->poll(text);) ++i;
-    // Event ids carry the server's epoch: compare what follows them.
-    std::string out;
-    for (size_t p = 0; (p = text.find("\"event\"", p)) != std::string::npos; ++p) {
-      out += text.substr(p, text.find('\n', p) - p) + "|";
-    }
-    return out;
   };
   {
     AnyHarness h(config(2), open_sqlite_store(dir.path.string()));

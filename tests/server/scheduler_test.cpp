@@ -3,6 +3,8 @@
 // chunk boundaries.
 #include <gtest/gtest.h>
 
+#include <cstdio>
+
 #include <algorithm>
 #include <bit>
 
@@ -64,19 +66,38 @@ TEST(Scheduler, ShortJobBehindALongOneFinishesPromptly) {
   EXPECT_LT(shared_s, 6 * alone_s + 1.0) << "shared " << shared_s << " s, alone " << alone_s << " s";
 }
 
+// Priority p weighs p + 6 (in_process_executor.cpp priority_weight): with one worker,
+// priority 5 against 0 gets 11 : 6 of the compute time, so of the samples of two jobs of
+// equal cost per sample. Samples count in whole passes (at most 65,536 here), so the
+// window runs until the low job has done 20 full passes more (1,310,720 samples: ~1 s on
+// an idle machine, longer on a loaded one, capped at 60 s): a count lags its job by at
+// most one pass at either end, so the ratio is off by at most 5% + 3% from that; the
+// tolerance +-25% of 11/6 leaves the rest to the noise of chunk timings on a loaded
+// machine. The old check (high > low) also passed with weights 7 : 6 (or 66 : 60).
 TEST(Scheduler, PriorityGetsALargerShare) {
   Harness h(test_manager_config(1));
   const std::string low = h.submit(fake_spec(kForever, 100));
   HttpResponse r = h.call("POST", "/v1/jobs?priority=5", fake_spec(kForever, 100).dump());
   ASSERT_EQ(r.status, 202);
   const std::string high = json::parse(r.body).at("id");
-  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
-  const double sl = h.call_json("GET", "/v1/jobs/" + low).at("samples");
-  const double sh = h.call_json("GET", "/v1/jobs/" + high).at("samples");
+  auto samples = [&](const std::string& id) { return h.call_json("GET", "/v1/jobs/" + id).value("samples", 0.0); };
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));  // past the small first passes
+  const double l0 = samples(low), h0 = samples(high);
+  constexpr double kWindow = 20.0 * 65536;
+  double l1 = l0, h1 = h0;
+  const auto t0 = std::chrono::steady_clock::now();
+  while (l1 - l0 < kWindow && std::chrono::steady_clock::now() - t0 < std::chrono::seconds(60)) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    l1 = samples(low);
+    h1 = samples(high);
+  }
   h.call("DELETE", "/v1/jobs/" + low);
   h.call("DELETE", "/v1/jobs/" + high);
-  // Weights 6 vs 11; passes are committed whole, so allow slack.
-  EXPECT_GT(sh, sl) << sh << " vs " << sl;
+  ASSERT_GE(l1 - l0, kWindow) << "the low-priority job did not get 20 passes in 60 s";
+  const double ratio = (h1 - h0) / (l1 - l0);
+  std::printf("priority 5 : 0 samples: %.0f : %.0f = %.3f (weights 11 : 6 = %.3f)\n", h1 - h0, l1 - l0, ratio,
+              11.0 / 6.0);
+  EXPECT_NEAR(ratio, 11.0 / 6.0, 0.25 * 11.0 / 6.0) << (h1 - h0) << " vs " << (l1 - l0);
 }
 
 TEST(Scheduler, CancelStopsAtAChunkBoundary) {

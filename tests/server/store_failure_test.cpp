@@ -32,7 +32,13 @@ class FailingStore final : public JobStore {
   std::optional<std::string> load_checkpoint(const std::string& id) override { return inner_->load_checkpoint(id); }
   bool remove(const std::string& id) override { return inner_->remove(id); }
   uint64_t next_epoch() override { return inner_->next_epoch(); }
+  bool probe() override {
+    probes++;
+    if (failing) throw std::runtime_error("database or disk is full");
+    return inner_->probe();
+  }
   std::atomic<bool> failing{false};
+  std::atomic<int> probes{0};
 
  private:
   std::unique_ptr<JobStore> inner_;
@@ -81,6 +87,31 @@ TEST(StoreFailure, NothingIsAcknowledgedThatIsNotStored) {
   const std::string id = h.submit(fake_spec(1000));
   EXPECT_EQ(stored_state(*store, id).empty(), false);
   EXPECT_NE(stored_state(*store, id), "<missing>");
+}
+
+// Issue 27 N9: once a full disk was freed, /readyz stayed 503 until some submit
+// succeeded, and a load balancer that sees 503 sends none. A refused submit leaves
+// nothing to retry, so the recorder probes the store itself (a small write, off the
+// request threads, once a second) while it fails: readiness comes back on its own.
+TEST(StoreFailure, ReadinessRecoversWithoutASubmit) {
+  auto owned = std::make_unique<FailingStore>(make_memory_store());
+  FailingStore* store = owned.get();
+  Harness h(test_manager_config(), std::move(owned));
+  ASSERT_EQ(h.call("GET", "/readyz").status, 200);
+  store->failing = true;
+  const HttpResponse refused = h.call("POST", "/v1/jobs", fake_spec(1000).dump());
+  ASSERT_EQ(refused.status, 503) << refused.body;
+  EXPECT_EQ(h.call("GET", "/readyz").status, 503);
+  // While the disk is full the probes fail and readiness stays 503, naming the cause.
+  ASSERT_TRUE(wait_until([&] { return store->probes.load() >= 2; }, 10)) << "probes: " << store->probes.load();
+  const HttpResponse still = h.call("GET", "/readyz");
+  EXPECT_EQ(still.status, 503);
+  EXPECT_NE(still.body.find("disk is full"), std::string::npos) << still.body;
+  // Space is freed: /readyz is 200 again within a few probe intervals, with no submit.
+  store->failing = false;
+  EXPECT_TRUE(wait_until([&] { return h.call("GET", "/readyz").status == 200; }, 5)) << h.call("GET", "/readyz").body;
+  EXPECT_EQ(h.call_json("GET", "/v1/jobs")["jobs"].size(), 0u) << "recovered without any job being submitted";
+  EXPECT_EQ(h.call("POST", "/v1/jobs", fake_spec(1000).dump()).status, 202);
 }
 
 // The port used to open only after recovery, so /readyz never said 503. Now the
