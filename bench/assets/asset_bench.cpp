@@ -29,7 +29,7 @@
 #include "common/lighting/accel.hpp"
 #include "common/lighting/embree_device.hpp"
 #include "common/lighting/scene_json.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;

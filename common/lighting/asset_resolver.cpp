@@ -3,7 +3,7 @@
 #include <fmt/format.h>
 
 #include "common/lighting/scene_json.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 
 namespace tally {
 

@@ -1,7 +1,7 @@
 #include "server/assets/asset_refs.hpp"
 
 #include "common/lighting/asset_resolver.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 
 namespace tally {
 

@@ -11,7 +11,7 @@
 #include <fstream>
 
 #include "common/lighting/scene_json.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "lighting/lighting_test_support.hpp"
 #include "support/cornell_box.hpp"
 
