@@ -30,7 +30,7 @@ using Reader = ByteReader<CheckpointError>;
 
 }  // namespace
 
-uint64_t checkpoint_checksum(std::string_view body) { return fnv1a(body); }
+uint64_t checkpoint_checksum(std::string_view body) { return fnv1a64(body); }
 
 std::string encode_checkpoint(const JobState& s) {
   ByteWriter w;
