@@ -14,8 +14,8 @@
 #include <cstdlib>
 #include <vector>
 
-#include "common/engine/local_executor.hpp"
-#include "common/jobs/job_factory.hpp"
+#include "common/engine/pass_loop.hpp"
+#include "common/protocol/job_kinds.hpp"
 
 namespace {
 

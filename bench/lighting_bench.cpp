@@ -8,7 +8,7 @@
 #include <cstdio>
 #include <nlohmann/json.hpp>
 
-#include "common/engine/local_executor.hpp"
+#include "common/engine/pass_loop.hpp"
 #include "tests/support/cornell_box.hpp"
 #include "common/lighting/accel.hpp"
 #include "common/lighting/lighting_spec.hpp"

@@ -26,7 +26,7 @@
 #include <string>
 #include <vector>
 
-#include "common/engine/local_executor.hpp"
+#include "common/engine/pass_loop.hpp"
 #include "tests/support/cornell_box.hpp"
 #include "common/lighting/image_kernel.hpp"
 #include "common/lighting/lighting_spec.hpp"

@@ -17,10 +17,9 @@
 #include "client/image_format.hpp"
 #include "client/json_errors.hpp"
 #include "common/image/image_io.hpp"
-#include "common/engine/local_executor.hpp"
-#include "common/jobs/job_factory.hpp"
-#include "common/protocol/spec_reader.hpp"
-#include "common/protocol/kind_json.hpp"
+#include "common/engine/pass_loop.hpp"
+#include "common/protocol/job_kinds.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "common/protocol/status_json.hpp"
 
 namespace tally {

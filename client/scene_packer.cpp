@@ -1,7 +1,6 @@
 #include "client/scene_packer.hpp"
 
 #include <fmt/format.h>
-#include <openssl/evp.h>
 #include <sys/stat.h>
 
 #include <cerrno>
@@ -13,6 +12,7 @@
 #include <vector>
 
 #include "client/json_errors.hpp"
+#include "common/hash/digest.hpp"
 #include "common/lighting/asset_resolver.hpp"
 
 namespace tally {
@@ -21,25 +21,6 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 namespace {
-
-class Sha256 {
- public:
-  Sha256() : ctx_(EVP_MD_CTX_new(), EVP_MD_CTX_free) {
-    if (!ctx_ || EVP_DigestInit_ex(ctx_.get(), EVP_sha256(), nullptr) != 1) throw PackError("SHA-256 unavailable");
-  }
-  void update(const char* data, size_t n) { EVP_DigestUpdate(ctx_.get(), data, n); }
-  std::string hex() {
-    unsigned char md[EVP_MAX_MD_SIZE];
-    unsigned int len = 0;
-    EVP_DigestFinal_ex(ctx_.get(), md, &len);
-    std::string out;
-    for (unsigned i = 0; i < len; ++i) out += fmt::format("{:02x}", md[i]);
-    return out;
-  }
-
- private:
-  std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx_;
-};
 
 std::string shown(const fs::path& p) { return p.lexically_normal().string(); }
 
@@ -122,20 +103,26 @@ std::vector<std::string> words(const std::string& line) {
 std::string sha256_file_hex(const fs::path& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw PackError(fmt::format("cannot read {}: {}", shown(path), std::strerror(errno)));
-  Sha256 h;
-  std::vector<char> buf(1 << 20);
-  while (in) {
-    in.read(buf.data(), static_cast<std::streamsize>(buf.size()));
-    h.update(buf.data(), static_cast<size_t>(in.gcount()));
+  try {
+    Sha256 h;  // common/hash/digest.hpp
+    std::vector<char> buf(1 << 20);
+    while (in) {
+      in.read(buf.data(), static_cast<std::streamsize>(buf.size()));
+      h.update(std::string_view(buf.data(), static_cast<size_t>(in.gcount())));
+    }
+    if (in.bad()) throw PackError(fmt::format("cannot read {}: {}", shown(path), std::strerror(errno)));
+    return h.finish_hex();
+  } catch (const DigestError& e) {
+    throw PackError(e.what());
   }
-  if (in.bad()) throw PackError(fmt::format("cannot read {}: {}", shown(path), std::strerror(errno)));
-  return h.hex();
 }
 
 std::string sha256_bytes_hex(const std::string& bytes) {
-  Sha256 h;
-  h.update(bytes.data(), bytes.size());
-  return h.hex();
+  try {
+    return sha256_hex(bytes);
+  } catch (const DigestError& e) {
+    throw PackError(e.what());
+  }
 }
 
 void ScenePacker::pack_spec(json& j) {

@@ -12,7 +12,7 @@
 #include <memory>
 #include <vector>
 
-#include "common/jobs/job_factory.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "server/assets/asset_retention.hpp"
 #include "server/assets/asset_store.hpp"
 #include "server/auth/access_control.hpp"
@@ -30,7 +30,7 @@
 #include "server/jobs/job_store.hpp"
 #include "server/http/listen_address.hpp"
 #include "server/api/metrics.hpp"
-#include "server/api/problem.hpp"
+#include "server/http/problem.hpp"
 #include "server/api/request_handler.hpp"
 
 #if __has_include("common/image/image_io.hpp")

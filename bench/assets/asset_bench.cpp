@@ -30,7 +30,7 @@
 #include "common/lighting/embree_device.hpp"
 #include "common/lighting/scene_json.hpp"
 #include "common/lighting/localize_scene.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;

@@ -27,7 +27,7 @@
 #include <mutex>
 #include <thread>
 
-#include "common/jobs/job_factory.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "server/cluster/protocol.hpp"
 #include "server/cluster/redis_executor.hpp"
 #include "server_process.hpp"

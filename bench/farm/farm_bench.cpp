@@ -12,7 +12,7 @@
 #include <cstdlib>
 #include <thread>
 
-#include "common/jobs/job_factory.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "server/jobs/job_manager.hpp"
 
 using nlohmann::json;

@@ -9,7 +9,7 @@
 #include <numbers>
 
 #include "bench/study/study_support.hpp"
-#include "common/engine/local_executor.hpp"
+#include "common/engine/pass_loop.hpp"
 #include "common/rng/counter_rng.hpp"
 #include "common/sampling/disk.hpp"
 

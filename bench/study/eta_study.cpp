@@ -6,8 +6,8 @@
 #include <fstream>
 
 #include "bench/study/study_support.hpp"
-#include "common/engine/local_executor.hpp"
-#include "common/jobs/job_factory.hpp"
+#include "common/engine/pass_loop.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "common/protocol/status_json.hpp"
 
 namespace tally::study {

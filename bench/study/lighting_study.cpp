@@ -9,7 +9,7 @@
 
 #include "bench/study/study_support.hpp"
 #include "common/image/image_io.hpp"
-#include "common/protocol/kind_json.hpp"
+#include "common/protocol/job_kinds.hpp"
 
 namespace tally::study {
 

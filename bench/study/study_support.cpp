@@ -6,8 +6,8 @@
 #include <cstdlib>
 #include <stdexcept>
 
-#include "common/engine/local_executor.hpp"
-#include "common/jobs/job_factory.hpp"
+#include "common/engine/pass_loop.hpp"
+#include "common/protocol/job_kinds.hpp"
 
 namespace tally::study {
 

@@ -1,7 +1,8 @@
 #pragma once
-// The one binary codec of engine state: checkpoints (checkpoint.cpp) and the cluster
-// wire format (server/cluster/wire.cpp) write integers, doubles, tallies, tail
-// trackers, importance weights and sample faults with it, field for field the same.
+// The one binary codec of engine state: checkpoints (checkpoint.cpp), the cluster
+// wire format (server/cluster/wire.cpp) and adaptive kernels' own state and pass input
+// (VEGAS: common/integrate/vegas.cpp) write integers, doubles, tallies, tail trackers,
+// importance weights and sample faults with it, field for field the same.
 // Little-endian u64, doubles as their raw bits (so what is decoded merges
 // bit-identically). Readers check every length against what is left and never read
 // past their input: malformed bytes throw `Error`, the caller's exception type

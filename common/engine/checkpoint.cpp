@@ -7,6 +7,7 @@
 
 #include "common/engine/byte_codec.hpp"
 #include "common/engine/check.hpp"
+#include "common/hash/fnv1a.hpp"
 
 namespace tally {
 
@@ -24,20 +25,12 @@ constexpr std::string_view kLegacyCounterNames[] = {
     "camera_rays",   "shadow_rays",      "bounce_rays",        "sky_lookups",       "emission_lookups",
     "light_samples", "bsdf_samples",     "specular_events",    "roulette_terminations"};
 
-uint64_t fnv1a(std::string_view s) {
-  uint64_t h = 0xcbf29ce484222325ULL;
-  for (unsigned char c : s) {
-    h ^= c;
-    h *= 0x100000001b3ULL;
-  }
-  return h;
-}
 
 using Reader = ByteReader<CheckpointError>;
 
 }  // namespace
 
-uint64_t checkpoint_checksum(std::string_view body) { return fnv1a(body); }
+uint64_t checkpoint_checksum(std::string_view body) { return fnv1a64(body); }
 
 std::string encode_checkpoint(const JobState& s) {
   ByteWriter w;
@@ -70,7 +63,7 @@ std::string encode_checkpoint(const JobState& s) {
     w.f64(p.std_error);
   }
   w.bytes(s.kernel_state);
-  const uint64_t h = fnv1a(w.str());
+  const uint64_t h = fnv1a64(w.str());
   w.u64(h);
   return w.take();
 }
@@ -81,7 +74,7 @@ JobState decode_checkpoint(std::string_view bytes) {
   }
   const std::string_view body = bytes.substr(0, bytes.size() - 8);
   Reader tail_reader(bytes.substr(bytes.size() - 8), "checkpoint");
-  if (tail_reader.u64() != fnv1a(body)) {
+  if (tail_reader.u64() != fnv1a64(body)) {
     throw CheckpointError("checkpoint checksum mismatch (truncated or corrupt)");
   }
   Reader r(body.substr(sizeof kMagic), "checkpoint");

@@ -2,7 +2,7 @@
 // Drives one job through progressive passes: plans each pass as a list of blocks,
 // merges their results in block order, by result group (Kernel's PassSchedule::
 // group_blocks; so any thread count, chunking or machine gives the same bits), keeps the convergence trace and decides when to stop. It runs no
-// threads itself: the local executor (common/engine/local_executor.hpp) and the
+// threads itself: the in-process pass loop (common/engine/pass_loop.hpp) and the
 // server's scheduler both call plan_pass / commit_pass.
 #include <memory>
 #include <optional>

@@ -13,8 +13,8 @@
 #include "common/integrate/auto_estimator.hpp"
 #include "common/integrate/cubature.hpp"
 #include "common/integrate/vegas.hpp"
-#include "common/protocol/spec_reader.hpp"
-#include "common/protocol/stop_rule_json.hpp"
+#include "common/spec/spec_reader.hpp"
+#include "common/spec/stop_rule_json.hpp"
 #include "common/sampling/ball_simplex.hpp"
 
 namespace tally {

@@ -3,11 +3,11 @@
 #include <algorithm>
 #include <boost/math/distributions/chi_squared.hpp>
 #include <cmath>
-#include <cstring>
 #include <fmt/format.h>
 #include <limits>
 #include <stdexcept>
 
+#include "common/engine/byte_codec.hpp"
 #include "common/integrate/integration_counters.hpp"
 #include "common/rng/counter_rng.hpp"
 #include "common/stats/confidence.hpp"
@@ -20,41 +20,10 @@ constexpr size_t kB = kIntegrandBatch;
 constexpr uint64_t kStateMagic = 0x3153414745565441ULL;   // "ATVEGAS1"
 constexpr uint64_t kStateMagic2 = 0x3253414745565441ULL;  // "ATVEGAS2": + VEGAS+ hypercube weights
 
-// Little byte-level writer/reader for kernel_state and pass_input (host byte order:
-// both stay on machines of one architecture, like the rest of a job's bits).
-class Out {
- public:
-  void u64(uint64_t v) { s_.append(reinterpret_cast<const char*>(&v), 8); }
-  void f64(double v) { s_.append(reinterpret_cast<const char*>(&v), 8); }
-  std::string take() { return std::move(s_); }
-
- private:
-  std::string s_;
-};
-
-class In {
- public:
-  explicit In(std::string_view s) : s_(s) {}
-  uint64_t u64() {
-    uint64_t v;
-    take(&v);
-    return v;
-  }
-  double f64() {
-    double v;
-    take(&v);
-    return v;
-  }
-
- private:
-  void take(void* p) {
-    if (s_.size() - pos_ < 8) throw std::runtime_error("VEGAS state is truncated");
-    std::memcpy(p, s_.data() + pos_, 8);
-    pos_ += 8;
-  }
-  std::string_view s_;
-  size_t pos_ = 0;
-};
+// kernel_state and pass_input are written with the engine's codec (byte_codec.hpp:
+// little-endian u64, doubles as their bits). States written before by a little-endian
+// host's byte order are the same bytes (tests/integrate/data/vegas_state_v*.bin).
+using StateReader = ByteReader<std::runtime_error>;
 
 struct Grid {
   uint32_t d = 0, nb = 0;
@@ -81,7 +50,7 @@ struct State {
 };
 
 std::string encode_state(const State& s) {
-  Out o;
+  ByteWriter o;
   o.u64(s.hweights.empty() ? kStateMagic : kStateMagic2);
   o.u64(s.grid.d);
   o.u64(s.grid.nb);
@@ -94,18 +63,14 @@ std::string encode_state(const State& s) {
   o.u64(s.iterations.size());
   for (size_t k = 0; k < s.iterations.size(); ++k) {
     o.u64(s.iterations[k].warmup ? 1 : 0);
-    for (const Tally& t : s.components[k]) {
-      o.u64(t.n);
-      o.f64(t.mean);
-      o.f64(t.m2);
-    }
+    for (const Tally& t : s.components[k]) o.tally(t);
   }
   return o.take();
 }
 
 std::optional<State> decode_state(std::string_view bytes) {
   if (bytes.empty()) return std::nullopt;
-  In in(bytes);
+  StateReader in(bytes, "VEGAS state");
   const uint64_t magic = in.u64();
   if (magic != kStateMagic && magic != kStateMagic2) return std::nullopt;
   State s;
@@ -129,11 +94,7 @@ std::optional<State> decode_state(std::string_view bytes) {
     VegasIteration it;
     it.warmup = in.u64() != 0;
     std::vector<Tally> comps(s.m);
-    for (Tally& t : comps) {
-      t.n = in.u64();
-      t.mean = in.f64();
-      t.m2 = in.f64();
-    }
+    for (Tally& t : comps) t = in.tally();
     it.tally = comps[0];
     s.iterations.push_back(it);
     s.components.push_back(std::move(comps));
@@ -306,7 +267,7 @@ class VegasKernel final : public Kernel {
     const std::optional<State> s = decode_state(st.kernel_state);
     const Grid g = s ? s->grid : Grid::uniform(d_, o_.bins);
     if (g.d != d_ || g.nb != o_.bins) throw std::runtime_error("VEGAS state does not match the job");
-    Out o;
+    ByteWriter o;
     o.u64(st.passes < o_.warmup_passes ? 1 : 0);
     for (double e : g.edges) o.f64(e);
     if (o_.stratify) {
@@ -330,16 +291,19 @@ class VegasKernel final : public Kernel {
     if (input.size() != 8 * (1 + grid_values + strat_values)) {
       throw std::runtime_error("VEGAS pass input has the wrong size");
     }
-    uint64_t warm_flag;
-    std::memcpy(&warm_flag, input.data(), 8);
+    StateReader in(input, "VEGAS pass input");
+    const uint64_t warm_flag = in.u64();
+    thread_local std::vector<double> edges;
+    edges.resize(grid_values);
+    for (double& e : edges) e = in.f64();
     uint64_t pass_start = 0;
     thread_local std::vector<uint64_t> bounds;
     thread_local std::vector<uint32_t> hcube;
     thread_local std::vector<double> hwt;
     if (o_.stratify) {
-      std::memcpy(&pass_start, input.data() + 8 * (1 + grid_values), 8);
+      pass_start = in.u64();
       bounds.resize(H_ + 1);
-      std::memcpy(bounds.data(), input.data() + 8 * (2 + grid_values), 8 * (H_ + 1));
+      for (uint64_t& v : bounds) v = in.u64();
       if (b.first_sample < pass_start || bounds[H_] != kVegasRound) {
         throw std::runtime_error("VEGAS+ pass input does not match the block");
       }
@@ -348,12 +312,10 @@ class VegasKernel final : public Kernel {
     }
     const bool warmup = warm_flag != 0;
     const uint32_t nb = o_.bins;
-    thread_local std::vector<double> edges, widths, jac, xs, vals;
+    thread_local std::vector<double> widths, jac, xs, vals;
     thread_local std::vector<uint32_t> bins;
     thread_local std::vector<const double*> xptr;
     thread_local std::vector<double*> vptr;
-    edges.resize(grid_values);
-    std::memcpy(edges.data(), input.data() + 8, 8 * grid_values);
     widths.resize(static_cast<size_t>(d_) * nb);
     for (size_t k = 0; k < d_; ++k) {
       for (uint32_t j = 0; j < nb; ++j) {
@@ -515,8 +477,7 @@ class VegasKernel final : public Kernel {
       s.grid = Grid::uniform(d_, o_.bins);
       s.m = m_;
     }
-    uint64_t warm_flag = 0;
-    if (input.size() >= 8) std::memcpy(&warm_flag, input.data(), 8);
+    const uint64_t warm_flag = input.size() >= 8 ? StateReader(input, "VEGAS pass input").u64() : 0;
     const uint32_t nb = o_.bins;
     const size_t nsums = static_cast<size_t>(m_) * d_ * nb;
     std::vector<double> sums(nsums, 0.0);

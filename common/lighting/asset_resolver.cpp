@@ -9,7 +9,7 @@
 #include <cerrno>
 #include <cstring>
 
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 
 namespace tally {
 

@@ -11,7 +11,7 @@
 #include <stdexcept>
 
 #include "common/lighting/texture.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "common/sampling/safe_math.hpp"
 
 namespace tally {

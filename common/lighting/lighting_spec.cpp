@@ -6,13 +6,13 @@
 #include <functional>
 #include <limits>
 
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "common/lighting/compiled_scene.hpp"
 #include "common/lighting/image_kernel.hpp"
 #include "common/lighting/point_kernel.hpp"
 #include "common/lighting/scene_json.hpp"
 #include "common/lighting/localize_scene.hpp"
-#include "common/protocol/stop_rule_json.hpp"
+#include "common/spec/stop_rule_json.hpp"
 #include "common/stats/confidence.hpp"
 
 namespace tally {

@@ -6,7 +6,7 @@
 #include <string>
 
 #include "common/engine/limits.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "common/lighting/gltf_scene.hpp"
 #include "common/lighting/scene.hpp"
 #include "common/lighting/scene_bounds.hpp"

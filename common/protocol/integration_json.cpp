@@ -2,7 +2,7 @@
 
 #include <cmath>
 
-#include "common/protocol/stop_rule_json.hpp"
+#include "common/spec/stop_rule_json.hpp"
 
 namespace tally {
 

@@ -8,9 +8,9 @@
 #include <ctime>
 #include <limits>
 
-#include "common/protocol/kind_json.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "common/protocol/status_json.hpp"
-#include "common/protocol/stop_rule_json.hpp"
+#include "common/spec/stop_rule_json.hpp"
 
 namespace tally {
 

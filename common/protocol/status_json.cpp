@@ -4,7 +4,7 @@
 
 #include <algorithm>
 
-#include "common/protocol/kind_json.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "common/stats/tail_index.hpp"
 
 namespace tally {

@@ -6,7 +6,7 @@
 #include <chrono>
 
 #include "common/lighting/asset_resolver.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "server/api/request_handler.hpp"
 #include "server/api/route_support.hpp"
 #include "server/assets/asset_refs.hpp"

@@ -4,9 +4,9 @@
 #include <fmt/format.h>
 
 #include "common/protocol/job_json.hpp"
-#include "common/protocol/kind_json.hpp"
-#include "common/protocol/spec_reader.hpp"
-#include "common/protocol/stop_rule_json.hpp"
+#include "common/protocol/job_kinds.hpp"
+#include "common/spec/spec_reader.hpp"
+#include "common/spec/stop_rule_json.hpp"
 #include "server/api/job_event_stream.hpp"
 #include "server/api/pilot.hpp"
 #include "server/api/request_handler.hpp"
@@ -85,7 +85,7 @@ HttpResponse RequestHandler::post_job(const HttpRequest& req, const PathParams&)
   HttpResponse r = json_response(202, {{"id", s.id},
                                        {"state", std::string(job_status_name(s.status))},
                                        {"links", job_links(s.id, false)}});
-  r.set_header("Location", "/v1/jobs/" + s.id);
+  r.set_header("Location", job_links(s.id, false).at("self").get<std::string>());
   return r;
 }
 

@@ -1,6 +1,7 @@
 #include "server/api/metrics.hpp"
 
 #include "server/api/prometheus.hpp"
+#include "server/host/host_facts.hpp"
 
 #include <fmt/format.h>
 
@@ -9,18 +10,6 @@
 #include <sstream>
 
 namespace tally {
-
-std::optional<uint64_t> resident_bytes() {
-  std::ifstream in("/proc/self/status");
-  for (std::string line; std::getline(in, line);) {
-    if (line.rfind("VmRSS:", 0) == 0) {
-      std::istringstream f(line.substr(6));
-      uint64_t kib = 0;
-      if (f >> kib) return kib * 1024;
-    }
-  }
-  return std::nullopt;
-}
 
 std::string_view Metrics::method_label(std::string_view method) {
   static constexpr std::array<std::string_view, 9> known = {"GET",     "HEAD",    "POST",  "PUT",  "DELETE",

@@ -10,14 +10,13 @@
 #include <string_view>
 #include <tuple>
 
+#include "server/http/connection_counters.hpp"
 #include "server/jobs/job_manager.hpp"
 
 namespace tally {
 
-// The process's resident memory (VmRSS of /proc/self/status), nullopt off Linux.
-std::optional<uint64_t> resident_bytes();
-
-class Metrics {
+// The connection counters are the transport's (server/http), rendered here.
+class Metrics : public ConnectionCounters {
  public:
   static constexpr std::array<double, 12> kBuckets = {0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025,
                                                       0.05,   0.1,   0.25,   0.5,   1.0,  2.5};
@@ -27,11 +26,6 @@ class Metrics {
   void observe(const std::string& route, std::string_view method, int status, double seconds);
   // The method itself when HTTP defines it (RFC 9110 §9), else "other".
   static std::string_view method_label(std::string_view method);
-  std::atomic<int64_t> connections{0};
-  std::atomic<int64_t> streams{0};
-  std::atomic<uint64_t> rejected_connections{0};
-  std::atomic<uint64_t> timeouts{0};
-  std::atomic<uint64_t> accept_errors{0};
 
   std::string render(const ManagerStats& jobs) const;
 

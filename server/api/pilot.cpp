@@ -9,7 +9,7 @@
 #include <thread>
 
 #include "common/engine/forecast.hpp"
-#include "common/engine/local_executor.hpp"
+#include "common/engine/pass_loop.hpp"
 
 namespace tally {
 

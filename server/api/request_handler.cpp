@@ -6,9 +6,9 @@
 #include <chrono>
 #include <cmath>
 
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "server/api/json_depth.hpp"
-#include "server/api/problem.hpp"
+#include "server/http/problem.hpp"
 #include "server/api/prometheus.hpp"
 #include "server/api/route_support.hpp"
 #include "server/api/static_files.hpp"

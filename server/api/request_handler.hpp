@@ -14,6 +14,7 @@
 
 #include "common/engine/image_source.hpp"
 #include "server/auth/authorize.hpp"
+#include "server/http/http_handler.hpp"
 #include "server/http/http_types.hpp"
 #include "server/jobs/job_manager.hpp"
 #include "server/api/metrics.hpp"
@@ -62,20 +63,21 @@ class StatusCache {
 inline constexpr uint64_t kListDefaultLimit = 100;
 inline constexpr uint64_t kListMaxLimit = 1000;
 
-class RequestHandler {
+// The application's side of the HTTP interface (server/http/http_handler.hpp).
+class RequestHandler final : public HttpHandler {
  public:
   RequestHandler(JobManager& manager, Metrics& metrics, HandlerConfig config);
 
-  HttpResponse handle(HttpRequest request);
+  HttpResponse handle(HttpRequest request) override;
   // Where the session runs a request (http_types.hpp): compiles and image encodes
   // on the blocking pool, validate pilots on their own slow lane.
-  Lane lane(const HttpRequest& request) const;
+  Lane lane(const HttpRequest& request) const override;
   // Streamed bodies (asset uploads): true when the session should not read this
   // request's body into a string but call open_body_stream once its header is read.
-  bool streams_body(const HttpRequest& head) const;
+  bool streams_body(const HttpRequest& head) const override;
   // Authorizes the request and opens its body's sink (server/api/asset_routes.cpp),
   // or answers at once. Cheap: may run on an I/O thread.
-  BodyStream open_body_stream(HttpRequest head);
+  BodyStream open_body_stream(HttpRequest head) override;
   const Router& router() const { return router_; }
   void set_ready(bool ready) { ready_ = ready; }
 

@@ -8,7 +8,7 @@
 #include <string>
 #include <string_view>
 
-#include "server/api/problem.hpp"
+#include "server/http/problem.hpp"
 #include "server/http/http_types.hpp"
 
 namespace tally {

@@ -6,6 +6,8 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "common/hash/fnv1a.hpp"
+
 namespace tally {
 
 namespace {
@@ -20,14 +22,6 @@ struct Entry {
   bool html = false;
 };
 
-std::string fnv1a_hex(std::string_view s) {
-  uint64_t h = 1469598103934665603ULL;
-  for (const unsigned char c : s) {
-    h ^= c;
-    h *= 1099511628211ULL;
-  }
-  return fmt::format("{:016x}", h);
-}
 
 bool ends_with(std::string_view s, std::string_view suffix) {
   return s.size() >= suffix.size() && s.substr(s.size() - suffix.size()) == suffix;
@@ -38,7 +32,7 @@ Entry make_entry(std::string body, std::string_view name) {
   e.content_type = std::string(content_type_for(name));
   e.html = ends_with(name, ".html");
   e.body = std::move(body);
-  e.hash = fnv1a_hex(e.body);
+  e.hash = fmt::format("{:016x}", fnv1a64(e.body));
   return e;
 }
 

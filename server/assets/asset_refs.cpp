@@ -6,7 +6,7 @@
 #include <stdexcept>
 
 #include "common/lighting/asset_resolver.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 
 namespace tally {
 

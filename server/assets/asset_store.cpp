@@ -2,7 +2,6 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
-#include <openssl/evp.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -10,6 +9,7 @@
 #include <cerrno>
 #include <cstring>
 
+#include "common/hash/digest.hpp"
 #include "common/lighting/asset_resolver.hpp"
 #include "common/log/log.hpp"
 
@@ -18,17 +18,6 @@ namespace tally {
 namespace fs = std::filesystem;
 
 namespace {
-
-std::string hex_of(const unsigned char* p, size_t n) {
-  static const char* digits = "0123456789abcdef";
-  std::string out;
-  out.reserve(2 * n);
-  for (size_t i = 0; i < n; ++i) {
-    out.push_back(digits[p[i] >> 4]);
-    out.push_back(digits[p[i] & 15]);
-  }
-  return out;
-}
 
 AssetError::Kind kind_of(int err) {
   return err == ENOSPC || err == EDQUOT ? AssetError::Kind::no_space : AssetError::Kind::io;
@@ -53,20 +42,26 @@ void touch_durable(const fs::path& p) {
 
 }  // namespace
 
+// The upload's SHA-256 (common/hash/digest.hpp), its failures as the store's I/O errors.
 struct AssetUpload::Hasher {
-  EVP_MD_CTX* ctx = EVP_MD_CTX_new();
-  Hasher() {
-    if (!ctx || EVP_DigestInit_ex(ctx, EVP_sha256(), nullptr) != 1) {
-      throw AssetError(AssetError::Kind::io, "cannot initialise SHA-256");
+  Sha256 sha;
+  Hasher() try : sha() {
+  } catch (const DigestError& e) {
+    throw AssetError(AssetError::Kind::io, e.what());
+  }
+  void update(std::string_view s) {
+    try {
+      sha.update(s);
+    } catch (const DigestError& e) {
+      throw AssetError(AssetError::Kind::io, e.what());
     }
   }
-  ~Hasher() { EVP_MD_CTX_free(ctx); }
-  void update(std::string_view s) { EVP_DigestUpdate(ctx, s.data(), s.size()); }
   std::string hex() {
-    unsigned char md[EVP_MAX_MD_SIZE];
-    unsigned int len = 0;
-    EVP_DigestFinal_ex(ctx, md, &len);
-    return hex_of(md, len);
+    try {
+      return sha.finish_hex();
+    } catch (const DigestError& e) {
+      throw AssetError(AssetError::Kind::io, e.what());
+    }
   }
 };
 
@@ -188,7 +183,7 @@ AssetStore::AssetStore(fs::path root, uint64_t max_asset_bytes) : root_(std::mov
 fs::path AssetStore::owner_dir(const std::string& owner) const {
   // Principal names are hex-encoded: any name is a safe, distinct directory name.
   const std::string enc = owner.empty() ? std::string("-")
-                                        : hex_of(reinterpret_cast<const unsigned char*>(owner.data()), owner.size());
+                                        : hex_encode(reinterpret_cast<const unsigned char*>(owner.data()), owner.size());
   return root_ / "owners" / enc;
 }
 

@@ -6,7 +6,7 @@
 #include <set>
 #include <sstream>
 
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 
 namespace tally {
 

@@ -8,7 +8,7 @@
 #include <cmath>
 
 #include "server/auth/token.hpp"
-#include "server/api/problem.hpp"
+#include "server/http/problem.hpp"
 
 namespace tally {
 

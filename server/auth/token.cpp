@@ -1,13 +1,12 @@
 #include "server/auth/token.hpp"
 
 #include <openssl/crypto.h>
-#include <openssl/evp.h>
 #include <openssl/rand.h>
 
 #include <array>
 #include <stdexcept>
 
-#include "server/digest_hex.hpp"
+#include "common/hash/digest.hpp"
 
 namespace tally {
 
@@ -44,7 +43,7 @@ std::string generate_token() { return "tly_" + random_base64url(32); }
 
 std::string generate_session_id() { return random_base64url(32); }
 
-std::string token_sha256_hex(std::string_view token) { return digest_hex(EVP_sha256(), token, "SHA-256 failed"); }
+std::string token_sha256_hex(std::string_view token) { return sha256_hex(token); }
 
 bool constant_time_equal(std::string_view a, std::string_view b) {
   if (a.size() != b.size()) return false;

@@ -11,6 +11,8 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "common/hash/digest.hpp"
+
 namespace tally::cluster {
 
 class RedisConn;
@@ -20,7 +22,7 @@ struct JobAsset {
   std::string bytes;
 };
 
-std::string sha256_hex(std::string_view bytes);
+using ::tally::sha256_hex;  // common/hash/digest.hpp
 
 // name -> asset, for every file the spec names: a relative path in a file field ("obj",
 // "map", "file") read from asset_dir, or a "sha256:<hex>" string anywhere, read from the

@@ -6,10 +6,8 @@
 #include <bit>
 #include <cstring>
 
-#include <openssl/evp.h>
-
 #include "common/engine/byte_codec.hpp"
-#include "server/digest_hex.hpp"
+#include "common/hash/digest.hpp"
 
 namespace tally::cluster {
 
@@ -236,7 +234,7 @@ std::vector<BlockResult> decode_entry_results(std::string_view bytes) {
 namespace tally::cluster {
 
 std::string result_digest(std::string_view encoded) {
-  return digest_hex(EVP_sha1(), encoded, "SHA-1 of a result failed (OpenSSL)");
+  return sha1_hex(encoded);
 }
 
 }  // namespace tally::cluster

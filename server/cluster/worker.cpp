@@ -13,8 +13,8 @@
 #include <thread>
 #include <vector>
 
-#include "common/jobs/job_factory.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/protocol/job_kinds.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "server/cluster/assets.hpp"
 #include "server/cluster/protocol.hpp"
 #include "server/cluster/wire.hpp"

@@ -26,9 +26,9 @@
 
 #include "server/http/event_stream.hpp"
 #include "server/http/http_framing.hpp"
-#include "server/api/metrics.hpp"
-#include "server/api/problem.hpp"
-#include "server/api/request_handler.hpp"
+#include "server/http/connection_counters.hpp"
+#include "server/http/http_handler.hpp"
+#include "server/http/problem.hpp"
 
 namespace tally {
 
@@ -104,8 +104,8 @@ void configure_parser(http::request_parser<http::string_body>& p, const HttpServ
 
 struct Shared {
   HttpServerConfig config;
-  RequestHandler& handler;
-  Metrics& metrics;
+  HttpHandler& handler;
+  ConnectionCounters& counters;
   net::thread_pool& blocking;
   net::thread_pool& slow;
   std::atomic<size_t> connections{0};
@@ -138,11 +138,11 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
         heartbeat_(stream_.get_executor()),
         read_timer_(stream_.get_executor()) {
     shared_.connections++;
-    shared_.metrics.connections++;
+    shared_.counters.connections++;
   }
   ~Session() {
-    if (streaming_) shared_.metrics.streams--;
-    shared_.metrics.connections--;
+    if (streaming_) shared_.counters.streams--;
+    shared_.counters.connections--;
     shared_.connections--;
   }
 
@@ -169,7 +169,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
 
   void start() {
     if (reject_) {
-      shared_.metrics.rejected_connections++;
+      shared_.counters.rejected_connections++;
       send(problem_response(503, "too many connections; retry later"), false);
     } else {
       wait_for_request();
@@ -217,7 +217,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
     read_timer_.cancel();
     sink_.reset();  // an unfinished streamed body is undone
     if (read_timed_out_) {
-      shared_.metrics.timeouts++;
+      shared_.counters.timeouts++;
       return send(problem_response(408, fmt::format("the request was not received within {} s",
                                                     shared_.config.read_timeout_s)),
                   false);
@@ -310,7 +310,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   }
 
   void on_error(beast::error_code ec) {
-    if (ec == beast::error::timeout) shared_.metrics.timeouts++;
+    if (ec == beast::error::timeout) shared_.counters.timeouts++;
     beast::error_code ignored;
     read_timer_.cancel();
     lowest().socket().shutdown(tcp::socket::shutdown_both, ignored);
@@ -389,7 +389,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   void start_stream(HttpResponse res) {
     events_ = std::move(res.stream);
     streaming_ = true;
-    shared_.metrics.streams++;
+    shared_.counters.streams++;
     stream_res_.emplace(static_cast<http::status>(res.status), version_);
     stream_res_->set(http::field::server, "tally-server");
     for (auto& [k, v] : res.headers) stream_res_->set(k, v);
@@ -501,10 +501,10 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
 }  // namespace
 
 struct HttpServer::Impl {
-  Impl(HttpServerConfig cfg, RequestHandler& handler, Metrics& metrics)
+  Impl(HttpServerConfig cfg, HttpHandler& handler, ConnectionCounters& counters)
       : blocking(2),
         slow(std::max(1u, cfg.slow_threads)),
-        shared{std::move(cfg), handler, metrics, blocking, slow, {}, {}},
+        shared{std::move(cfg), handler, counters, blocking, slow, {}, {}},
         acceptor(ioc),
         accept_backoff(ioc),
         signals(ioc, SIGINT, SIGTERM),
@@ -535,7 +535,7 @@ struct HttpServer::Impl {
         if (ec == net::error::operation_aborted || !acceptor.is_open()) return;
         // Out of descriptors (EMFILE/ENFILE) or memory: the pending connection stays
         // in the backlog, so accepting again at once would spin. Wait, then retry.
-        shared.metrics.accept_errors++;
+        shared.counters.accept_errors++;
         accept_backoff.expires_after(std::chrono::milliseconds(100));
         accept_backoff.async_wait([this](beast::error_code tec) {
           if (!tec && acceptor.is_open()) accept();
@@ -567,8 +567,8 @@ struct HttpServer::Impl {
   std::optional<net::executor_work_guard<net::io_context::executor_type>> work;
 };
 
-HttpServer::HttpServer(HttpServerConfig config, RequestHandler& handler, Metrics& metrics)
-    : impl_(std::make_unique<Impl>(std::move(config), handler, metrics)) {}
+HttpServer::HttpServer(HttpServerConfig config, HttpHandler& handler, ConnectionCounters& counters)
+    : impl_(std::make_unique<Impl>(std::move(config), handler, counters)) {}
 
 HttpServer::~HttpServer() { stop(0); }
 
@@ -632,7 +632,7 @@ void HttpServer::stop(double grace_seconds) {
   s.slow.join();
 }
 
-std::string respond_to_bytes(std::string_view raw, const HttpServerConfig& config, RequestHandler& handler) {
+std::string respond_to_bytes(std::string_view raw, const HttpServerConfig& config, HttpHandler& handler) {
   std::string out;
   beast::flat_buffer buffer;
   net::buffer_copy(buffer.prepare(raw.size()), net::buffer(raw.data(), raw.size()));

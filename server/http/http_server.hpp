@@ -12,8 +12,8 @@
 
 namespace tally {
 
-class RequestHandler;
-class Metrics;
+class HttpHandler;
+struct ConnectionCounters;
 
 struct HttpServerConfig {
   std::string address = "127.0.0.1";
@@ -36,7 +36,7 @@ struct HttpServerConfig {
 
 class HttpServer {
  public:
-  HttpServer(HttpServerConfig config, RequestHandler& handler, Metrics& metrics);
+  HttpServer(HttpServerConfig config, HttpHandler& handler, ConnectionCounters& counters);
   ~HttpServer();
   HttpServer(const HttpServer&) = delete;
   HttpServer& operator=(const HttpServer&) = delete;
@@ -63,6 +63,6 @@ class HttpServer {
 // server would on one connection, and returns the response bytes. Input that ends
 // mid-request gets the 408 a read timeout would give; event streams are answered
 // with their header only.
-std::string respond_to_bytes(std::string_view raw, const HttpServerConfig& config, RequestHandler& handler);
+std::string respond_to_bytes(std::string_view raw, const HttpServerConfig& config, HttpHandler& handler);
 
 }  // namespace tally

@@ -53,7 +53,7 @@ struct HttpResponse {
 
 // A request body a route takes as a stream instead of a string (uploads: PUT
 // /v1/assets/...). Once the header is read, the session asks the request handler
-// for a sink (RequestHandler::open_body_stream) and feeds it the body part by part,
+// for a sink (HttpHandler::open_body_stream) and feeds it the body part by part,
 // off the I/O threads, then calls finish(). A sink destroyed without finish() (the
 // client went away, a timeout) must undo whatever it wrote.
 class BodySink {

@@ -10,7 +10,7 @@
 #include "common/engine/checkpoint.hpp"
 #include "common/log/log.hpp"
 #include "common/protocol/job_json.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "server/executor/in_process_executor.hpp"
 #include "server/jobs/pass_views.hpp"
 

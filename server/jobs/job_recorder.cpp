@@ -10,8 +10,8 @@
 #include "common/engine/checkpoint.hpp"
 #include "common/log/log.hpp"
 #include "common/protocol/job_json.hpp"
-#include "common/protocol/spec_reader.hpp"
-#include "common/protocol/stop_rule_json.hpp"
+#include "common/spec/spec_reader.hpp"
+#include "common/spec/stop_rule_json.hpp"
 
 namespace tally {
 

@@ -4,35 +4,13 @@
 #include <cctype>
 #include <charconv>
 #include <cmath>
-#include <fstream>
-#include <sstream>
 #include <string>
+
+#include "server/host/host_facts.hpp"
 
 namespace tally {
 
 namespace {
-
-std::optional<uint64_t> read_u64_file(const char* path) {
-  std::ifstream in(path);
-  std::string text;
-  if (!(in >> text)) return std::nullopt;  // also "max": no limit
-  uint64_t v = 0;
-  const auto [p, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
-  if (ec != std::errc() || p != text.data() + text.size()) return std::nullopt;
-  return v;
-}
-
-std::optional<uint64_t> mem_total() {
-  std::ifstream in("/proc/meminfo");
-  for (std::string line; std::getline(in, line);) {
-    if (line.rfind("MemTotal:", 0) == 0) {
-      std::istringstream f(line.substr(9));
-      uint64_t kib = 0;
-      if (f >> kib) return kib * 1024;
-    }
-  }
-  return std::nullopt;
-}
 
 // Splits "12.5GiB" into 12.5 and "GiB".
 bool split_number(std::string_view s, double& value, std::string_view& unit) {
@@ -50,11 +28,10 @@ bool split_number(std::string_view s, double& value, std::string_view& unit) {
 }  // namespace
 
 uint64_t default_memory_budget() {
-  std::optional<uint64_t> limit = mem_total();
-  // cgroup v1 reports "no limit" as a huge number; min() takes care of it.
-  for (const char* path : {"/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"}) {
-    if (const auto v = read_u64_file(path)) limit = limit ? std::min(*limit, *v) : *v;
-  }
+  // The host's facts by their one rule (server/host/host_facts.hpp). cgroup v1 reports
+  // "no limit" as a huge number; min() takes care of it.
+  std::optional<uint64_t> limit = memory_total();
+  if (const auto v = cgroup_memory_limit()) limit = limit ? std::min(*limit, *v) : *v;
   return limit ? *limit / 2 : 0;
 }
 

@@ -8,7 +8,7 @@
 namespace tally {
 
 // Half of the memory this process may use: the smaller of the machine's MemTotal and
-// the cgroup limit (v2 memory.max, v1 memory.limit_in_bytes); 0 if neither is known.
+// the cgroup limit (server/host/host_facts.hpp); 0 if neither is known.
 uint64_t default_memory_budget();
 
 // "4GiB", "512MiB", "64KiB", "2GB" (powers of 1000), "1000000" (bytes); nullopt if not a size.

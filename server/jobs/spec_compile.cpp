@@ -4,7 +4,7 @@
 
 #include <algorithm>
 
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 
 namespace tally {
 

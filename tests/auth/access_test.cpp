@@ -11,7 +11,7 @@
 #include <chrono>
 #include <filesystem>
 
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "server/auth/access_control.hpp"
 #include "server/auth/auth_file.hpp"
 #include "server/auth/token.hpp"

@@ -15,9 +15,8 @@
 
 #include "../gltf/gltf_writer.hpp"
 #include "cluster_process.hpp"
-#include "common/engine/local_executor.hpp"
-#include "common/jobs/job_factory.hpp"
-#include "common/protocol/kind_json.hpp"
+#include "common/engine/pass_loop.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "server/cluster/assets.hpp"
 #include "server/cluster/protocol.hpp"
 #include "server/cluster/wire.hpp"

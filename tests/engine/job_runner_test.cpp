@@ -6,7 +6,7 @@
 #include <cmath>
 
 #include "common/engine/checkpoint.hpp"
-#include "common/engine/local_executor.hpp"
+#include "common/engine/pass_loop.hpp"
 #include "common/rng/counter_rng.hpp"
 
 namespace tally {

@@ -10,8 +10,8 @@
 #include <string>
 #include <vector>
 
-#include "common/jobs/job_factory.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/protocol/job_kinds.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "fuzz_support.hpp"
 #include "server/http/http_server.hpp"
 #include "server/jobs/job_manager.hpp"

@@ -4,9 +4,8 @@
 // kind the document is forced to, so both compilers see every shape of input.
 #include <nlohmann/json.hpp>
 
-#include "common/jobs/job_factory.hpp"
-#include "common/protocol/kind_json.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/protocol/job_kinds.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "fuzz_support.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {

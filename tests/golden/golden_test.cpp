@@ -20,10 +20,9 @@
 #include <sstream>
 #include <thread>
 
-#include "common/engine/local_executor.hpp"
-#include "common/jobs/job_factory.hpp"
+#include "common/engine/pass_loop.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "common/protocol/job_json.hpp"
-#include "common/protocol/kind_json.hpp"
 #include "server/jobs/job_manager.hpp"
 #include "server/http/event_stream.hpp"
 #include "server/jobs/job_store.hpp"

@@ -10,7 +10,7 @@
 #include "common/integrate/genz.hpp"
 #include "common/integrate/integration_job.hpp"
 #include "common/protocol/integration_json.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "integrate/run_support.hpp"
 
 namespace tally {

@@ -9,7 +9,7 @@
 
 #include "common/integrate/genz.hpp"
 #include "common/integrate/integration_counters.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "integrate/run_support.hpp"
 
 namespace tally {

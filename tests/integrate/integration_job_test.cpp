@@ -6,7 +6,7 @@
 #include <numbers>
 
 #include "common/integrate/genz.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "common/protocol/status_json.hpp"
 #include "integrate/run_support.hpp"
 

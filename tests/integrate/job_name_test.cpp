@@ -9,8 +9,8 @@
 #include <string>
 #include <unistd.h>
 
-#include "common/jobs/job_factory.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/protocol/job_kinds.hpp"
+#include "common/spec/spec_reader.hpp"
 
 namespace tally {
 namespace {

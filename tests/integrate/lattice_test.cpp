@@ -14,7 +14,7 @@
 #include "common/integrate/genz.hpp"
 #include "common/integrate/integration_job.hpp"
 #include "common/integrate/lattice_rule.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "integrate/run_support.hpp"
 
 namespace tally {

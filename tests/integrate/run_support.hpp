@@ -9,11 +9,10 @@
 #include <string>
 
 #include "common/engine/checkpoint.hpp"
-#include "common/engine/local_executor.hpp"
+#include "common/engine/pass_loop.hpp"
 #include "common/integrate/integration_counters.hpp"
-#include "common/jobs/job_factory.hpp"
-#include "common/protocol/kind_json.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/protocol/job_kinds.hpp"
+#include "common/spec/spec_reader.hpp"
 
 namespace tally::testing {
 

@@ -6,9 +6,13 @@
 #include <algorithm>
 #include <boost/math/distributions/chi_squared.hpp>
 #include <cmath>
+#include <fstream>
+#include <iterator>
+#include <string>
+#include <utility>
 
 #include "common/engine/checkpoint.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "common/integrate/genz.hpp"
 #include "common/integrate/vector_integrand.hpp"
 #include "common/integrate/vegas.hpp"
@@ -482,6 +486,27 @@ TEST(VegasPlus, ResumeMidAdaptationIsBitIdentical) {
   }
 }
 
+// Kernel states written by the codec before byte_codec (host byte order, on x86-64;
+// tests/integrate/data, pass 2 of kDeterminismSpec / kPlusDeterminismSpec): they read,
+// re-encode to the same bytes, and a job resumed from them ends bit-identical to the
+// uninterrupted run.
+TEST(VegasPlus, StatesOfTheOldCodecStillResume) {
+  for (const auto& [spec, file] : {std::pair{&kDeterminismSpec, "vegas_state_v1.bin"},
+                                   std::pair{&kPlusDeterminismSpec, "vegas_state_v2.bin"}}) {
+    SCOPED_TRACE(file);
+    std::ifstream in(std::string(TALLY_SOURCE_DIR "/tests/integrate/data/") + file, std::ios::binary);
+    ASSERT_TRUE(in);
+    const std::string stored((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    ASSERT_GT(stored.size(), 1000u);
+    const testing::Interrupted now = testing::run_until_pass(*spec, 2);
+    ASSERT_FALSE(now.checkpoint.empty());
+    EXPECT_EQ(now.run->state().kernel_state, stored);  // the codec writes the old bytes
+    JobState restored = decode_checkpoint(now.checkpoint);
+    restored.kernel_state = stored;
+    expect_same_state(testing::run_spec(*spec, 2)->state(), testing::resume_spec(*spec, std::move(restored))->state());
+  }
+}
+
 // A sample limit that is not a whole number of rounds: the last pass is cut short,
 // some hypercubes get fewer than 2 samples, and that pass is left out of the estimate
 // (still within 4 sigma of the closed form).
@@ -541,3 +566,4 @@ TEST(VegasPlus, BadSpecsNameTheField) {
 
 }  // namespace
 }  // namespace tally
+

@@ -12,7 +12,7 @@
 
 #include "common/lighting/scene_json.hpp"
 #include "common/lighting/asset_resolver.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "lighting/lighting_test_support.hpp"
 #include "support/cornell_box.hpp"
 

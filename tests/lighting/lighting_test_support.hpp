@@ -12,12 +12,12 @@
 
 #include "common/engine/job_definition.hpp"
 #include "common/engine/job_runner.hpp"
-#include "common/engine/local_executor.hpp"
+#include "common/engine/pass_loop.hpp"
 #include "common/lighting/lighting_counters.hpp"
 #include "common/lighting/lighting_spec.hpp"
 #include "common/lighting/scene_json.hpp"
-#include "common/protocol/kind_json.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/protocol/job_kinds.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "common/math/vec3.hpp"
 
 #include <unistd.h>

@@ -21,7 +21,7 @@
 #include <boost/math/quadrature/gauss.hpp>
 
 #include "common/engine/checkpoint.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 #include "common/lighting/image_kernel.hpp"
 #include "common/lighting/point_kernel.hpp"
 #include "common/stats/replicates.hpp"

@@ -2,8 +2,8 @@
 // the job would hit, numbers out of double range, expression errors.
 #include <gtest/gtest.h>
 
-#include "common/engine/local_executor.hpp"
-#include "common/jobs/job_factory.hpp"
+#include "common/engine/pass_loop.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "server/api/pilot.hpp"
 #include "server_test_support.hpp"
 

@@ -4,8 +4,8 @@
 
 #include <cmath>
 
-#include "common/protocol/spec_reader.hpp"
-#include "common/protocol/stop_rule_json.hpp"
+#include "common/spec/spec_reader.hpp"
+#include "common/spec/stop_rule_json.hpp"
 
 namespace tally::test {
 

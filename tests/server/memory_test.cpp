@@ -10,8 +10,9 @@
 #include <filesystem>
 #include <set>
 
-#include "common/jobs/job_factory.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "server/api/metrics.hpp"
+#include "server/host/host_facts.hpp"
 #include "server_test_support.hpp"
 
 #if __has_include("common/image/image_io.hpp")

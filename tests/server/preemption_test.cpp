@@ -6,7 +6,7 @@
 // less than the minimum run time ago is not paused (no thrash).
 #include <gtest/gtest.h>
 
-#include "common/jobs/job_factory.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "common/protocol/job_json.hpp"
 #include "server_test_support.hpp"
 

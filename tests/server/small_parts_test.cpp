@@ -11,7 +11,7 @@
 #include "server/jobs/event_log.hpp"
 #include "server/api/json_depth.hpp"
 #include "server/http/listen_address.hpp"
-#include "server/api/problem.hpp"
+#include "server/http/problem.hpp"
 #include "server/api/router.hpp"
 
 namespace tally {

@@ -8,8 +8,8 @@
 #include <cstdio>
 #include <nlohmann/json.hpp>
 
-#include "common/engine/local_executor.hpp"
-#include "common/jobs/job_factory.hpp"
+#include "common/engine/pass_loop.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "common/stats/confidence.hpp"
 
 namespace tally {

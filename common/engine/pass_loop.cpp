@@ -1,4 +1,4 @@
-#include "common/engine/local_executor.hpp"
+#include "common/engine/pass_loop.hpp"
 
 #include <sched.h>
 

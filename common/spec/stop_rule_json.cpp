@@ -1,4 +1,4 @@
-#include "common/protocol/stop_rule_json.hpp"
+#include "common/spec/stop_rule_json.hpp"
 
 #include <fmt/format.h>
 

@@ -1,5 +1,7 @@
 #pragma once
-// Runs a job in-process on a few threads (the CLI's `tally run`, tests, the study).
+// The in-process pass loop: runs a job on a few threads (the CLI's `tally run`, tests,
+// the study, the validate pilot). Not an Executor (server/executor): no queue, no
+// fairness, one job.
 // The server has its own fair scheduler over the same JobRunner interface.
 #include <atomic>
 #include <functional>

@@ -10,7 +10,7 @@
 
 #include "common/engine/limits.hpp"
 #include "common/engine/stop_rule.hpp"
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 
 namespace tally {
 

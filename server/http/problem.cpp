@@ -1,4 +1,4 @@
-#include "server/api/problem.hpp"
+#include "server/http/problem.hpp"
 
 #include <nlohmann/json.hpp>
 

@@ -1,4 +1,4 @@
-#include "common/protocol/spec_reader.hpp"
+#include "common/spec/spec_reader.hpp"
 
 #include <cmath>
 #include <fmt/format.h>

@@ -1,0 +1,82 @@
+cmake_minimum_required(VERSION 3.20)
+# The layering docs/architecture.md promises, checked on the sources' #include lines.
+# Exits non-zero (FATAL_ERROR) naming every offending line when a rule is broken:
+#   json     the engine and the job kinds speak types : only the spec readers
+#            listed below may include nlohmann-json, common/spec, a job kind's spec reader
+#            or the scene reader's header;
+#   views    nothing under common/engine, common/integrate, common/lighting or common/spec
+#            includes the JSON views or the kinds' table (common/protocol), spec readers
+#            included;
+#   http     server/http is the transport: it includes only itself (and common/log);
+#   auth     server/auth includes nothing of server/api (it uses the http vocabulary).
+#   cmake -DROOT=<source dir> -P layering.cmake
+if(NOT ROOT)
+  message(FATAL_ERROR "pass -DROOT=<source dir>")
+endif()
+get_filename_component(ROOT "${ROOT}" ABSOLUTE)
+
+set(bad "")
+set(checked 0)
+# check(<rule> <pattern list var> <allowed files var> <globs...>): every line of every
+# file matched by the globs (paths relative to ROOT) that matches one of the patterns is
+# a violation unless the file is in the allowed list.
+function(check rule patterns_var allowed_var)
+  set(globs)
+  foreach(g IN LISTS ARGN)
+    list(APPEND globs ${ROOT}/${g})
+  endforeach()
+  file(GLOB_RECURSE files RELATIVE ${ROOT} ${globs})
+  list(LENGTH files n)
+  math(EXPR total "${checked} + ${n}")
+  set(checked ${total} PARENT_SCOPE)
+  set(found "")
+  foreach(f IN LISTS files)
+    if(f IN_LIST ${allowed_var})
+      continue()
+    endif()
+    file(STRINGS ${ROOT}/${f} lines)
+    foreach(line IN LISTS lines)
+      foreach(p IN LISTS ${patterns_var})
+        if(line MATCHES "${p}")
+          string(APPEND found "\n  [${rule}] ${f}: ${line}")
+          break()
+        endif()
+      endforeach()
+    endforeach()
+  endforeach()
+  set(bad "${bad}${found}" PARENT_SCOPE)
+endfunction()
+
+set(engine_and_kinds
+  common/engine/*.hpp common/engine/*.cpp
+  common/integrate/*.hpp common/integrate/*.cpp
+  common/lighting/*.hpp common/lighting/*.cpp)
+
+set(spec_readers
+  common/integrate/integration_spec.hpp common/integrate/integration_spec.cpp
+  common/lighting/lighting_spec.hpp common/lighting/lighting_spec.cpp
+  common/lighting/scene_json.hpp common/lighting/scene_json.cpp
+  common/lighting/gltf_scene.cpp       # scene reader: glTF files, errors are SpecErrors
+  common/lighting/asset_resolver.hpp common/lighting/asset_resolver.cpp)  # scene file names -> files, errors are SpecErrors
+set(json_patterns "<nlohmann/" "nlohmann::" "\"common/protocol/" "\"common/spec/" "_spec\\.hpp\""
+  "scene_json\\.hpp\"")
+check(json json_patterns spec_readers ${engine_and_kinds})
+
+set(none "")
+set(views_patterns "#include[ \t]*\"common/protocol/")
+check(views views_patterns none ${engine_and_kinds} common/spec/*.hpp common/spec/*.cpp)
+
+set(http_patterns "#include[ \t]*\"(server/([^h]|h[^t]|ht[^t]|htt[^p]|http[^/])|common/([^l]|l[^o]|lo[^g]|log[^/])|client/)")
+check(http http_patterns none server/http/*.hpp server/http/*.cpp)
+
+set(auth_patterns "#include[ \t]*\"server/api/")
+check(auth auth_patterns none server/auth/*.hpp server/auth/*.cpp)
+
+if(checked EQUAL 0)
+  message(FATAL_ERROR "no sources under ${ROOT}")
+endif()
+if(bad)
+  message(FATAL_ERROR "layering broken:${bad}")
+endif()
+message(STATUS "${checked} files checked: the engine and job kinds speak no JSON, nothing below "
+  "common/protocol includes it, server/http includes only itself, server/auth nothing of server/api")
