@@ -88,6 +88,9 @@ class RequestHandler {
   // 422 naming the first "sha256:" reference of `spec` the caller cannot use (not
   // stored, or stored only by another tenant: indistinguishable).
   void check_assets(const HttpRequest& request, const nlohmann::json& spec) const;
+  // A principal restricted to worker pools (auth file "pools") names one of them in
+  // the spec's "pool": else 403 naming /pool.
+  void check_pool(const HttpRequest& request, const nlohmann::json& spec) const;
   // The one lookup of every job route: the job if the caller may see it, else 404
   // (another tenant's job is indistinguishable from a missing one).
   std::shared_ptr<Job> visible_job(const HttpRequest& request, const std::string& id) const;
