@@ -72,7 +72,10 @@ std::string cluster_metrics(const RedisExecutor& ex) {
     o += fmt::format("tally_cluster_worker_blocks_done{{worker=\"{}\"}} {}\n", w.name, w.blocks_done);
   }
   prom_metric(o, "tally_cluster_redis_up", "gauge", "1 when the coordinator reaches Redis.",
-              ex.not_ready_reason() ? 0 : 1);
+              ex.redis_reachable() ? 1 : 0);
+  prom_metric(o, "tally_cluster_redis_out_of_memory", "gauge",
+              "1 while Redis refuses the cluster's writes (used_memory >= maxmemory, or an OOM reply).",
+              ex.monitor().redis_problem() ? 1 : 0);
   const ClusterCounters c = ex.monitor().counters();
   prom_header(o, "tally_cluster_results_total", "counter", "Block results stored in Redis, by outcome.");
   o += fmt::format("tally_cluster_results_total{{outcome=\"first\"}} {}\n", c.first);
@@ -83,12 +86,18 @@ std::string cluster_metrics(const RedisExecutor& ex) {
   prom_metric(o, "tally_cluster_blocks_merged_total", "counter", "Blocks merged by this coordinator.", c.merged);
   prom_metric(o, "tally_cluster_passes_ahead_total", "counter",
               "Passes published before the pass before them was merged.", c.ahead);
-  prom_header(o, "tally_cluster_job_blocks", "gauge", "Blocks of a running job's current pass.");
+  // Summed over the running jobs: no tenant's job id in a document the metrics role
+  // (or anyone on loopback) reads. A job's own counts are in its status.
+  ExecutorStats::JobBlocks all;
   for (const auto& [id, b] : ex.stats().blocks_by_job) {
-    o += fmt::format("tally_cluster_job_blocks{{job=\"{}\",state=\"pending\"}} {}\n", id, b.pending);
-    o += fmt::format("tally_cluster_job_blocks{{job=\"{}\",state=\"in_flight\"}} {}\n", id, b.in_flight);
-    o += fmt::format("tally_cluster_job_blocks{{job=\"{}\",state=\"redelivered\"}} {}\n", id, b.redelivered);
+    all.pending += b.pending;
+    all.in_flight += b.in_flight;
+    all.redelivered += b.redelivered;
   }
+  prom_header(o, "tally_cluster_blocks", "gauge", "Blocks of the running jobs' current passes, by state.");
+  o += fmt::format("tally_cluster_blocks{{state=\"pending\"}} {}\n", all.pending);
+  o += fmt::format("tally_cluster_blocks{{state=\"in_flight\"}} {}\n", all.in_flight);
+  o += fmt::format("tally_cluster_blocks{{state=\"redelivered\"}} {}\n", all.redelivered);
   return o;
 }
 

@@ -1,5 +1,7 @@
 #include "server/cluster/cluster_monitor.hpp"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 
 namespace tally::cluster {
@@ -22,8 +24,11 @@ void ClusterMonitor::refresh(RedisConn& conn) {
   std::vector<WorkerRecord> ws = read_worker_registry(conn, now - 10 * timeout);
   std::erase_if(ws, [&](const WorkerRecord& w) { return now - w.last_heartbeat > timeout; });
   const std::optional<StoreCounters> c = read_store_counters(conn);
+  const RedisMemory mem = read_memory(conn);
   std::lock_guard lock(mu_);
   workers_ = std::move(ws);
+  memory_ = mem;
+  if (mem.max > 0 && mem.used >= mem.max) oom_at_ = std::chrono::steady_clock::now();
   if (c) {
     counters_.first = c->first;
     counters_.dup_equal = c->dup_equal;
@@ -73,6 +78,30 @@ void ClusterMonitor::count_live(unsigned& threads, unsigned& busy) const {
     threads += w.threads;
     if (!w.current_job.empty()) busy += 1;
   }
+}
+
+bool ClusterMonitor::note_redis_error(std::string_view error) {
+  if (error.find("OOM ") == std::string_view::npos) return false;
+  std::lock_guard lock(mu_);
+  oom_at_ = std::chrono::steady_clock::now();
+  oom_error_ = std::string(error);
+  return true;
+}
+
+std::optional<std::string> ClusterMonitor::redis_problem() const {
+  std::lock_guard lock(mu_);
+  const bool full = memory_.max > 0 && memory_.used >= memory_.max;
+  // An OOM error counts for 2 s: the next refresh (every 0.5 s) has seen the memory by then.
+  const bool recent_error = !oom_error_.empty() && std::chrono::steady_clock::now() - oom_at_ < std::chrono::seconds(2);
+  if (!full && !recent_error) return std::nullopt;
+  return fmt::format("redis at {} is out of memory (used_memory {} of maxmemory {} bytes{}): workers cannot store "
+                     "results and passes cannot be published; raise maxmemory or free memory (docs/cluster.md)",
+                     redis_display_, memory_.used, memory_.max, full ? "" : fmt::format("; {}", oom_error_));
+}
+
+bool ClusterMonitor::out_of_memory_within(std::chrono::milliseconds window) const {
+  std::lock_guard lock(mu_);
+  return oom_at_ != std::chrono::steady_clock::time_point{} && std::chrono::steady_clock::now() - oom_at_ < window;
 }
 
 ClusterCounters ClusterMonitor::counters() const {

@@ -6,8 +6,10 @@
 #include <chrono>
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <mutex>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "server/cluster/cluster_store.hpp"
@@ -25,11 +27,21 @@ struct ClusterCounters {
 
 class ClusterMonitor {
  public:
-  explicit ClusterMonitor(std::chrono::milliseconds lease) : lease_(lease) {}
+  ClusterMonitor(std::chrono::milliseconds lease, std::string redis_display)
+      : lease_(lease), redis_display_(std::move(redis_display)) {}
 
-  // Reads the registry (forgetting entries silent for ten worker timeouts) and the
-  // result counts. Coordinator thread; throws as the store does.
+  // Reads the registry (forgetting entries silent for ten worker timeouts), the result
+  // counts and Redis's memory. Coordinator thread; throws as the store does.
   void refresh(RedisConn& conn);
+
+  // An error reply the coordinator got: an OOM one marks Redis out of memory for a
+  // few seconds (until a refresh sees it has room again). Returns whether it was OOM.
+  bool note_redis_error(std::string_view error);
+  // Why Redis cannot take the cluster's writes now (out of memory), else nullopt.
+  std::optional<std::string> redis_problem() const;
+  // Whether Redis was out of memory within `window` (deliveries that failed meanwhile
+  // are not a worker crashing on a block).
+  bool out_of_memory_within(std::chrono::milliseconds window) const;
 
   // Seconds without a heartbeat after which a worker is not live (3 leases, >= 10 s).
   double worker_timeout_s() const;
@@ -53,7 +65,11 @@ class ClusterMonitor {
   bool live(const WorkerRecord& w, double now) const;
 
   const std::chrono::milliseconds lease_;
+  const std::string redis_display_;
   mutable std::mutex mu_;
+  RedisMemory memory_;
+  std::chrono::steady_clock::time_point oom_at_{};  // last OOM seen (error or INFO)
+  std::string oom_error_;                           // its error reply, if one
   std::vector<WorkerRecord> workers_;
   ClusterCounters counters_;
 };

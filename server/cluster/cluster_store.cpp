@@ -145,8 +145,8 @@ void sweep_other_runs(RedisConn& conn, std::string_view id, std::string_view run
 
 void write_job(RedisConn& conn, const JobRecord& job, const std::map<std::string, JobAsset>& assets) {
   const std::string jk = job_key(job.id);
-  conn.cmd({"HSET", jk, "run", job.run, "cancelled", "0", "spec", job.spec, "assets", job.manifest, "max_failures",
-            std::to_string(job.max_failures)});
+  conn.cmd({"HSET", jk, "run", job.run, "cancelled", "0", "spec", job.spec, "assets", job.manifest, "spec_mac",
+            job.spec_mac, "max_failures", std::to_string(job.max_failures)});
   conn.cmd({"HDEL", jk, "failed", "mismatch"});
   for (const auto& [rel, a] : assets) conn.cmd({"SET", asset_key(a.sha256), a.bytes, "NX"});
 }
@@ -200,16 +200,26 @@ std::vector<PassState> probe_passes(RedisConn& conn, const std::vector<PassProbe
   return out;
 }
 
-std::vector<std::optional<std::string>> read_entry_values(RedisConn& conn, const PassKeys& pass,
-                                                          const std::vector<size_t>& first_slots) {
-  std::vector<std::string> keys;
-  for (size_t first : first_slots) keys.push_back(pass.value(first));
+std::vector<StoredEntry> read_entry_values(RedisConn& conn, const PassKeys& pass, const std::vector<size_t>& first_slots) {
+  std::vector<std::string> keys, slots;
+  for (size_t first : first_slots) {
+    keys.push_back(pass.value(first));
+    slots.push_back(std::to_string(first));
+  }
   std::vector<std::string_view> argv = {"MGET"};
   for (const auto& k : keys) argv.push_back(k);
-  RValue v = checked(conn.cmd(argv), "MGET");
-  std::vector<std::optional<std::string>> out(first_slots.size());
-  for (size_t i = 0; i < out.size() && i < v.elems.size(); ++i) {
-    if (!v.elems[i].is_nil()) out[i] = std::move(v.elems[i].str);
+  conn.append(argv);
+  argv = {"HMGET", pass.digests};
+  for (const auto& s : slots) argv.push_back(s);
+  conn.append(argv);
+  RValue v = conn.get_reply();
+  RValue d = conn.get_reply();
+  checked(v, "MGET");
+  checked(d, "HMGET digests");
+  std::vector<StoredEntry> out(first_slots.size());
+  for (size_t i = 0; i < out.size(); ++i) {
+    if (i < v.elems.size() && !v.elems[i].is_nil()) out[i].results = std::move(v.elems[i].str);
+    if (i < d.elems.size() && !d.elems[i].is_nil()) out[i].digest = std::move(d.elems[i].str);
   }
   return out;
 }
@@ -281,6 +291,24 @@ std::vector<PassFlight> probe_flight(RedisConn& conn, const std::vector<PassProb
     out.push_back(std::move(f));
   }
   return out;
+}
+
+RedisMemory read_memory(RedisConn& conn) {
+  const RValue info = conn.cmd({"INFO", "memory"});
+  RedisMemory m;
+  auto field = [&](std::string_view name) -> uint64_t {
+    const std::string key = std::string(name) + ":";
+    size_t at = info.str.find(key);
+    while (at != std::string::npos && at != 0 && info.str[at - 1] != '\n') at = info.str.find(key, at + 1);
+    if (at == std::string::npos) return 0;
+    uint64_t v = 0;
+    const char* b = info.str.data() + at + key.size();
+    std::from_chars(b, info.str.data() + info.str.size(), v);
+    return v;
+  };
+  m.used = field("used_memory");
+  m.max = field("maxmemory");
+  return m;
 }
 
 std::optional<StoreCounters> read_store_counters(RedisConn& conn) {
@@ -384,11 +412,12 @@ void skip_entry(RedisConn& conn, std::string_view stream, std::string_view entry
 void count_redelivery(RedisConn& conn, std::string_view id) { conn.cmd({"HINCRBY", job_key(id), "redelivered", "1"}); }
 
 JobSource read_job_source(RedisConn& conn, std::string_view id) {
-  const RValue h = conn.cmd({"HMGET", job_key(id), "spec", "assets"});
+  const RValue h = conn.cmd({"HMGET", job_key(id), "spec", "assets", "spec_mac"});
   JobSource s;
-  if (h.elems.size() != 2) return s;
+  if (h.elems.size() != 3) return s;
   if (!h.elems[0].is_nil()) s.spec = h.elems[0].str;
   if (!h.elems[1].is_nil()) s.manifest = h.elems[1].str;
+  if (!h.elems[2].is_nil()) s.spec_mac = h.elems[2].str;
   return s;
 }
 

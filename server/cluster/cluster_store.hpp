@@ -42,7 +42,7 @@ Notified wait_notified(RedisConn& conn, std::string_view timeout_s);
 void sweep_other_runs(RedisConn& conn, std::string_view id, std::string_view run, std::string_view active);
 
 struct JobRecord {
-  std::string_view id, run, spec, manifest;
+  std::string_view id, run, spec, manifest, spec_mac;
   unsigned max_failures = 3;
 };
 // The job hash for a run (clears failed/mismatch marks) and its assets (SET NX).
@@ -74,9 +74,12 @@ struct PassState {
 // One round trip for all passes: how far each is, and its job's marks.
 std::vector<PassState> probe_passes(RedisConn& conn, const std::vector<PassProbe>& probes);
 
-// The stored results of the entries at these first slots (nullopt: not stored).
-std::vector<std::optional<std::string>> read_entry_values(RedisConn& conn, const PassKeys& pass,
-                                                          const std::vector<size_t>& first_slots);
+// The stored results of the entries at these first slots and their digests (nullopt:
+// not stored), in one round trip.
+struct StoredEntry {
+  std::optional<std::string> results, digest;
+};
+std::vector<StoredEntry> read_entry_values(RedisConn& conn, const PassKeys& pass, const std::vector<size_t>& first_slots);
 // The workers' measured compute time per block of the job (compute_s / computed), 0
 // before any was measured. Throws std::exception on a malformed field.
 double measured_block_seconds(RedisConn& conn, std::string_view id);
@@ -104,6 +107,12 @@ struct PassFlight {
 };
 // One round trip: what is in flight for each pass.
 std::vector<PassFlight> probe_flight(RedisConn& conn, const std::vector<PassProbe>& probes);
+
+// INFO memory: used_memory and maxmemory (0 = no limit).
+struct RedisMemory {
+  uint64_t used = 0, max = 0;
+};
+RedisMemory read_memory(RedisConn& conn);
 
 struct StoreCounters {
   uint64_t first = 0, dup_equal = 0, dup_differ = 0, stale = 0, failures = 0;
@@ -158,6 +167,7 @@ void count_redelivery(RedisConn& conn, std::string_view id);
 struct JobSource {
   std::optional<std::string> spec;
   std::string manifest;  // "" = no assets
+  std::string spec_mac;  // "" = none written
 };
 JobSource read_job_source(RedisConn& conn, std::string_view id);
 

@@ -86,10 +86,22 @@ std::string decode_entry(const PassWork& pass, const EntryPlan& plan, size_t e, 
                        res.size(), g1 - g0);
   }
   for (size_t j = 0; j < res.size(); ++j) {
-    const size_t slot = pass.groups[g0 + j].first;
+    const ResultGroup& g = pass.groups[g0 + j];
+    const size_t slot = g.first;
     if (res[j].block_index != pass.blocks[slot].index) {
       return fmt::format("the result in slot {} belongs to block {}, expected {}", slot, res[j].block_index,
                          pass.blocks[slot].index);
+    }
+    // A sample adds to a tally at most once: no tally of the group counts more samples
+    // than its blocks planned.
+    uint64_t planned = 0;
+    for (size_t b = g.first; b < g.first + g.count; ++b) planned += pass.blocks[b].sample_count;
+    for (size_t t = 0; t < res[j].tallies.size(); ++t) {
+      if (res[j].tallies[t].n > planned) {
+        return fmt::format("the result of the group at block slot {} counts {} samples in channel {}, but its blocks "
+                           "hold {}: the results were changed or a worker is broken",
+                           slot, res[j].tallies[t].n, res[j].first_channel + t, planned);
+      }
     }
   }
   for (auto& r : res) out.push_back(std::move(r));

@@ -46,7 +46,8 @@ PassPublication publication(const PassWork& pass, const EntryPlan& plan, const s
                             size_t& stored_blocks);
 
 // Decodes the stored results of entry `e` and checks them (one per result group, each
-// naming its group's first block); appends them to `out`. Returns an error that fails
+// naming its group's first block, no tally counting more samples than the group's
+// blocks planned); appends them to `out`. Returns an error that fails
 // the job, else "".
 std::string decode_entry(const PassWork& pass, const EntryPlan& plan, size_t e, std::string_view bytes,
                          std::vector<BlockResult>& out);

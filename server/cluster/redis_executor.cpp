@@ -9,6 +9,7 @@
 #include "common/protocol/pool_field.hpp"
 #include "server/cluster/cluster_store.hpp"
 #include "server/cluster/pass_verdict.hpp"
+#include "server/cluster/result_key.hpp"
 #include "server/cluster/wire.hpp"
 
 namespace tally::cluster {
@@ -30,7 +31,10 @@ double ms_since(Clock::time_point t) { return std::chrono::duration<double, std:
 }  // namespace
 
 RedisExecutor::RedisExecutor(RedisExecutorConfig config, ExecutorCallbacks callbacks)
-    : cfg_(std::move(config)), cb_(std::move(callbacks)), monitor_(cfg_.lease), waker_(cfg_.url) {
+    : cfg_(std::move(config)),
+      cb_(std::move(callbacks)),
+      monitor_(cfg_.lease, cfg_.url.display()),
+      waker_(cfg_.url) {
   not_ready_ = fmt::format("connecting to redis at {}", cfg_.url.display());
   thread_ = std::thread([this] { loop(); });
 }
@@ -116,18 +120,26 @@ ExecutorStats RedisExecutor::stats() const {
   return s;
 }
 
-std::optional<std::string> RedisExecutor::not_ready_reason() const {
+bool RedisExecutor::redis_reachable() const {
   std::lock_guard lock(mu_);
-  return not_ready_;
+  return !not_ready_.has_value();
+}
+
+std::optional<std::string> RedisExecutor::not_ready_reason() const {
+  {
+    std::lock_guard lock(mu_);
+    if (not_ready_) return not_ready_;
+  }
+  return monitor_.redis_problem();
 }
 
 std::optional<std::string> RedisExecutor::waiting_reason(const std::string& id) const {
   const std::optional<std::string> pool = pool_of(id);
   if (!pool) return std::nullopt;
-  if (auto why = not_ready_reason()) return fmt::format("paused: {}; the job resumes when Redis is back", *why);
+  if (auto why = not_ready_reason()) return fmt::format("paused: {}; the job resumes when Redis can take it", *why);
   if (!monitor_.any_live()) return std::string("waiting for a tally-worker: none is connected to Redis");
   if (!pool->empty() && !monitor_.any_live(*pool)) {
-    return fmt::format("waiting for a tally-worker in pool \"{}\": none of the live workers serves it", pool);
+    return fmt::format("waiting for a tally-worker in pool \"{}\": none of the live workers serves it", *pool);
   }
   return std::nullopt;
 }
@@ -212,8 +224,11 @@ void RedisExecutor::loop() {
       not_ready_ = fmt::format("redis unreachable at {}: {}", cfg_.url.display(), e.what());
       log::warn("{}; jobs are paused", *not_ready_);
     } catch (const std::exception& e) {
-      // A reply we did not expect (e.g. a key of the wrong type): log, retry later.
-      log::error("cluster coordinator: {}", e.what());
+      // A reply we did not expect (e.g. a key of the wrong type), or Redis out of
+      // memory (said once per episode: /readyz and the jobs' status say it meanwhile):
+      // log, retry later.
+      const bool was_full = monitor_.redis_problem().has_value();
+      if (!monitor_.note_redis_error(e.what()) || !was_full) log::error("cluster coordinator: {}", e.what());
       std::unique_lock lock(mu_);
       cv_.wait_for(lock, std::chrono::milliseconds(200), [&] { return stopping_; });
     }
@@ -278,7 +293,9 @@ void RedisExecutor::publish(Job& job) {
     // Once per run (and again if Redis lost it), not at every pass or reconnect: a
     // "failed" or "mismatch" mark a worker set while the connection was down must
     // survive a reconnect, and the spec and assets need not travel again.
-    write_job(*conn_, {job.ej.id, job.run, job.ej.spec_json, job.manifest, cfg_.max_failures}, job.assets);
+    const std::string mac =
+        cfg_.result_key.empty() ? std::string() : spec_mac(cfg_.result_key, job.ej.id, job.run, job.ej.spec_json, job.manifest);
+    write_job(*conn_, {job.ej.id, job.run, job.ej.spec_json, job.manifest, mac, cfg_.max_failures}, job.assets);
     job.hash_written = true;
   }
   if (!job.cur.published) publish_pass(job, job.cur);
@@ -389,13 +406,24 @@ std::string RedisExecutor::read_results(Job& job, PassRun& run, bool prefetch, s
   if (want.empty()) return {};
   std::vector<size_t> firsts;
   for (size_t e : want) firsts.push_back(plan.entries[e].first);
-  const std::vector<std::optional<std::string>> values = read_entry_values(*conn_, keys, firsts);
+  const std::vector<StoredEntry> values = read_entry_values(*conn_, keys, firsts);
   for (size_t i = 0; i < want.size(); ++i) {
-    if (!values[i]) continue;
+    const std::optional<std::string>& v = values[i].results;
+    if (!v) continue;
+    // The digest the store kept with the first results (keyed with --result-key-file):
+    // results changed in Redis fail the job instead of merging other bits.
+    const std::string slot = std::to_string(firsts[i]);
+    if (!values[i].digest ||
+        !same_digest(*values[i].digest, entry_digest(cfg_.result_key, job.ej.id, job.run, pass.pass, slot, *v))) {
+      return fmt::format("the results of the entry at block slot {} of pass {} do not match their {} digest: they "
+                         "were changed in Redis (or a worker's --result-key-file differs from the server's); the job "
+                         "fails rather than merge them",
+                         slot, pass.pass, cfg_.result_key.empty() ? "SHA-1" : "keyed (HMAC-SHA-256)");
+    }
     std::vector<BlockResult> res;
-    if (std::string error = decode_entry(pass, plan, want[i], *values[i], res); !error.empty()) return error;
-    bytes += values[i]->size();
-    run.bytes_read += values[i]->size();
+    if (std::string error = decode_entry(pass, plan, want[i], *v, res); !error.empty()) return error;
+    bytes += v->size();
+    run.bytes_read += v->size();
     const size_t g0 = plan.entry_groups[want[i]];
     for (size_t j = 0; j < res.size(); ++j) run.got[g0 + j] = std::move(res[j]);
     run.got_count += res.size();
@@ -577,8 +605,12 @@ void RedisExecutor::refresh() {
   // than loop forever (crash_loop).
   std::vector<std::pair<std::string, std::string>> crashed;
   std::map<std::string, ExecutorStats::JobBlocks> flight;
+  // While Redis is (or was lately) out of memory, deliveries fail for that: no crash.
+  const bool oom = monitor_.out_of_memory_within(cfg_.lease * (cfg_.max_failures + 2));
   for (size_t i = 0; i < probes.size(); ++i) {
-    if (auto error = crash_loop(flights[i], cfg_.max_failures)) crashed.emplace_back(probes[i].id, std::move(*error));
+    if (auto error = crash_loop(flights[i], cfg_.max_failures); error && !oom) {
+      crashed.emplace_back(probes[i].id, std::move(*error));
+    }
     flight[probes[i].id] = blocks_in_flight(flights[i], probes[i].n, probes[i].k);
   }
   std::unique_lock lock(mu_);

@@ -40,6 +40,7 @@ struct RedisExecutorConfig {
   std::string asset_store;                 // the server's asset store ("sha256:" names), JobLimits::asset_store
   size_t digest_passes = 16;               // passes whose result digests stay for late duplicates
   size_t max_entry_blocks = 4096;          // cap on blocks per stream entry (benchmarks set 1)
+  std::string result_key;                  // --result-key-file's bytes ("" = unkeyed digests), result_key.hpp
 };
 
 class RedisExecutor final : public Executor {
@@ -54,7 +55,9 @@ class RedisExecutor final : public Executor {
   // Leaves Redis as it is (a restarted coordinator sweeps the old run's keys).
   void stop() override;
   ExecutorStats stats() const override;
+  // Redis unreachable, or out of memory (ClusterMonitor::redis_problem).
   std::optional<std::string> not_ready_reason() const override;
+  bool redis_reachable() const;
   std::optional<std::string> waiting_reason(const std::string& id) const override;
   // A job whose pool has no live worker reads as queued (its waiting reason names the pool).
   bool holds_queued(const std::string& id) const override;

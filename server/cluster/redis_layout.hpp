@@ -4,7 +4,8 @@
 // are cluster_store.hpp, the one place that speaks to Redis about jobs. docs/cluster.md
 // describes the layout in prose.
 //
-//   tally:job:{id}                  hash: run, cancelled, spec, assets, max_failures,
+//   tally:job:{id}                  hash: run, cancelled, spec, assets, spec_mac (result_key.hpp),
+//                                   max_failures,
 //                                   failed (error text), mismatch, redelivered,
 //                                   compute_s + computed (workers' seconds and blocks)
 //   tally:s:{id}:{run}:{pass}       stream of the pass's blocks, k consecutive ones per

@@ -17,6 +17,7 @@
 #include "common/protocol/spec_reader.hpp"
 #include "server/cluster/assets.hpp"
 #include "server/cluster/cluster_store.hpp"
+#include "server/cluster/result_key.hpp"
 #include "server/cluster/wire.hpp"
 
 namespace tally::cluster {
@@ -249,6 +250,12 @@ class Worker {
     const JobSource src = read_job_source(conn, sk.id);
     try {
       if (!src.spec) throw std::runtime_error("the job's spec is missing from Redis");
+      if (!cfg_.result_key.empty() &&
+          !same_digest(src.spec_mac, spec_mac(cfg_.result_key, sk.id, sk.run, *src.spec, src.manifest))) {
+        throw std::runtime_error("the job's spec in Redis does not match its MAC (--result-key-file): it was written "
+                                 "by someone without the cluster's key, or the server's key differs from this "
+                                 "worker's; refused");
+      }
       const nlohmann::json spec = nlohmann::json::parse(*src.spec);
       JobLimits limits = cfg_.limits;
       limits.asset_dir.clear();  // only the job's own assets, never a local directory
@@ -336,6 +343,7 @@ class Worker {
   template <class Call>
   auto retrying(std::unique_ptr<RedisConn>& conn, Call&& call) {
     const auto deadline = Clock::now() + 5s;
+    bool oom_logged = false;
     for (;;) {
       try {
         if (!conn) conn = std::make_unique<RedisConn>(cfg_.url);
@@ -346,7 +354,17 @@ class Worker {
         log(fmt::format("storing results: {}; reconnecting to store them", e.what()));
         std::this_thread::sleep_for(100ms);
       } catch (const RedisReplyError& e) {
-        if (!std::string_view(e.what()).starts_with(kUploadMissing) || stop_ || Clock::now() >= deadline) throw;
+        const std::string_view what = e.what();
+        if (what.find("OOM ") != std::string_view::npos && !stop_) {
+          // Redis is out of memory: keep the computed results (the heartbeat keeps the
+          // entry's lease) and store them once it has room; the coordinator says why
+          // the job waits. Logged once per episode.
+          if (!oom_logged) log(fmt::format("storing results: {}; holding them until Redis has memory", what));
+          oom_logged = true;
+          std::this_thread::sleep_for(200ms);
+          continue;
+        }
+        if (!what.starts_with(kUploadMissing) || stop_ || Clock::now() >= deadline) throw;
         log(fmt::format("storing results: {}; uploading them again", e.what()));
       }
     }
@@ -431,7 +449,7 @@ class Worker {
       log(fmt::format("{}{}", error, r == 2 ? " (delivery limit reached: the job fails)" : " (re-queued)"));
       return;
     }
-    const std::string digest = result_digest(results);
+    const std::string digest = entry_digest(cfg_.result_key, sk->id, sk->run, sk->pass, slot, results);
     const size_t bytes = results.size();
     const std::string upload = upload_key(consumer);
     const EntryStore store{&keys, sk->id, sk->run, slot, entry_id, upload, meta->entries, secs, block_count, digest,

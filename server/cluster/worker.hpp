@@ -30,6 +30,7 @@ struct WorkerConfig {
   JobLimits limits;  // re-validation of every spec read from Redis
   std::filesystem::path cache_dir;  // asset cache
   std::string health_file;          // touched at every heartbeat (liveness probes)
+  std::string result_key;           // --result-key-file's bytes ("" = unkeyed), result_key.hpp
   bool verbose = false;
   // Tests only (tests/cluster's fault-injecting worker): wraps every compiled kernel.
   // Empty in tally-worker.

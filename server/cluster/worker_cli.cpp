@@ -11,6 +11,7 @@
 #include <thread>
 
 #include "common/protocol/pool_field.hpp"
+#include "server/cluster/result_key.hpp"
 #include "server/cluster/worker.hpp"
 #include "server/job_limit_flags.hpp"
 
@@ -34,6 +35,9 @@ int worker_main(int argc, char** argv,
   app.add_option("--name", cfg.name, "unique worker name (default: host-pid)");
   app.add_option("--cache-dir", cache_dir, "asset cache (default: $TMPDIR/tally-worker-<name>)");
   app.add_option("--health-file", cfg.health_file, "file rewritten at every heartbeat (for liveness probes)");
+  std::string key_file;
+  app.add_option("--result-key-file", key_file,
+                 "the cluster's shared secret (as tally-server's): results and specs in Redis are signed with it");
   app.add_option("--pool", cfg.pools,
                  "a worker pool this worker serves (repeatable): it takes jobs whose spec names one of its pools, "
                  "and jobs without a pool; without --pool, jobs without a pool only")
@@ -49,6 +53,14 @@ int worker_main(int argc, char** argv,
   } catch (const std::exception& e) {
     fmt::print(stderr, "tally-worker: --redis: {}\n", e.what());
     return 2;
+  }
+  if (!key_file.empty()) {
+    try {
+      cfg.result_key = load_result_key(key_file);
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "tally-worker: --result-key-file: {}\n", e.what());
+      return 2;
+    }
   }
   cfg.wrap_kernel = std::move(wrap_kernel);
   char host[256] = {};

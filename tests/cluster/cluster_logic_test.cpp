@@ -122,6 +122,20 @@ TEST(PassEntries, DecodeChecksCountAndBlocks) {
   append_entry_result(two, encode_result(result(3)));
   EXPECT_EQ(decode_entry(p, plan, 1, two, out), "the entry at block slot 2 has 2 results, expected 1 (one per result group)");
   EXPECT_NE(decode_entry(p, plan, 1, "junk", out).find("cannot be decoded"), std::string::npos);
+  // The group at slot 2 holds blocks 2 and 3, 10 samples each: a tally may count 20, not 21.
+  BlockResult full = result(2);
+  full.tallies.resize(3);
+  full.first_channel = 4;
+  full.tallies[2].n = 20;
+  std::string ok;
+  append_entry_result(ok, encode_result(full));
+  EXPECT_EQ(decode_entry(p, plan, 1, ok, out), "");
+  full.tallies[2].n = 21;
+  std::string over;
+  append_entry_result(over, encode_result(full));
+  EXPECT_EQ(decode_entry(p, plan, 1, over, out),
+            "the result of the group at block slot 2 counts 21 samples in channel 6, but its blocks hold 20: the "
+            "results were changed or a worker is broken");
 }
 
 TEST(PassVerdict, MarksBeforeCountsAndLostPassesRepublish) {
