@@ -138,12 +138,18 @@ TEST(PassEntries, DecodeChecksCountAndBlocks) {
             "results were changed or a worker is broken");
 }
 
-TEST(PassVerdict, MarksBeforeCountsAndLostPassesRepublish) {
+// The state of a pass of run 1.1 whose job hash was read: `stored` entries, stream there or not.
+PassState state_of(long long stored, bool stream) {
   PassState st;
   st.job_hash_read = true;
   st.run = "1.1";
-  st.entries_stored = 3;
-  st.stream_exists = true;
+  st.entries_stored = stored;
+  st.stream_exists = stream;
+  return st;
+}
+
+TEST(PassVerdict, MarksBeforeCountsAndLostPassesRepublish) {
+  PassState st = state_of(3, true);
   EXPECT_EQ(judge_pass(st, 4).what, PassVerdict::nothing);
   EXPECT_EQ(judge_pass(st, 3).what, PassVerdict::merge);
   st.mismatch = "7";
@@ -156,12 +162,7 @@ TEST(PassVerdict, MarksBeforeCountsAndLostPassesRepublish) {
   PassState lost;
   lost.job_hash_read = true;  // no run field: Redis lost the job
   EXPECT_EQ(judge_pass(lost, 1).what, PassVerdict::republish);
-  PassState gone;
-  gone.job_hash_read = true;
-  gone.run = "1.1";
-  gone.entries_stored = 0;
-  gone.stream_exists = false;
-  EXPECT_EQ(judge_pass(gone, 1).what, PassVerdict::republish);
+  EXPECT_EQ(judge_pass(state_of(0, false), 1).what, PassVerdict::republish);  // the stream is gone
 }
 
 TEST(PassVerdict, FlightCountsAndCrashLoops) {
