@@ -10,10 +10,12 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "server/cluster/assets.hpp"
 #include "server/cluster/pass_entries.hpp"
+#include "server/cluster/redis_conn.hpp"
 #include "server/cluster/redis_layout.hpp"
 #include "server/executor/executor.hpp"
 
@@ -60,6 +62,13 @@ struct ClusterJob {
   // The current pass was merged: its digests are kept (`keep` passes at most); returns
   // the keys of the digests to delete now.
   std::vector<PassKeys> retire_current(size_t keep);
+
+  // Reads the entries of `pass` (cur or *ahead) not read yet into its `got`, decoded
+  // and checked (digest under `key`, check_entry_digest; shape and counts,
+  // decode_entry). `prefetch`: only the entries Redis lists now (while the pass runs);
+  // else every missing one. Adds the bytes read to `bytes`. Returns an error that
+  // fails the job, else "".
+  std::string read_results(RedisConn& conn, ClusterPassRun& pass, bool prefetch, size_t& bytes, std::string_view key);
 
   // Moves on to `next`, the pass the job manager planned after the current one: the
   // pass published ahead is adopted if it is the same plan (its results so far

@@ -58,6 +58,14 @@ bool ClusterMonitor::any_live(const std::string& pool) const {
   });
 }
 
+std::optional<std::string> ClusterMonitor::waiting_for_workers(const std::string& pool) const {
+  if (!any_live()) return std::string("waiting for a tally-worker: none is connected to Redis");
+  if (!pool.empty() && !any_live(pool)) {
+    return fmt::format("waiting for a tally-worker in pool \"{}\": none of the live workers serves it", pool);
+  }
+  return std::nullopt;
+}
+
 std::map<std::string, unsigned> ClusterMonitor::live_workers_by_pool() const {
   const double now = unix_seconds();
   std::lock_guard lock(mu_);

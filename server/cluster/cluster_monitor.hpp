@@ -51,6 +51,9 @@ class ClusterMonitor {
   unsigned live_threads() const;
   // Whether a worker is live now; with `pool`, one started with --pool pool.
   bool any_live(const std::string& pool = {}) const;
+  // Why a job needing `pool` ("" = any) waits for workers: none is live, or none
+  // serves its pool; nullopt when one can compute it.
+  std::optional<std::string> waiting_for_workers(const std::string& pool) const;
   // Live workers per pool they serve (a worker counts in each of its pools).
   std::map<std::string, unsigned> live_workers_by_pool() const;
   // Workers with a current job, and their threads (ExecutorStats).

@@ -10,7 +10,6 @@
 #include "server/cluster/cluster_store.hpp"
 #include "server/cluster/pass_verdict.hpp"
 #include "server/cluster/result_key.hpp"
-#include "server/cluster/wire.hpp"
 
 namespace tally::cluster {
 
@@ -137,11 +136,7 @@ std::optional<std::string> RedisExecutor::waiting_reason(const std::string& id) 
   const std::optional<std::string> pool = pool_of(id);
   if (!pool) return std::nullopt;
   if (auto why = not_ready_reason()) return fmt::format("paused: {}; the job resumes when Redis can take it", *why);
-  if (!monitor_.any_live()) return std::string("waiting for a tally-worker: none is connected to Redis");
-  if (!pool->empty() && !monitor_.any_live(*pool)) {
-    return fmt::format("waiting for a tally-worker in pool \"{}\": none of the live workers serves it", *pool);
-  }
-  return std::nullopt;
+  return monitor_.waiting_for_workers(*pool);
 }
 
 std::set<std::string> RedisExecutor::job_pools() const {
@@ -293,8 +288,8 @@ void RedisExecutor::publish(Job& job) {
     // Once per run (and again if Redis lost it), not at every pass or reconnect: a
     // "failed" or "mismatch" mark a worker set while the connection was down must
     // survive a reconnect, and the spec and assets need not travel again.
-    const std::string mac =
-        cfg_.result_key.empty() ? std::string() : spec_mac(cfg_.result_key, job.ej.id, job.run, job.ej.spec_json, job.manifest);
+    const std::string& key = cfg_.result_key;
+    const std::string mac = key.empty() ? std::string() : spec_mac(key, job.ej.id, job.run, job.ej.spec_json, job.manifest);
     write_job(*conn_, {job.ej.id, job.run, job.ej.spec_json, job.manifest, mac, cfg_.max_failures}, job.assets);
     job.hash_written = true;
   }
@@ -376,61 +371,6 @@ void RedisExecutor::poll(const std::vector<std::string>& ids) {
   }
 }
 
-std::string RedisExecutor::read_results(Job& job, PassRun& run, bool prefetch, size_t& bytes) {
-  const PassWork& pass = run.work;
-  const EntryPlan& plan = run.plan;
-  const size_t ng = pass.groups.size();
-  if (run.got.size() != ng) {
-    run.got.assign(ng, std::nullopt);
-    run.got_count = 0;
-  }
-  const PassKeys keys(job.ej.id, job.run, pass.pass);
-  std::vector<size_t> want;  // indices into plan.entries
-  if (prefetch) {
-    for (const std::string& k : stored_entry_slots(*conn_, keys)) {
-      size_t first = 0;
-      try {
-        first = std::stoull(k);
-      } catch (const std::exception&) {
-        return "a result field is not a slot number";
-      }
-      const size_t e = plan.entry_at(first);
-      if (e == EntryPlan::npos) return fmt::format("result field {} is not the first slot of an entry of the pass", first);
-      if (!run.got[plan.entry_groups[e]]) want.push_back(e);
-    }
-  } else {
-    for (size_t e = 0; e < plan.entries.size(); ++e) {
-      if (!run.got[plan.entry_groups[e]]) want.push_back(e);
-    }
-  }
-  if (want.empty()) return {};
-  std::vector<size_t> firsts;
-  for (size_t e : want) firsts.push_back(plan.entries[e].first);
-  const std::vector<StoredEntry> values = read_entry_values(*conn_, keys, firsts);
-  for (size_t i = 0; i < want.size(); ++i) {
-    const std::optional<std::string>& v = values[i].results;
-    if (!v) continue;
-    // The digest the store kept with the first results (keyed with --result-key-file):
-    // results changed in Redis fail the job instead of merging other bits.
-    const std::string slot = std::to_string(firsts[i]);
-    if (!values[i].digest ||
-        !same_digest(*values[i].digest, entry_digest(cfg_.result_key, job.ej.id, job.run, pass.pass, slot, *v))) {
-      return fmt::format("the results of the entry at block slot {} of pass {} do not match their {} digest: they "
-                         "were changed in Redis (or a worker's --result-key-file differs from the server's); the job "
-                         "fails rather than merge them",
-                         slot, pass.pass, cfg_.result_key.empty() ? "SHA-1" : "keyed (HMAC-SHA-256)");
-    }
-    std::vector<BlockResult> res;
-    if (std::string error = decode_entry(pass, plan, want[i], *v, res); !error.empty()) return error;
-    bytes += v->size();
-    run.bytes_read += v->size();
-    const size_t g0 = plan.entry_groups[want[i]];
-    for (size_t j = 0; j < res.size(); ++j) run.got[g0 + j] = std::move(res[j]);
-    run.got_count += res.size();
-  }
-  return {};
-}
-
 void RedisExecutor::prefetch() {
   // Results are read and decoded while the passes run (one HKEYS per pass, then only the
   // entries not read yet), so the pass boundary, where the current pass is merged,
@@ -446,8 +386,10 @@ void RedisExecutor::prefetch() {
     Job* job = find(id);
     if (!job) continue;
     size_t bytes = 0;
-    std::string error = read_results(*job, job->cur, true, bytes);
-    if (error.empty() && job->ahead && job->ahead->published) error = read_results(*job, *job->ahead, true, bytes);
+    std::string error = job->read_results(*conn_, job->cur, true, bytes, cfg_.result_key);
+    if (error.empty() && job->ahead && job->ahead->published) {
+      error = job->read_results(*conn_, *job->ahead, true, bytes, cfg_.result_key);
+    }
     if (!error.empty()) {
       log::job(log::Level::error, id, "{}", error);
       leave(id, true, error);
@@ -470,7 +412,7 @@ void RedisExecutor::merge(const std::string& id) {
   const auto t_read = Clock::now();
   const size_t had = run.got.size() == ng ? run.got_count : 0;
   size_t result_bytes = 0;
-  const std::string error = read_results(*job, run, false, result_bytes);
+  const std::string error = job->read_results(*conn_, run, false, result_bytes, cfg_.result_key);
   if (!error.empty() || run.got_count >= run.work.groups.size()) job->last_pass_bytes = run.bytes_read;
   if (!error.empty()) {
     log::job(log::Level::error, id, "{}", error);

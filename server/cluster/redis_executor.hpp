@@ -80,11 +80,6 @@ class RedisExecutor final : public Executor {
   // Checks the jobs' result hashes; merges complete passes. `ids` empty: all jobs.
   void poll(const std::vector<std::string>& ids);
   void merge(const std::string& id);
-  // Reads the entries of the job's current pass not read yet into Job::got, decoded and
-  // checked. `prefetch`: only the entries Redis lists now (while the pass runs); else
-  // every missing one. Adds the bytes read to `bytes`. Returns an error that fails the
-  // job (results that cannot be decoded or belong to other blocks), else "".
-  std::string read_results(Job& job, PassRun& pass, bool prefetch, size_t& bytes);
   void prefetch();
   // The job with this id, or null (takes mu_ for the lookup only; a Job is erased only by
   // the coordinator thread, which is the caller).

@@ -61,6 +61,15 @@ std::string entry_digest(std::string_view key, std::string_view job, std::string
   return hmac_hex(key, {head, results});
 }
 
+std::string check_entry_digest(std::string_view key, std::string_view job, std::string_view run, uint64_t pass,
+                               std::string_view slot, std::string_view results, const std::optional<std::string>& digest) {
+  if (digest && same_digest(*digest, entry_digest(key, job, run, pass, slot, results))) return {};
+  return fmt::format("the results of the entry at block slot {} of pass {} do not match their {} digest: they were "
+                     "changed in Redis (or a worker's --result-key-file differs from the server's); the job fails "
+                     "rather than merge them",
+                     slot, pass, key.empty() ? "SHA-1" : "keyed (HMAC-SHA-256)");
+}
+
 std::string spec_mac(std::string_view key, std::string_view job, std::string_view run, std::string_view spec,
                      std::string_view manifest) {
   const std::string head = fmt::format("tally-spec\n{}\n{}\n{}\n", job, run, spec.size());

@@ -7,6 +7,7 @@
 // job failing loudly; without one, the digests are plain SHA-1 (they catch corruption,
 // not an attacker). docs/security.md, "Cluster mode".
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <string_view>
 
@@ -21,6 +22,11 @@ std::string load_result_key(const std::string& path);
 // lower-case hex; without a key, result_digest(results) (SHA-1, wire.hpp).
 std::string entry_digest(std::string_view key, std::string_view job, std::string_view run, uint64_t pass,
                          std::string_view slot, std::string_view results);
+
+// What is wrong with the results of the entry at `slot` given the digest the store kept
+// with them (nullopt: none): an error that fails the job, or "" when they match.
+std::string check_entry_digest(std::string_view key, std::string_view job, std::string_view run, uint64_t pass,
+                               std::string_view slot, std::string_view results, const std::optional<std::string>& digest);
 
 // HMAC-SHA-256 under `key` of the job's id, run, spec and asset manifest, lower-case hex.
 std::string spec_mac(std::string_view key, std::string_view job, std::string_view run, std::string_view spec,
