@@ -20,6 +20,7 @@
 #include "server/auth/token.hpp"
 #include "server/cluster/cluster_http.hpp"
 #include "server/cluster/redis_executor.hpp"
+#include "server/cluster/result_key.hpp"
 #include "common/log/log.hpp"
 #include "server/executor/cpu_quota.hpp"
 #include "server/http/fd_limit.hpp"
@@ -149,6 +150,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--max-deliveries", max_deliveries,
                  "cluster mode: failed deliveries of one block that fail its job")->capture_default_str();
+  std::string result_key_file;
+  app.add_option("--result-key-file", result_key_file,
+                 "cluster mode: the shared secret (>= 32 bytes) tally-workers hold too; results and specs in Redis are "
+                 "signed with it (HMAC-SHA-256), so one who can write to Redis without it cannot change them");
   CLI11_PARSE(app, argc, argv);
   log::configure(*log::parse_level(log_level), *log::parse_format(log_format));
 
@@ -299,6 +304,14 @@ int main(int argc, char** argv) {
     }
     rc.lease = std::chrono::milliseconds(static_cast<long long>(lease_s * 1000.0));
     rc.max_failures = max_deliveries;
+    if (!result_key_file.empty()) {
+      try {
+        rc.result_key = cluster::load_result_key(result_key_file);
+      } catch (const std::exception& e) {
+        log::error("--result-key-file: {}", e.what());
+        return 2;
+      }
+    }
     rc.asset_dir = mc.limits.asset_dir;
     rc.asset_store = (std::filesystem::path(data_dir) / "assets" / "sha256").string();
     mc.make_executor = [rc, &cluster_executor](ExecutorCallbacks cb) {

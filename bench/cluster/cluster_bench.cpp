@@ -28,7 +28,7 @@
 #include <thread>
 
 #include "common/protocol/job_kinds.hpp"
-#include "server/cluster/protocol.hpp"
+#include "server/cluster/redis_layout.hpp"
 #include "server/cluster/redis_executor.hpp"
 #include "server_process.hpp"
 

@@ -13,6 +13,7 @@
 #include "common/integrate/auto_estimator.hpp"
 #include "common/integrate/cubature.hpp"
 #include "common/integrate/vegas.hpp"
+#include "common/spec/pool_field.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "common/spec/stop_rule_json.hpp"
 #include "common/sampling/ball_simplex.hpp"
@@ -500,6 +501,7 @@ std::unique_ptr<IntegrationJob> compile_integration_job(const json& spec, const 
   SpecReader top(spec, "");
   top.string("kind");
   top.string_or("name", "", 200);
+  read_pool(top);  // every kind takes a worker pool (cluster mode)
   IntegrationJob::Setup job;
   job.seed = top.integer_or("seed", 1, 0, std::numeric_limits<uint64_t>::max());
 

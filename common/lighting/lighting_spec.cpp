@@ -6,6 +6,7 @@
 #include <functional>
 #include <limits>
 
+#include "common/spec/pool_field.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "common/lighting/compiled_scene.hpp"
 #include "common/lighting/image_kernel.hpp"
@@ -75,6 +76,7 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
   SpecReader root(spec, "");
   root.string("kind");
   root.string_or("name", "", 200);  // every kind takes a name (docs/jobs.md)
+  read_pool(root);                  // and a worker pool (cluster mode)
   const uint64_t seed = root.integer_or("seed", 1, 0, std::numeric_limits<uint64_t>::max());
   StopRule stop_rule;
   const bool full = root.enumeration_or("plan", "auto", {"auto", "full"}) == "full";

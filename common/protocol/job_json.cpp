@@ -200,7 +200,7 @@ json status_json(const JobSnapshot& job, double now, json links) {
   if (job.status == JobStatus::queued && !job.executor.waiting_reason.empty()) {
     j["waiting_reason"] = job.executor.waiting_reason;  // "preempted": paused for a job that went first
   }
-  if (job.status == JobStatus::running) {
+  if (job.status == JobStatus::running || job.executor.held_queued) {
     if (!job.executor.waiting_reason.empty()) j["waiting_reason"] = job.executor.waiting_reason;
     if (job.executor.has_blocks) {
       j["blocks"] = {{"pending", job.executor.pending},

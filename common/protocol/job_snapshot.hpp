@@ -25,6 +25,7 @@ inline bool is_terminal(JobStatus s) { return s != JobStatus::queued && s != Job
 // the in-process executor leaves it empty, and the views then add nothing.
 struct ExecutorNote {
   std::string waiting_reason;  // why the job makes no progress now ("": it does)
+  bool held_queued = false;    // a running job nothing can compute yet (no worker in its pool): reads as queued
   bool has_blocks = false;     // the counts below are known
   uint64_t pending = 0, in_flight = 0, redelivered = 0;  // blocks of the current pass
 };

@@ -3,8 +3,11 @@
 // renders it with the protocol layer's views (common/protocol/job_json.hpp).
 #include <fmt/format.h>
 
+#include <algorithm>
+
 #include "common/protocol/job_json.hpp"
 #include "common/protocol/job_kinds.hpp"
+#include "common/spec/pool_field.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "common/spec/stop_rule_json.hpp"
 #include "server/api/job_event_stream.hpp"
@@ -67,6 +70,23 @@ Submitter RequestHandler::submitter(const HttpRequest& req) const {
   return s;
 }
 
+void RequestHandler::check_pool(const HttpRequest& req, const json& spec) const {
+  const Principal& p = *req.principal;
+  if (p.pools.empty()) return;
+  const std::string pool = spec_pool(spec);
+  const std::string allowed = fmt::format("\"{}\"", fmt::join(p.pools, "\", \""));
+  if (pool.empty()) {
+    throw HttpError(403, fmt::format("principal \"{}\" may only run jobs in the worker pools {}: the spec must name one",
+                                     p.name, allowed),
+                    "/pool");
+  }
+  if (std::find(p.pools.begin(), p.pools.end(), pool) == p.pools.end()) {
+    throw HttpError(403, fmt::format("principal \"{}\" may not use worker pool \"{}\"; its pools are {}", p.name, pool,
+                                     allowed),
+                    "/pool");
+  }
+}
+
 HttpResponse RequestHandler::post_job(const HttpRequest& req, const PathParams&) {
   const int priority = parse_priority(req);
   const json spec = parse_json_body(req);
@@ -80,6 +100,7 @@ HttpResponse RequestHandler::post_job(const HttpRequest& req, const PathParams&)
     }
     use_cache = c == "true";
   }
+  check_pool(req, spec);
   auto job = manager_.submit(spec, priority, submitter(req), use_cache);
   const JobSnapshot s = manager_.snapshot(*job);
   HttpResponse r = json_response(202, {{"id", s.id},
@@ -185,6 +206,7 @@ HttpResponse RequestHandler::extend_job(const HttpRequest& req, const PathParams
 HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathParams&) {
   const json spec = parse_json_body(req);
   check_assets(req, spec);
+  check_pool(req, spec);
   const Submitter who = submitter(req);
   const JobLimits limits = *who.limits;
   // Within the memory budget: the pilot would allocate the state too.

@@ -93,6 +93,9 @@ class RequestHandler final : public HttpHandler {
   // JobLimits::may_read_asset for `p`: the stored assets it uploaded (every one for an
   // admin), so a "sha256:" name inside a glTF or OBJ is checked as one in the spec.
   std::function<bool(std::string_view)> asset_reader_of(const Principal& p) const;
+  // A principal restricted to worker pools (auth file "pools") names one of them in
+  // the spec's "pool": else 403 naming /pool.
+  void check_pool(const HttpRequest& request, const nlohmann::json& spec) const;
   // The one lookup of every job route: the job if the caller may see it, else 404
   // (another tenant's job is indistinguishable from a missing one).
   std::shared_ptr<Job> visible_job(const HttpRequest& request, const std::string& id) const;

@@ -72,6 +72,7 @@ std::optional<Principal> AccessControl::principal_locked(const Entry& e) const {
   p.name = e.entry.name;
   p.role = e.entry.role;
   p.quotas = e.entry.quotas;
+  p.pools = e.entry.pools;
   p.principal_revocation = e.revocation;
   return p;
 }

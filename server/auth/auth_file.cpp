@@ -2,10 +2,12 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <fstream>
 #include <set>
 #include <sstream>
 
+#include "common/spec/pool_field.hpp"
 #include "common/spec/spec_reader.hpp"
 
 namespace tally {
@@ -67,6 +69,27 @@ Quotas parse_quotas(SpecReader rd) {
   return q;
 }
 
+// "pools": a non-empty array of distinct pool names.
+std::vector<std::string> parse_pools(SpecReader& rd) {
+  const json& list = rd.at("pools");
+  const std::string at = rd.pointer_of("pools");
+  if (!list.is_array() || list.empty()) throw SpecError(at, "must be a non-empty array of worker pool names");
+  std::vector<std::string> pools;
+  for (size_t i = 0; i < list.size(); ++i) {
+    const std::string p = json_pointer_append(at, i);
+    if (!list[i].is_string()) throw SpecError(p, "must be a string");
+    const std::string name = list[i].get<std::string>();
+    if (std::string why = pool_name_problem(name); !why.empty()) {
+      throw SpecError(p, fmt::format("a worker pool's name {}, got \"{}\"", why, name));
+    }
+    if (std::find(pools.begin(), pools.end(), name) != pools.end()) {
+      throw SpecError(p, fmt::format("pool \"{}\" is listed twice", name));
+    }
+    pools.push_back(name);
+  }
+  return pools;
+}
+
 }  // namespace
 
 AuthFile parse_auth_file(const json& j) {
@@ -90,6 +113,7 @@ AuthFile parse_auth_file(const json& j) {
                       "must be the token's SHA-256 as 64 lower-case hex digits (tally-server token new prints it)");
     }
     if (rd.has("quotas")) e.quotas = parse_quotas(rd.object("quotas"));
+    if (rd.has("pools")) e.pools = parse_pools(rd);
     rd.finish();
     if (!names.insert(e.name).second) throw SpecError(rd.pointer_of("name"), fmt::format("duplicate name \"{}\"", e.name));
     if (!hashes.insert(e.token_sha256).second) {
@@ -130,6 +154,7 @@ json principal_entry_json(const PrincipalEntry& e) {
     q["burst"] = e.quotas.burst;
   }
   if (!q.empty()) j["quotas"] = q;
+  if (!e.pools.empty()) j["pools"] = e.pools;
   return j;
 }
 

@@ -20,6 +20,7 @@ struct PrincipalEntry {
   Role role = Role::user;
   std::string token_sha256;  // lower-case hex
   Quotas quotas;
+  std::vector<std::string> pools;  // "pools": the only worker pools its jobs may name (empty: any)
 };
 
 struct AuthFile {

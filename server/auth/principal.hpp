@@ -7,6 +7,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <vector>
 
 namespace tally {
 
@@ -38,6 +39,8 @@ struct Principal {
   std::string name;  // "" = anonymous (access control off)
   Role role = Role::admin;
   Quotas quotas;
+  // Worker pools its jobs may name (the spec's "pool"); empty: any pool, or none.
+  std::vector<std::string> pools;
   bool via_cookie = false;  // authenticated by a browser session cookie
   // Set when revoked (token removed or changed, session logged out): streams opened
   // by this principal end. Null when access control is off.

@@ -9,7 +9,7 @@
 
 #include "common/lighting/asset_resolver.hpp"
 #include "common/lighting/scene_json.hpp"
-#include "server/cluster/protocol.hpp"
+#include "server/cluster/cluster_store.hpp"
 #include "server/cluster/redis_conn.hpp"
 
 namespace tally::cluster {
@@ -200,14 +200,14 @@ fs::path materialize_assets(RedisConn& conn, const json& manifest, const fs::pat
     const std::string sha = v.get<std::string>();
     const fs::path blob = blobs / sha;
     if (!fs::exists(blob)) {
-      const RValue r = conn.cmd({"GET", asset_key(sha)});
-      if (r.is_nil()) throw std::runtime_error(fmt::format("asset {} ({}) is missing from Redis", rel, sha));
-      if (sha256_hex(r.str) != sha) throw std::runtime_error(fmt::format("asset {} does not match its hash {}", rel, sha));
+      const std::optional<std::string> r = read_asset(conn, sha);
+      if (!r) throw std::runtime_error(fmt::format("asset {} ({}) is missing from Redis", rel, sha));
+      if (sha256_hex(*r) != sha) throw std::runtime_error(fmt::format("asset {} does not match its hash {}", rel, sha));
       const fs::path tmp = blobs / (sha + ".tmp" + std::to_string(::getpid()) + "_" +
                                     std::to_string(reinterpret_cast<uintptr_t>(&r)));
       {
         std::ofstream out(tmp, std::ios::binary);
-        out.write(r.str.data(), static_cast<std::streamsize>(r.str.size()));
+        out.write(r->data(), static_cast<std::streamsize>(r->size()));
         if (!out) throw std::runtime_error(fmt::format("cannot write the asset cache {}", tmp.string()));
       }
       fs::rename(tmp, blob);

@@ -24,20 +24,22 @@ json rfc3339(double t) {
 json workers_json(const RedisExecutor& ex) {
   const double now = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
   json list = json::array();
-  for (const WorkerInfo& w : ex.workers()) {
+  for (const WorkerRecord& w : ex.monitor().workers()) {
     list.push_back({{"name", w.name},
                     {"host", w.host},
                     {"threads", w.threads},
+                    {"pools", w.pools},
                     {"last_heartbeat", rfc3339(w.last_heartbeat)},
                     {"seconds_since_heartbeat", std::max(0.0, now - w.last_heartbeat)},
                     {"blocks_done", w.blocks_done},
                     {"current_job", w.current_job.empty() ? json(nullptr) : json(w.current_job)}});
   }
-  const ClusterCounters c = ex.counters();
+  const ClusterCounters c = ex.monitor().counters();
   json j = {{"executor", "redis"},
             {"redis", ex.config().url.display()},
             {"lease_seconds", static_cast<double>(ex.config().lease.count()) / 1000.0},
             {"workers", list},
+            {"pools", ex.monitor().live_workers_by_pool()},
             {"results", {{"first", c.first},
                          {"duplicates_equal", c.dup_equal},
                          {"duplicates_different", c.dup_differ},
@@ -52,18 +54,29 @@ json workers_json(const RedisExecutor& ex) {
 
 std::string cluster_metrics(const RedisExecutor& ex) {
   std::string o;
-  const auto workers = ex.workers();
+  const auto workers = ex.monitor().workers();
   unsigned threads = 0;
   for (const auto& w : workers) threads += w.threads;
   prom_metric(o, "tally_cluster_workers", "gauge", "Live tally-worker processes.", workers.size());
   prom_metric(o, "tally_cluster_worker_threads", "gauge", "Compute threads of the live workers.", threads);
+  prom_header(o, "tally_cluster_pool_workers", "gauge",
+              "Live tally-worker processes per worker pool they serve (--pool); a worker counts in each of its pools.");
+  // Pools that jobs wait for and no live worker serves read 0 (a scaling signal).
+  std::map<std::string, unsigned> by_pool = ex.monitor().live_workers_by_pool();
+  for (const std::string& pool : ex.job_pools()) by_pool.try_emplace(pool, 0);
+  for (const auto& [pool, n] : by_pool) {
+    o += fmt::format("tally_cluster_pool_workers{{pool=\"{}\"}} {}\n", pool, n);
+  }
   prom_header(o, "tally_cluster_worker_blocks_done", "counter", "Blocks computed, per worker.");
   for (const auto& w : workers) {
     o += fmt::format("tally_cluster_worker_blocks_done{{worker=\"{}\"}} {}\n", w.name, w.blocks_done);
   }
   prom_metric(o, "tally_cluster_redis_up", "gauge", "1 when the coordinator reaches Redis.",
-              ex.not_ready_reason() ? 0 : 1);
-  const ClusterCounters c = ex.counters();
+              ex.redis_reachable() ? 1 : 0);
+  prom_metric(o, "tally_cluster_redis_out_of_memory", "gauge",
+              "1 while Redis refuses the cluster's writes (used_memory >= maxmemory, or an OOM reply).",
+              ex.monitor().redis_problem() ? 1 : 0);
+  const ClusterCounters c = ex.monitor().counters();
   prom_header(o, "tally_cluster_results_total", "counter", "Block results stored in Redis, by outcome.");
   o += fmt::format("tally_cluster_results_total{{outcome=\"first\"}} {}\n", c.first);
   o += fmt::format("tally_cluster_results_total{{outcome=\"duplicate_equal\"}} {}\n", c.dup_equal);
@@ -73,12 +86,18 @@ std::string cluster_metrics(const RedisExecutor& ex) {
   prom_metric(o, "tally_cluster_blocks_merged_total", "counter", "Blocks merged by this coordinator.", c.merged);
   prom_metric(o, "tally_cluster_passes_ahead_total", "counter",
               "Passes published before the pass before them was merged.", c.ahead);
-  prom_header(o, "tally_cluster_job_blocks", "gauge", "Blocks of a running job's current pass.");
+  // Summed over the running jobs: no tenant's job id in a document the metrics role
+  // (or anyone on loopback) reads. A job's own counts are in its status.
+  ExecutorStats::JobBlocks all;
   for (const auto& [id, b] : ex.stats().blocks_by_job) {
-    o += fmt::format("tally_cluster_job_blocks{{job=\"{}\",state=\"pending\"}} {}\n", id, b.pending);
-    o += fmt::format("tally_cluster_job_blocks{{job=\"{}\",state=\"in_flight\"}} {}\n", id, b.in_flight);
-    o += fmt::format("tally_cluster_job_blocks{{job=\"{}\",state=\"redelivered\"}} {}\n", id, b.redelivered);
+    all.pending += b.pending;
+    all.in_flight += b.in_flight;
+    all.redelivered += b.redelivered;
   }
+  prom_header(o, "tally_cluster_blocks", "gauge", "Blocks of the running jobs' current passes, by state.");
+  o += fmt::format("tally_cluster_blocks{{state=\"pending\"}} {}\n", all.pending);
+  o += fmt::format("tally_cluster_blocks{{state=\"in_flight\"}} {}\n", all.in_flight);
+  o += fmt::format("tally_cluster_blocks{{state=\"redelivered\"}} {}\n", all.redelivered);
   return o;
 }
 

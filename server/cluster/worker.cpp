@@ -16,7 +16,8 @@
 #include "common/protocol/job_kinds.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "server/cluster/assets.hpp"
-#include "server/cluster/protocol.hpp"
+#include "server/cluster/cluster_store.hpp"
+#include "server/cluster/result_key.hpp"
 #include "server/cluster/wire.hpp"
 
 namespace tally::cluster {
@@ -25,17 +26,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 using namespace std::chrono_literals;
-
-// Resets the idle time of an entry this consumer still holds (never steals one that
-// was reclaimed by another worker meanwhile).
-constexpr std::string_view kKeepLeaseScript = R"lua(
-local p = redis.call('XPENDING', KEYS[1], 'w', ARGV[1], ARGV[1], 1, ARGV[2])
-if #p == 1 then
-  redis.call('XCLAIM', KEYS[1], 'w', ARGV[2], 0, ARGV[1], 'JUSTID')
-  return 1
-end
-return 0
-)lua";
 
 struct Held {
   std::string stream, entry, consumer, job;
@@ -46,37 +36,6 @@ struct Compiled {
   std::shared_ptr<const Kernel> kernel;
   std::string error;  // non-empty: the spec was refused here
 };
-
-struct PassMeta {
-  uint64_t entries = 0;  // stream entries the pass is cut into (its result fields)
-  std::string input;
-  uint64_t group_blocks = 1;  // result groups: result_groups(an entry's blocks, this)
-};
-
-struct StreamKey {
-  std::string id, run;
-  uint64_t pass = 0;
-};
-
-std::optional<StreamKey> parse_stream_key(const std::string& k) {
-  // tally:s:{id}:{run}:{pass}
-  if (!k.starts_with("tally:s:")) return std::nullopt;
-  const std::string rest = k.substr(8);
-  const size_t a = rest.find(':');
-  const size_t b = a == std::string::npos ? a : rest.find(':', a + 1);
-  if (a == std::string::npos || b == std::string::npos || a == 0) return std::nullopt;
-  StreamKey s;
-  s.id = rest.substr(0, a);
-  s.run = rest.substr(a + 1, b - a - 1);
-  try {
-    size_t used = 0;
-    s.pass = std::stoull(rest.substr(b + 1), &used);
-    if (used != rest.size() - b - 1) return std::nullopt;
-  } catch (const std::exception&) {
-    return std::nullopt;
-  }
-  return s;
-}
 
 // The order a thread tries the active streams in: jobs in turn (starting at a rotating
 // one, so jobs share the workers), and within a job its earlier pass first (a pass
@@ -108,17 +67,6 @@ bool one_job_only(const std::vector<std::string>& streams) {
     job = sk->id;
   }
   return true;
-}
-
-// The entry an XREADGROUP ... COUNT 1 reply hands out, or null (none, an error reply:
-// the stream or its group is gone).
-const RValue* entry_of(const RValue& r) {
-  if (!r.is_array() || r.elems.empty() || !r.elems[0].is_array() || r.elems[0].elems.size() != 2 ||
-      r.elems[0].elems[1].elems.empty()) {
-    return nullptr;
-  }
-  const RValue& e = r.elems[0].elems[1].elems[0];
-  return e.is_array() && e.elems.size() == 2 && e.elems[1].is_array() ? &e : nullptr;
 }
 
 double unix_seconds() {
@@ -169,16 +117,14 @@ class Worker {
     // Leave the registry at once so the coordinator stops counting this worker.
     try {
       if (!conn) conn = std::make_unique<RedisConn>(cfg_.url, 1000ms);
-      conn->cmd({"ZREM", kWorkers, cfg_.name});
-      conn->cmd({"DEL", worker_key(cfg_.name)});
+      leave_registry(*conn, cfg_.name);
     } catch (const std::exception& e) {
       log(fmt::format("could not leave the registry ({}); the entry expires by itself", e.what()));
     }
   }
 
   void beat(RedisConn& conn, const std::string& keep_sha) {
-    const RValue l = conn.cmd({"HGET", "tally:config", "lease_ms"});
-    if (auto v = l.to_int()) lease_ms_ = std::max<long long>(100, *v);
+    if (auto v = read_lease_ms(conn)) lease_ms_ = std::max<long long>(100, *v);
     std::vector<Held> held;
     {
       std::lock_guard lock(mu_);
@@ -186,16 +132,17 @@ class Worker {
         if (!h.entry.empty()) held.push_back(h);
       }
     }
-    for (const Held& h : held) {
-      conn.evalsha(keep_sha, kKeepLeaseScript, {h.stream}, {h.entry, h.consumer});
-    }
+    for (const Held& h : held) keep_lease(conn, keep_sha, h.stream, h.entry, h.consumer);
     const double now = unix_seconds();
-    const std::string wk = worker_key(cfg_.name);
-    conn.cmd({"HSET", wk, "name", cfg_.name, "host", cfg_.host, "threads", std::to_string(cfg_.threads), "heartbeat",
-              fmt::format("{:.3f}", now), "blocks_done", std::to_string(blocks_done_.load()), "current_job",
-              held.empty() ? std::string() : held.front().job});
-    conn.cmd({"EXPIRE", wk, std::to_string(std::max<long long>(60, 10 * lease_ms_.load() / 1000))});
-    conn.cmd({"ZADD", kWorkers, fmt::format("{:.3f}", now), cfg_.name});
+    WorkerRecord w;
+    w.name = cfg_.name;
+    w.host = cfg_.host;
+    w.threads = cfg_.threads;
+    w.pools = cfg_.pools;
+    w.last_heartbeat = now;
+    w.blocks_done = blocks_done_.load();
+    if (!held.empty()) w.current_job = held.front().job;
+    write_heartbeat(conn, w, std::max<long long>(60, 10 * lease_ms_.load() / 1000));
     if (!cfg_.health_file.empty()) std::ofstream(cfg_.health_file, std::ios::trunc) << fmt::format("{:.3f}\n", now);
   }
 
@@ -218,16 +165,13 @@ class Worker {
           conn = std::make_unique<RedisConn>(cfg_.url);
           store_sha = conn->load_script(kStoreScript);
           fail_sha = conn->load_script(kFailScript);
-          const RValue last = conn->cmd({"XREVRANGE", kWake, "+", "-", "COUNT", "1"});
-          wake_id = last.is_array() && !last.elems.empty() ? last.elems[0].elems[0].str : "0-0";
+          wake_id = last_wake_id(*conn);
           if (warned) log("connected to redis again");
           warned = false;
         }
         const bool fresh = Clock::now() - streams_at >= 20ms;
         if (fresh) {
-          const RValue active = conn->cmd({"SMEMBERS", kActive});
-          streams.clear();
-          for (const RValue& v : active.elems) streams.push_back(v.str);
+          streams = active_streams(*conn, cfg_.pools);
           streams_at = Clock::now();
         }
         bool worked = false;
@@ -239,17 +183,13 @@ class Worker {
             // XAUTOCLAIM looks at 10 x COUNT pending entries per call: follow the cursor.
             std::string cursor = "0-0";
             for (int scan = 0; scan < 20 && !worked; ++scan) {
-              const RValue r = try_cmd(*conn, {"XAUTOCLAIM", s, kGroup, consumer, std::to_string(lease_ms_.load()),
-                                               cursor, "COUNT", "1"});
-              if (!r.is_array() || r.elems.size() < 2) break;
-              if (!r.elems[1].elems.empty()) {
-                const RValue& e = r.elems[1].elems[0];
-                if (e.is_array() && e.elems.size() == 2 && e.elems[1].is_array()) {
-                  process(conn, t, consumer, s, e, true, store_sha, fail_sha);
-                  worked = true;
-                }
+              const Reclaim r = reclaim_entry(*conn, s, consumer, lease_ms_.load(), cursor);
+              if (!r.ok) break;
+              if (r.entry) {
+                process(conn, t, consumer, s, *r.entry, true, store_sha, fail_sha);
+                worked = true;
               }
-              cursor = r.elems[0].str;
+              cursor = r.cursor;
               if (cursor == "0-0") break;
             }
           }
@@ -264,12 +204,11 @@ class Worker {
           const bool one_job = one_job_only(streams);
           for (size_t i = 0; i < order.size() && !worked; ++i) {
             const std::string& s = order[i];
-            const RValue r = try_cmd(*conn, {"XREADGROUP", "GROUP", kGroup, consumer, "COUNT", "1", "STREAMS", s, ">"});
-            if (const RValue* entry = entry_of(r)) {
-              std::optional<RValue> next;
+            if (const std::optional<StreamEntry> entry = read_entry(*conn, s, consumer)) {
+              std::optional<StreamEntry> next;
               process(conn, t, consumer, s, *entry, false, store_sha, fail_sha, one_job ? &next : nullptr);
               while (next) {  // claimed: computed even when stopping
-                const RValue e = std::move(*next);
+                const StreamEntry e = std::move(*next);
                 next.reset();
                 process(conn, t, consumer, s, e, false, store_sha, fail_sha, &next, true);
               }
@@ -286,9 +225,8 @@ class Worker {
           // Idle: wait for the coordinator to announce work, at most a quarter lease
           // (then look for expired leases again).
           const auto wait = std::clamp(lease() / 4, std::chrono::milliseconds(20), std::chrono::milliseconds(500));
-          const RValue r = conn->cmd({"XREAD", "COUNT", "100", "BLOCK", std::to_string(wait.count()), "STREAMS", kWake, wake_id});
-          if (r.is_array() && !r.elems.empty() && r.elems[0].elems.size() == 2 && !r.elems[0].elems[1].elems.empty()) {
-            wake_id = r.elems[0].elems[1].elems.back().elems[0].str;
+          if (auto woke = wait_wake(*conn, wait, wake_id)) {
+            wake_id = std::move(*woke);
             if (cfg_.verbose) log(fmt::format("thread {} woken at unix {:.6f}", t, unix_seconds()));
           }
         }
@@ -304,29 +242,26 @@ class Worker {
     }
   }
 
-  // A command on a stream that may vanish (merged, cancelled): NOGROUP is not an error.
-  static RValue try_cmd(RedisConn& conn, const std::vector<std::string_view>& argv) {
-    try {
-      return conn.cmd(argv);
-    } catch (const RedisReplyError&) {
-      return {};
-    }
-  }
-
   Compiled compile(RedisConn& conn, const StreamKey& sk) {
     const std::string tag = sk.id + "_" + sk.run;
     std::lock_guard lock(compile_mu_);
     if (auto it = kernels_.find(tag); it != kernels_.end()) return it->second;
     Compiled c;
-    const RValue h = conn.cmd({"HMGET", job_key(sk.id), "spec", "assets"});
+    const JobSource src = read_job_source(conn, sk.id);
     try {
-      if (h.elems.size() != 2 || h.elems[0].is_nil()) throw std::runtime_error("the job's spec is missing from Redis");
-      const nlohmann::json spec = nlohmann::json::parse(h.elems[0].str);
+      if (!src.spec) throw std::runtime_error("the job's spec is missing from Redis");
+      if (!cfg_.result_key.empty() &&
+          !same_digest(src.spec_mac, spec_mac(cfg_.result_key, sk.id, sk.run, *src.spec, src.manifest))) {
+        throw std::runtime_error("the job's spec in Redis does not match its MAC (--result-key-file): it was written "
+                                 "by someone without the cluster's key, or the server's key differs from this "
+                                 "worker's; refused");
+      }
+      const nlohmann::json spec = nlohmann::json::parse(*src.spec);
       JobLimits limits = cfg_.limits;
       limits.asset_dir.clear();  // only the job's own assets, never a local directory
       limits.asset_store = (cfg_.cache_dir / "blobs").string();  // "sha256:" names: verified blobs only
-      if (!h.elems[1].is_nil() && !h.elems[1].str.empty()) {
-        const nlohmann::json manifest = nlohmann::json::parse(h.elems[1].str);
+      if (!src.manifest.empty()) {
+        const nlohmann::json manifest = nlohmann::json::parse(src.manifest);
         if (!manifest.empty()) limits.asset_dir = materialize_assets(conn, manifest, cfg_.cache_dir, tag).string();
       }
       std::shared_ptr<const JobDefinition> def = compile_job(spec, limits);
@@ -355,43 +290,40 @@ class Worker {
   // nullopt. A yes is remembered for 20 ms (a round trip per entry saved; an entry of a
   // job cancelled meanwhile is computed and then counted stale by the store script); a
   // no, or a run not seen yet, is always asked again.
-  std::optional<std::string> live_run(RedisConn& conn, const std::string& jk, const std::string& run) {
+  std::optional<std::string> live_run(RedisConn& conn, const std::string& id, const std::string& run) {
     {
       std::lock_guard lock(mu_);
-      if (auto it = live_.find(jk); it != live_.end() && it->second.run == run && Clock::now() - it->second.at < 20ms) {
+      if (auto it = live_.find(id); it != live_.end() && it->second.run == run && Clock::now() - it->second.at < 20ms) {
         return it->second.max_failures;
       }
     }
-    return note_live(jk, run, conn.cmd({"HMGET", jk, "run", "cancelled", "max_failures"}));
+    return note_live(id, run, read_run_state(conn, id));
   }
-  // What live_run answers from the reply `st` to HMGET jk run cancelled max_failures,
-  // remembered (a yes) or forgotten (a no).
-  std::optional<std::string> note_live(const std::string& jk, const std::string& run, const RValue& st) {
+  // What live_run answers from the job's run state `st`, remembered (a yes) or
+  // forgotten (a no).
+  std::optional<std::string> note_live(const std::string& id, const std::string& run, const std::optional<RunState>& st) {
     std::lock_guard lock(mu_);
-    if (st.elems.size() != 3 || st.elems[0].str != run || st.elems[1].str == "1") {
-      live_.erase(jk);
+    if (!st || st->run != run || st->cancelled) {
+      live_.erase(id);
       return std::nullopt;
     }
-    LiveRun l{run, st.elems[2].is_nil() ? std::string("3") : st.elems[2].str, Clock::now()};
+    LiveRun l{run, st->max_failures.value_or("3"), Clock::now()};
     if (live_.size() > 64) live_.clear();
-    live_[jk] = l;
+    live_[id] = l;
     return l.max_failures;
   }
 
   std::optional<PassMeta> pass_meta(RedisConn& conn, const StreamKey& sk) {
-    const std::string p = pass_key('p', sk.id, sk.run, sk.pass);
+    const PassKeys keys(sk.id, sk.run, sk.pass);
+    const std::string& p = keys.meta;
     {
       std::lock_guard lock(mu_);
       if (auto it = metas_.find(p); it != metas_.end()) return it->second;
     }
-    const RValue h = conn.cmd({"HMGET", p, "e", "input", "g"});
-    if (h.elems.size() != 3 || h.elems[0].is_nil()) return std::nullopt;
-    PassMeta m;
-    m.entries = static_cast<uint64_t>(h.elems[0].as_int());
-    m.input = h.elems[1].str;
-    if (!h.elems[2].is_nil()) m.group_blocks = static_cast<uint64_t>(std::max<long long>(1, h.elems[2].as_int()));
+    const std::optional<PassMeta> m = read_pass_meta(conn, keys);
+    if (!m) return std::nullopt;
     std::lock_guard lock(mu_);
-    metas_[p] = m;
+    metas_[p] = *m;
     meta_order_.push_back(p);
     while (meta_order_.size() > 64) {
       metas_.erase(meta_order_.front());
@@ -400,72 +332,18 @@ class Worker {
     return m;
   }
 
-  // Runs a result-storing script; if the connection drops (Redis restarted, a proxy or
-  // CLIENT KILL closed it), reconnects and runs it again for a few seconds rather than
-  // dropping computed blocks. Both scripts are idempotent: a repeat of a store that did
-  // land counts as an equal duplicate; a repeat of a failure is ignored unless the entry
-  // is still pending.
-  RValue eval_retrying(std::unique_ptr<RedisConn>& conn, const std::string& sha, std::string_view source,
-                       const std::vector<std::string_view>& keys, const std::vector<std::string_view>& args) {
-    return retrying(conn, [&](RedisConn& c) { return c.evalsha(sha, source, keys, args); });
-  }
-
-  // Stores an entry's results with the store script (protocol.hpp): inline below
-  // kUploadBytes, else SET at this thread's upload key first, in the same round trip (a
-  // pipeline), for the script to move into place. Retried as eval_retrying; uploads
-  // again if Redis lost the upload between the two commands (a restart).
-  //
-  // `next` (if given): the same round trip also reads the next entry of `next->stream`
-  // for this consumer (XREADGROUP after the script), set if there is one (at most one is
-  // read over the retries), and whether the job is still live (live_run's question,
-  // answered for the next entry's live_run).
-  struct ReadNext {
-    std::string_view stream, consumer, job_key, run;
-    std::optional<RValue> entry;
-  };
-  RValue store_retrying(std::unique_ptr<RedisConn>& conn, const std::string& sha, const std::string& upload,
-                        std::string_view results, const std::vector<std::string_view>& keys,
-                        const std::vector<std::string_view>& args, ReadNext* next = nullptr) {
-    const bool inline_results = results.size() < kUploadBytes;
-    const std::string nkeys = std::to_string(keys.size());
-    std::vector<std::string_view> argv = {"EVALSHA", sha, nkeys};
-    argv.insert(argv.end(), keys.begin(), keys.end());
-    argv.insert(argv.end(), args.begin(), args.end());
-    if (inline_results) argv.push_back(results);
-    bool reloaded = false;
-    return retrying(conn, [&](RedisConn& c) {
-      for (;;) {
-        if (!inline_results) c.append({"SET", upload, results, "PX", kUploadTtlMs});
-        c.append(argv);
-        const bool read_next = next && !next->entry;
-        if (read_next) {
-          c.append({"XREADGROUP", "GROUP", kGroup, next->consumer, "COUNT", "1", "STREAMS", next->stream, ">"});
-          c.append({"HMGET", next->job_key, "run", "cancelled", "max_failures"});
-        }
-        const RValue set = inline_results ? RValue{} : c.get_reply();
-        RValue r = c.get_reply();
-        if (read_next) {
-          const RValue x = c.get_reply();  // an error reply (the pass is gone) reads nothing
-          if (const RValue* e = entry_of(x)) next->entry = *e;
-          note_live(std::string(next->job_key), std::string(next->run), c.get_reply());
-        }
-        if (set.type == RValue::Type::error) throw RedisReplyError("SET: " + set.str);
-        if (r.type == RValue::Type::error && r.str.find("NOSCRIPT") != std::string::npos && !reloaded) {
-          c.load_script(kStoreScript);  // Redis restarted and forgot it: same source, same SHA1
-          reloaded = true;
-          continue;
-        }
-        if (r.type == RValue::Type::error) throw RedisReplyError(r.str);
-        return r;
-      }
-    });
-  }
-
+  // Runs a result-storing script (store_entry, fail_entry); if the connection drops
+  // (Redis restarted, a proxy or CLIENT KILL closed it), reconnects and runs it again for
+  // a few seconds rather than dropping computed blocks; uploads again if Redis lost the
+  // upload between the two commands (a restart). Both scripts are idempotent: a repeat
+  // of a store that did land counts as an equal duplicate; a repeat of a failure is
+  // ignored unless the entry is still pending.
   // Runs `call` on the connection, reconnecting (for up to 5 s, unless stopping) when
   // the connection is lost, and again when the store script says its upload is missing.
   template <class Call>
-  RValue retrying(std::unique_ptr<RedisConn>& conn, Call&& call) {
+  auto retrying(std::unique_ptr<RedisConn>& conn, Call&& call) {
     const auto deadline = Clock::now() + 5s;
+    bool oom_logged = false;
     for (;;) {
       try {
         if (!conn) conn = std::make_unique<RedisConn>(cfg_.url);
@@ -476,45 +354,52 @@ class Worker {
         log(fmt::format("storing results: {}; reconnecting to store them", e.what()));
         std::this_thread::sleep_for(100ms);
       } catch (const RedisReplyError& e) {
-        if (!std::string_view(e.what()).starts_with(kUploadMissing) || stop_ || Clock::now() >= deadline) throw;
+        const std::string_view what = e.what();
+        if (what.find("OOM ") != std::string_view::npos && !stop_) {
+          // Redis is out of memory: keep the computed results (the heartbeat keeps the
+          // entry's lease) and store them once it has room; the coordinator says why
+          // the job waits. Logged once per episode.
+          if (!oom_logged) log(fmt::format("storing results: {}; holding them until Redis has memory", what));
+          oom_logged = true;
+          std::this_thread::sleep_for(200ms);
+          continue;
+        }
+        if (!what.starts_with(kUploadMissing) || stop_ || Clock::now() >= deadline) throw;
         log(fmt::format("storing results: {}; uploading them again", e.what()));
       }
     }
   }
 
   // Computes and stores one entry. `next` (if given and not stopping): the store also
-  // reads the stream's next entry for this thread (store_retrying). `read_on`: this
-  // entry was read so, by the store before it (the verbose log says so).
+  // reads the stream's next entry for this thread (store_entry's ReadOn), and whether
+  // the job is still live (live_run's question, answered for the next entry's
+  // live_run). `read_on`: this entry was read so, by the store before it (the verbose
+  // log says so).
   void process(std::unique_ptr<RedisConn>& conn_owner, unsigned t, const std::string& consumer,
-               const std::string& stream, const RValue& entry, bool redelivered, const std::string& store_sha,
-               const std::string& fail_sha, std::optional<RValue>* next = nullptr, bool read_on = false) {
+               const std::string& stream, const StreamEntry& entry, bool redelivered, const std::string& store_sha,
+               const std::string& fail_sha, std::optional<StreamEntry>* next = nullptr, bool read_on = false) {
     RedisConn& conn = *conn_owner;
     const auto t_got = Clock::now();
     const double unix_got = unix_seconds();
-    const std::string& entry_id = entry.elems[0].str;
-    std::string block_bytes, slot;
-    const auto& fv = entry.elems[1].elems;
-    for (size_t i = 0; i + 1 < fv.size(); i += 2) {
-      if (fv[i].str == "b") block_bytes = fv[i + 1].str;
-      if (fv[i].str == "s") slot = fv[i + 1].str;
-    }
+    const std::string& entry_id = entry.id;
+    const std::string& block_bytes = entry.blocks;
+    const std::string& slot = entry.slot;
     const auto sk = parse_stream_key(stream);
     if (!sk || slot.empty()) {
       log(fmt::format("ignoring a malformed entry {} of {}", entry_id, stream));
-      try_cmd(conn, {"XACK", stream, kGroup, entry_id});
+      skip_entry(conn, stream, entry_id);
       return;
     }
-    const std::string jk = job_key(sk->id);
-    const std::optional<std::string> max_failures = live_run(conn, jk, sk->run);
+    const std::optional<std::string> max_failures = live_run(conn, sk->id, sk->run);
     if (!max_failures) {
-      try_cmd(conn, {"XACK", stream, kGroup, entry_id});  // cancelled or an older run: skip
+      skip_entry(conn, stream, entry_id);  // cancelled or an older run: skip
       return;
     }
-    if (redelivered) conn.cmd({"HINCRBY", jk, "redelivered", "1"});
+    if (redelivered) count_redelivery(conn, sk->id);
     const Compiled c = compile(conn, *sk);
     const auto meta = pass_meta(conn, *sk);
     if (!meta) {
-      try_cmd(conn, {"XACK", stream, kGroup, entry_id});  // the pass is gone (merged)
+      skip_entry(conn, stream, entry_id);  // the pass is gone (merged)
       return;
     }
     {
@@ -557,46 +442,42 @@ class Worker {
       std::lock_guard lock(mu_);
       held_[t] = Held{};
     }
+    const PassKeys keys(sk->id, sk->run, sk->pass);
     if (!error.empty()) {
-      const RValue r = eval_retrying(conn_owner, fail_sha, kFailScript,
-                                     {stream, jk, pass_key('f', sk->id, sk->run, sk->pass), kCounters, kNotify, kWake},
-                                     {entry_id, slot, sk->run, *max_failures, error, block_bytes, sk->id});
-      log(fmt::format("{}{}", error, r.as_int() == 2 ? " (delivery limit reached: the job fails)" : " (re-queued)"));
+      const EntryFailure f{&keys, sk->id, sk->run, entry_id, slot, *max_failures, error, block_bytes};
+      const long long r = retrying(conn_owner, [&](RedisConn& rc) { return fail_entry(rc, fail_sha, f); });
+      log(fmt::format("{}{}", error, r == 2 ? " (delivery limit reached: the job fails)" : " (re-queued)"));
       return;
     }
-    const std::string entries = std::to_string(meta->entries);
-    const std::string secs_s = fmt::format("{:.9f}", secs);
-    const std::string k = std::to_string(block_count);
-    const std::string digest = result_digest(results);
+    const std::string digest = entry_digest(cfg_.result_key, sk->id, sk->run, sk->pass, slot, results);
     const size_t bytes = results.size();
-    const std::vector<std::string_view> args = {slot, entry_id, sk->run, entries, sk->id, secs_s, k, digest};
     const std::string upload = upload_key(consumer);
-    ReadNext read_next{stream, consumer, jk, sk->run, std::nullopt};
+    const EntryStore store{&keys, sk->id, sk->run, slot, entry_id, upload, meta->entries, secs, block_count, digest,
+                           results};
+    ReadOn read_next{stream, consumer, sk->id, std::nullopt, std::nullopt};
+    ReadOn* const read_on_store = stop_ || !next ? nullptr : &read_next;
     const auto t_store = Clock::now();
-    const RValue r = store_retrying(conn_owner, store_sha, upload, results,
-                                    {pass_key('r', sk->id, sk->run, sk->pass), stream, jk,
-                                     pass_key('d', sk->id, sk->run, sk->pass), kCounters, kNotify,
-                                     pass_key('p', sk->id, sk->run, sk->pass), upload,
-                                     value_key(sk->id, sk->run, sk->pass, slot)},
-                                    args, stop_ || !next ? nullptr : &read_next);
+    const StoreOutcome r = retrying(conn_owner, [&](RedisConn& rc) {
+      StoreOutcome o = store_entry(rc, store_sha, store, read_on_store);
+      if (read_on_store && read_next.run) note_live(sk->id, sk->run, read_next.run);
+      return o;
+    });
     if (read_next.entry) *next = std::move(read_next.entry);
     const double store_ms = std::chrono::duration<double, std::milli>(Clock::now() - t_store).count();
     blocks_done_.fetch_add(block_count);
-    if (r.elems.size() == 4) {
-      if (r.elems[1].integer > 0) {
-        log(fmt::format("duplicate result for {} block(s) from slot {} of job {} pass {}: compared, identical",
-                        r.elems[1].integer, slot, sk->id, sk->pass));
-      }
-      if (r.elems[2].integer > 0) {
-        log(fmt::format("duplicate result for slot {} of job {} pass {} DIFFERS from the first: non-determinism", slot,
-                        sk->id, sk->pass));
-      }
-      if (cfg_.verbose) {
-        log(fmt::format("entry {} of job {} pass {}: first {} stale {}; {} blocks, {} result bytes; got at unix {:.6f} "
-                        "{}, prepare {:.3f} ms, compute {:.3f} ms, store {:.3f} ms",
-                        slot, sk->id, sk->pass, r.elems[0].integer, r.elems[3].integer, block_count, bytes, unix_got,
-                        read_on ? "with the store before" : "by a read of its own", prep_ms, secs * 1e3, store_ms));
-      }
+    if (r.dup_equal > 0) {
+      log(fmt::format("duplicate result for {} block(s) from slot {} of job {} pass {}: compared, identical",
+                      r.dup_equal, slot, sk->id, sk->pass));
+    }
+    if (r.dup_differ > 0) {
+      log(fmt::format("duplicate result for slot {} of job {} pass {} DIFFERS from the first: non-determinism", slot,
+                      sk->id, sk->pass));
+    }
+    if (cfg_.verbose) {
+      log(fmt::format("entry {} of job {} pass {}: first {} stale {}; {} blocks, {} result bytes; got at unix {:.6f} "
+                      "{}, prepare {:.3f} ms, compute {:.3f} ms, store {:.3f} ms",
+                      slot, sk->id, sk->pass, r.first, r.stale, block_count, bytes, unix_got,
+                      read_on ? "with the store before" : "by a read of its own", prep_ms, secs * 1e3, store_ms));
     }
   }
 

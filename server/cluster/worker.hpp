@@ -12,6 +12,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "common/engine/job_definition.hpp"
 #include "server/cluster/redis_conn.hpp"
@@ -23,9 +24,13 @@ struct WorkerConfig {
   unsigned threads = 1;
   std::string name;  // unique per process; default host-pid
   std::string host;
+  // Pools this worker serves (--pool): it takes jobs that need one of them, and jobs
+  // without a pool. Empty: jobs without a pool only.
+  std::vector<std::string> pools;
   JobLimits limits;  // re-validation of every spec read from Redis
   std::filesystem::path cache_dir;  // asset cache
   std::string health_file;          // touched at every heartbeat (liveness probes)
+  std::string result_key;           // --result-key-file's bytes ("" = unkeyed), result_key.hpp
   bool verbose = false;
   // Tests only (tests/cluster's fault-injecting worker): wraps every compiled kernel.
   // Empty in tally-worker.

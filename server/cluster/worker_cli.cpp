@@ -5,10 +5,13 @@
 #include <signal.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <filesystem>
 #include <thread>
 
+#include "common/spec/pool_field.hpp"
+#include "server/cluster/result_key.hpp"
 #include "server/cluster/worker.hpp"
 #include "server/job_limit_flags.hpp"
 
@@ -32,6 +35,16 @@ int worker_main(int argc, char** argv,
   app.add_option("--name", cfg.name, "unique worker name (default: host-pid)");
   app.add_option("--cache-dir", cache_dir, "asset cache (default: $TMPDIR/tally-worker-<name>)");
   app.add_option("--health-file", cfg.health_file, "file rewritten at every heartbeat (for liveness probes)");
+  std::string key_file;
+  app.add_option("--result-key-file", key_file,
+                 "the cluster's shared secret (as tally-server's): results and specs in Redis are signed with it");
+  app.add_option("--pool", cfg.pools,
+                 "a worker pool this worker serves (repeatable): it takes jobs whose spec names one of its pools, "
+                 "and jobs without a pool; without --pool, jobs without a pool only")
+      ->check([](const std::string& name) {
+        const std::string why = pool_name_problem(name);
+        return why.empty() ? why : fmt::format("a pool name {}, got \"{}\"", why, name);
+      });
   add_job_limit_flags(app, cfg.limits);
   app.add_flag("--verbose", cfg.verbose, "log every block");
   CLI11_PARSE(app, argc, argv);
@@ -40,6 +53,14 @@ int worker_main(int argc, char** argv,
   } catch (const std::exception& e) {
     fmt::print(stderr, "tally-worker: --redis: {}\n", e.what());
     return 2;
+  }
+  if (!key_file.empty()) {
+    try {
+      cfg.result_key = load_result_key(key_file);
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "tally-worker: --result-key-file: {}\n", e.what());
+      return 2;
+    }
   }
   cfg.wrap_kernel = std::move(wrap_kernel);
   char host[256] = {};
@@ -66,7 +87,10 @@ int worker_main(int argc, char** argv,
   } catch (const RedisIoError& e) {
     fmt::print("tally-worker {}: {}; waiting for redis\n", cfg.name, e.what());
   }
-  fmt::print("tally-worker {} ({} threads) on {}\n", cfg.name, cfg.threads, cfg.url.display());
+  std::sort(cfg.pools.begin(), cfg.pools.end());
+  cfg.pools.erase(std::unique(cfg.pools.begin(), cfg.pools.end()), cfg.pools.end());
+  fmt::print("tally-worker {} ({} threads{}) on {}\n", cfg.name, cfg.threads,
+             cfg.pools.empty() ? std::string() : fmt::format(", pools {}", fmt::join(cfg.pools, ",")), cfg.url.display());
   std::fflush(stdout);
   const int rc = run_worker(cfg, g_stop);
   std::error_code ec;

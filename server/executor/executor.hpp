@@ -107,6 +107,9 @@ class Executor {
   // Why a job in the executor makes no progress right now (e.g. no cluster worker is
   // connected), for its status; empty when it is being computed.
   virtual std::optional<std::string> waiting_reason(const std::string& /*id*/) const { return std::nullopt; }
+  // Whether a job in the executor reads as queued rather than running: nothing can
+  // start computing it (cluster mode: no live worker serves its pool).
+  virtual bool holds_queued(const std::string& /*id*/) const { return false; }
 };
 
 }  // namespace tally

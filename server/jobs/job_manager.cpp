@@ -87,6 +87,7 @@ JobSnapshot JobManager::snapshot(const Job& job, SnapshotOf of) const {
   // in flight), asked before taking the job's lock (executor locks are never nested in it).
   ExecutorNote note;
   if (auto why = executor_->waiting_reason(job.id_)) note.waiting_reason = *why;
+  note.held_queued = executor_->holds_queued(job.id_);
   if (const ExecutorStats es = executor_->stats(); es.blocks_by_job.count(job.id_)) {
     const auto& b = es.blocks_by_job.at(job.id_);
     note.has_blocks = true;
@@ -97,6 +98,8 @@ JobSnapshot JobManager::snapshot(const Job& job, SnapshotOf of) const {
   std::lock_guard lock(job.mu_);
   JobSnapshot s = job.snapshot_locked(of == SnapshotOf::state);
   if (job.preempted_ && job.status_ == JobStatus::queued) note.waiting_reason = "preempted";
+  // Started, but nothing can compute it yet (cluster: no live worker in its pool).
+  if (s.status == JobStatus::running && note.held_queued) s.status = JobStatus::queued;
   s.executor = std::move(note);
   return s;
 }

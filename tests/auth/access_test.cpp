@@ -71,6 +71,24 @@ TEST(AuthFile, ErrorsNameTheField) {
   EXPECT_EQ(f.principals[0].quotas.burst, 10.0);  // default burst: 2 s worth
 }
 
+// "pools" restricts a principal to worker pools: a non-empty list of distinct valid names.
+TEST(AuthFile, PoolsAreANonEmptyListOfDistinctPoolNames) {
+  const std::string h(64, 'a');
+  auto with_pools = [&](json pools) {
+    return json{{"principals", {{{"name", "x"}, {"role", "user"}, {"token_sha256", h}, {"pools", std::move(pools)}}}}};
+  };
+  EXPECT_EQ(pointer_of_error(with_pools(json::array())), "/principals/0/pools");
+  EXPECT_EQ(pointer_of_error(with_pools("big")), "/principals/0/pools");
+  EXPECT_EQ(pointer_of_error(with_pools({"big", "no space"})), "/principals/0/pools/1");
+  EXPECT_EQ(pointer_of_error(with_pools({"big", 3})), "/principals/0/pools/1");
+  EXPECT_EQ(pointer_of_error(with_pools({"big", "big"})), "/principals/0/pools/1");
+  const AuthFile f = parse_auth_file(with_pools({"big", "render"}));
+  EXPECT_EQ(f.principals.at(0).pools, (std::vector<std::string>{"big", "render"}));
+  EXPECT_EQ(principal_entry_json(f.principals.at(0)).at("pools"), json({"big", "render"}));
+  EXPECT_TRUE(parse_auth_file({{"principals", {{{"name", "y"}, {"role", "user"}, {"token_sha256", h}}}}})
+                  .principals.at(0).pools.empty());
+}
+
 TEST(TokenBucket, RateAndBurstExactly) {
   TokenBucket b(2.0, 3.0, 100.0);
   EXPECT_EQ(b.take(100.0), 0.0);

@@ -1,8 +1,11 @@
 #pragma once
-// The Redis key layout and Lua scripts shared by the coordinator (RedisExecutor) and
-// tally-worker. docs/cluster.md describes the protocol in prose.
+// The cluster's Redis layout: the key names, the stream-key grammar and the three Lua
+// scripts. Data only; the operations on it (what the coordinator and tally-worker send)
+// are cluster_store.hpp, the one place that speaks to Redis about jobs. docs/cluster.md
+// describes the layout in prose.
 //
-//   tally:job:{id}                  hash: run, cancelled, spec, assets, max_failures,
+//   tally:job:{id}                  hash: run, cancelled, spec, assets, spec_mac (result_key.hpp),
+//                                   max_failures,
 //                                   failed (error text), mismatch, redelivered,
 //                                   compute_s + computed (workers' seconds and blocks)
 //   tally:s:{id}:{run}:{pass}       stream of the pass's blocks, k consecutive ones per
@@ -22,12 +25,16 @@
 //                                   results, kept a few passes longer so late duplicates
 //                                   are still compared
 //   tally:f:{id}:{run}:{pass}       hash: slot -> failed deliveries
-//   tally:active                    set of the stream keys workers read
+//   tally:active                    set of the stream keys any worker reads (jobs without a pool)
+//   tally:active:{pool}             set of the stream keys of jobs that need pool `pool`:
+//                                   read by the workers started with --pool pool
 //   tally:wake                      stream the coordinator appends to when work appears
 //   tally:notify                    list of job ids whose pass is complete (and kWakeMarker)
 //   tally:counters                  hash: first, dup_equal, dup_differ, stale, failures
 //   tally:workers                   zset name -> last heartbeat (unix s)
-//   tally:worker:{name}             hash: name, host, threads, heartbeat, blocks_done, current_job
+//   tally:worker:{name}             hash: name, host, threads, heartbeat, blocks_done, current_job,
+//                                   pools (comma-separated, "" = none)
+//   tally:config                    hash: lease_ms (the coordinator's --lease, read by workers)
 //   tally:asset:{sha256}            bytes of a scene file (OBJ, .mtl, glTF/.glb, buffer, image, map), content-addressed
 //
 // run = "{epoch}.{generation}": a new one each time a job enters the coordinator, so
@@ -35,6 +42,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <string>
+#include <optional>
 #include <string_view>
 
 namespace tally::cluster {
@@ -47,6 +55,12 @@ inline constexpr std::string_view kNotify = "tally:notify";
 inline constexpr std::string_view kWakeMarker = "~wake";
 inline constexpr std::string_view kCounters = "tally:counters";
 inline constexpr std::string_view kWorkers = "tally:workers";
+inline constexpr std::string_view kConfig = "tally:config";
+
+// The active set a pass stream goes into: kActive for a job without a pool.
+inline std::string active_key(std::string_view pool) {
+  return pool.empty() ? std::string(kActive) : std::string(kActive) + ":" + std::string(pool);
+}
 
 inline std::string job_key(std::string_view id) { return "tally:job:" + std::string(id); }
 inline std::string pass_key(char kind, std::string_view id, std::string_view run, uint64_t pass) {
@@ -73,6 +87,33 @@ inline std::string upload_key(std::string_view consumer) { return "tally:upload:
 inline constexpr std::string_view kUploadTtlMs = "300000";
 inline std::string worker_key(std::string_view name) { return "tally:worker:" + std::string(name); }
 inline std::string asset_key(std::string_view sha) { return "tally:asset:" + std::string(sha); }
+
+// The keys of one pass of one run of a job (pass_key's kinds s, p, r, d, f, v).
+struct PassKeys {
+  PassKeys(std::string_view id, std::string_view run, uint64_t pass)
+      : stream(pass_key('s', id, run, pass)),
+        meta(pass_key('p', id, run, pass)),
+        index(pass_key('r', id, run, pass)),
+        digests(pass_key('d', id, run, pass)),
+        failures(pass_key('f', id, run, pass)),
+        id_(id),
+        run_(run),
+        pass_(pass) {}
+  std::string stream, meta, index, digests, failures;
+  std::string value(std::string_view slot) const { return value_key(id_, run_, pass_, slot); }
+  std::string value(size_t slot) const { return value(std::to_string(slot)); }
+
+ private:
+  std::string id_, run_;
+  uint64_t pass_;
+};
+
+// What a stream key tally:s:{id}:{run}:{pass} names; nullopt for any other string.
+struct StreamKey {
+  std::string id, run;
+  uint64_t pass = 0;
+};
+std::optional<StreamKey> parse_stream_key(std::string_view key);
 
 // An entry of a pass stream holds k consecutive blocks (fields b = k encoded blocks,
 // s = slot of the first), whole result groups (PassWork::groups), whose results the
@@ -188,6 +229,18 @@ end
 redis.call('XADD', KEYS[1], '*', 'b', ARGV[6], 's', ARGV[2])
 redis.call('XADD', KEYS[6], 'MAXLEN', '~', '1000', '*', 'j', ARGV[7])
 return 1
+)lua";
+
+// A worker's lease heartbeat: resets the idle time of an entry this consumer still holds
+// (never steals one that was reclaimed by another worker meanwhile). 1 kept, 0 not held.
+// KEYS: stream   ARGV: entry id, consumer
+inline constexpr std::string_view kKeepLeaseScript = R"lua(
+local p = redis.call('XPENDING', KEYS[1], 'w', ARGV[1], ARGV[1], 1, ARGV[2])
+if #p == 1 then
+  redis.call('XCLAIM', KEYS[1], 'w', ARGV[2], 0, ARGV[1], 'JUSTID')
+  return 1
+end
+return 0
 )lua";
 
 }  // namespace tally::cluster
