@@ -5,7 +5,7 @@
 #include <chrono>
 
 #include "common/protocol/spec_reader.hpp"
-#include "server/api/json_depth.hpp"
+#include "common/protocol/json_depth.hpp"
 #include "server/api/problem.hpp"
 #include "server/api/prometheus.hpp"
 #include "server/api/route_support.hpp"

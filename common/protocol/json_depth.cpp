@@ -1,4 +1,4 @@
-#include "server/api/json_depth.hpp"
+#include "common/protocol/json_depth.hpp"
 
 #include <nlohmann/json.hpp>
 #include <vector>
