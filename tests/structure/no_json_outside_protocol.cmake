@@ -11,6 +11,8 @@ set(allowed
   common/lighting/lighting_spec.hpp common/lighting/lighting_spec.cpp
   common/lighting/scene_json.hpp common/lighting/scene_json.cpp
   common/lighting/gltf_scene.cpp       # scene reader: glTF files, errors are SpecErrors
+  common/lighting/gltf_census.cpp      # scene reader: a glTF's JSON counted before it is parsed
+  common/lighting/obj_scene.cpp        # scene reader: OBJ + .mtl files, errors are SpecErrors
   common/lighting/asset_resolver.hpp common/lighting/asset_resolver.cpp  # scene file names -> files, errors are SpecErrors
   common/jobs/job_factory.hpp common/jobs/job_factory.cpp)
 set(patterns "<nlohmann/" "nlohmann::" "\"common/protocol/" "_spec\\.hpp\"" "scene_json\\.hpp\"" "job_factory\\.hpp\"")
