@@ -134,10 +134,16 @@ struct Scene {
   // textures is decoded once) and immutable (texture.hpp).
   std::vector<Texture> textures;
   uint64_t texture_bytes = 0;  // decoded texels of all textures, each grid counted once
+  uint64_t decode_bytes = 0;   // what decoding the scene's images was charged (JobLimits::max_decode_bytes)
   Vec3 origin{};  // world position of the local origin (see above)
   size_t triangle_count() const {
     size_t n = 0;
     for (const Shape& s : shapes) n += s.triangles.size();
+    return n;
+  }
+  size_t vertex_count() const {
+    size_t n = 0;
+    for (const Shape& s : shapes) n += s.vertices.size();
     return n;
   }
 };
