@@ -1,6 +1,6 @@
 #include "common/lighting/gltf_census.hpp"
 
-#include <nlohmann/json.hpp>
+#include "common/protocol/json_value_sax.hpp"
 
 #include <cstring>
 #include <vector>
@@ -9,17 +9,10 @@ namespace tally {
 
 namespace {
 
-class Counter : public nlohmann::json_sax<nlohmann::json> {
+class Counter : public JsonValueSax {
  public:
   explicit Counter(GltfCensus& out) : out_(out) {}
 
-  bool null() override { return value(); }
-  bool boolean(bool) override { return value(); }
-  bool number_integer(number_integer_t) override { return value(); }
-  bool number_unsigned(number_unsigned_t) override { return value(); }
-  bool number_float(number_float_t, const string_t&) override { return value(); }
-  bool string(string_t&) override { return value(); }
-  bool binary(binary_t&) override { return value(); }
   bool start_object(std::size_t) override {
     value();
     path_.push_back(Frame{true, {}});
@@ -47,7 +40,6 @@ class Counter : public nlohmann::json_sax<nlohmann::json> {
     path_.pop_back();
     return true;
   }
-  bool parse_error(std::size_t, const std::string&, const nlohmann::detail::exception&) override { return false; }
 
  private:
   struct Frame {
@@ -55,7 +47,7 @@ class Counter : public nlohmann::json_sax<nlohmann::json> {
     std::string key;
   };
   // A value (or the start of a container) inside the innermost frame.
-  bool value() {
+  bool value() override {
     const size_t n = path_.size();
     if (n == 2 && path_[0].object && !path_[1].object && !path_[0].key.empty()) out_.arrays[path_[0].key]++;
     if (n == 4 && path_[0].key == "meshes" && !path_[1].object && path_[2].object && path_[2].key == "primitives" &&

@@ -20,30 +20,6 @@ namespace {
 
 constexpr double kCoordLimit = 1e12;
 
-// The `mtllib` names of an OBJ (each line may list several files).
-std::vector<std::string> mtllib_names(const std::string& obj_text) {
-  std::vector<std::string> out;
-  size_t pos = 0;
-  while (pos < obj_text.size()) {
-    size_t end = obj_text.find('\n', pos);
-    if (end == std::string::npos) end = obj_text.size();
-    std::string line = obj_text.substr(pos, end - pos);
-    pos = end + 1;
-    const size_t b = line.find_first_not_of(" \t");
-    if (b == std::string::npos || line.compare(b, 6, "mtllib") != 0) continue;
-    size_t i = b + 6;
-    if (i < line.size() && line[i] != ' ' && line[i] != '\t') continue;
-    while (i < line.size()) {
-      const size_t w = line.find_first_not_of(" \t\r", i);
-      if (w == std::string::npos) break;
-      const size_t e = std::min(line.find_first_of(" \t\r", w), line.size());
-      out.push_back(line.substr(w, e - w));
-      i = e;
-    }
-  }
-  return out;
-}
-
 Rgb mtl_rgb(const tinyobj::real_t* v) {
   Rgb c{static_cast<double>(v[0]), static_cast<double>(v[1]), static_cast<double>(v[2])};
   for (int k = 0; k < 3; ++k) {
@@ -126,6 +102,7 @@ int32_t mtl_texture(const tinyobj::material_t& t, const std::string& dir, const 
 // What the pre-scan found: the counts tinyobjloader will allocate for, all checked.
 struct ObjCensus {
   size_t vertices = 0, texcoords = 0, normals = 0, triangles = 0;
+  std::vector<std::string> mtllibs;  // the files `mtllib` lines name (a line may name several)
 };
 
 // One pass over the OBJ text before tinyobjloader sees it. tinyobjloader reads "nan" and
@@ -219,6 +196,8 @@ ObjCensus scan_obj(std::string_view text, const std::string& file, const std::st
       if (triangles_so_far + c.triangles > limits.max_triangles) {
         throw fail(fmt::format("more than {} triangles in the scene (max_triangles)", limits.max_triangles));
       }
+    } else if (kind == "mtllib") {
+      for (size_t k = 1; k < t.size(); ++k) c.mtllibs.emplace_back(t[k]);
     } else if (kind == "usemtl") {
       materials.insert(t.size() > 1 ? t[1] : std::string_view());
       if (materials.size() > limits.max_shapes) {
@@ -252,12 +231,12 @@ std::vector<Shape> load_obj(const std::string& relative, const std::string& poin
   const std::string text = read(relative, pointer);
   const size_t triangles_so_far = scene.triangle_count();
   size_t vertices_so_far = scene.vertex_count();
-  scan_obj(text, relative, pointer, limits, triangles_so_far);
+  const ObjCensus census = scan_obj(text, relative, pointer, limits, triangles_so_far);
   const auto slash = relative.find_last_of('/');
   const std::string dir = slash == std::string::npos ? std::string() : relative.substr(0, slash + 1);
   std::string mtl_text;
   if (!material) {
-    for (const std::string& lib : mtllib_names(text)) mtl_text += read(dir + lib, pointer) + "\n";
+    for (const std::string& lib : census.mtllibs) mtl_text += read(dir + lib, pointer) + "\n";
   }
   tinyobj::ObjReader reader;
   if (!reader.ParseFromString(text, mtl_text, config)) {

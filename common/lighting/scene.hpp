@@ -141,6 +141,11 @@ struct Scene {
     for (const Shape& s : shapes) n += s.triangles.size();
     return n;
   }
+  // What the scene holds once compiled, estimated from its sizes (docs/performance.md):
+  // per vertex 24 bytes (doubles) + 16 (Embree's floats), per triangle 12 + ~100 for the
+  // BVH and light tables at their peak, normals 24, uvs 16, the textures' texels, and
+  // 82 bytes an environment texel (its RGB and sampling tables).
+  uint64_t resident_bytes() const;
   size_t vertex_count() const {
     size_t n = 0;
     for (const Shape& s : shapes) n += s.vertices.size();

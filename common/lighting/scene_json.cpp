@@ -318,8 +318,6 @@ namespace {
 // The largest environment map read (4096 x 2048): about 70 bytes a texel once its
 // sampling tables are built, ~0.6 GB at this size.
 constexpr uint64_t kMaxEnvironmentTexels = uint64_t{1} << 23;
-// What a map keeps of each texel: its RGB copy (12) and the sampling tables (~70).
-constexpr uint64_t kEnvironmentBytesPerTexel = 12 + 70;
 
 // {"type": "sky", "radiance": [r, g, b]}, or an environment map:
 // {"type": "sky", "map": "<file or sha256:>", "intensity": s = 1, "rotation_deg": a = 0}
@@ -354,7 +352,7 @@ void parse_sky(SpecReader& l, Scene& scene, const JobLimits& limits) {
     dl.max_pixels = kMaxEnvironmentTexels;
     dl.max_channels = static_cast<uint32_t>(std::min<size_t>(limits.max_image_channels, UINT32_MAX));
     dl.max_bytes = limits.max_decode_bytes > scene.decode_bytes ? limits.max_decode_bytes - scene.decode_bytes : 0;
-    dl.kept_bytes_per_pixel = kEnvironmentBytesPerTexel;
+    dl.kept_bytes_per_pixel = kEnvironmentTexelBytes;
     im = decode_image(bytes, dl);
     scene.decode_bytes += im.charged_bytes;
   } catch (const std::runtime_error& e) {
