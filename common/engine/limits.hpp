@@ -24,9 +24,9 @@ struct JobLimits {
   uint64_t max_pixels = 4096ULL * 4096ULL;
   uint64_t max_quadrature_points = 1ULL << 26;
   size_t max_table_size = 1 << 20;  // tabulated densities, inline meshes' vertices
-  // Triangles of one lighting scene, all meshes together (inline, OBJ, glTF); a glTF
-  // primitive may also have up to 3x this many vertices. Memory: ~100 bytes a triangle
-  // at peak while the scene is built (docs/performance.md).
+  // Triangles of one lighting scene, all meshes together (inline, OBJ, glTF); vertices
+  // are bounded by max_vertices below. Memory: ~100 bytes a triangle at peak while the
+  // scene is built (docs/performance.md).
   size_t max_triangles = 1 << 20;
   // Decoded texels of one lighting job's textures (12 bytes a texel: linear RGB floats);
   // a scene over it is refused naming the texture that crossed it.
