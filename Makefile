@@ -19,7 +19,7 @@ SAN_LABELS = ^(stats|engine|expr|sampling|integrate|server)$$
 # a pipe, the symbolizer is a subprocess): under EMFILE it reports "invalid vptr" on every
 # virtual call. It runs in the normal suite.
 SAN_EXCLUDE ?= ^HttpServerFds\.AcceptBacksOffWhenDescriptorsRunOut$$
-FUZZ_TARGETS = fuzz_expr fuzz_job_spec fuzz_http fuzz_checkpoint fuzz_sse fuzz_cluster_wire
+FUZZ_TARGETS = fuzz_expr fuzz_job_spec fuzz_http fuzz_checkpoint fuzz_sse fuzz_cluster_wire fuzz_scene_files
 # Seconds per fuzz target in `make fuzz` and CI; run longer by hand (tests/fuzz/README.md).
 FUZZ_SECONDS ?= 60
 # Sanitizer options for the sanitized tests and the fuzzers; suppressions (third-party

@@ -21,6 +21,24 @@ inline void add_job_limit_flags(CLI::App& app, JobLimits& l) {
       ->capture_default_str();
   app.add_option("--max-texture-bytes", l.max_texture_bytes, "per-job cap: decoded texture bytes (12 a texel)")
       ->capture_default_str();
+  // Scene files (docs/security.md, "Scene files"): checked before what they count is allocated.
+  app.add_option("--max-vertices", l.max_vertices, "per-job cap: mesh vertices of a lighting scene")->capture_default_str();
+  app.add_option("--max-shapes", l.max_shapes, "per-job cap: shapes (glTF primitives, OBJ material groups)")
+      ->check(CLI::Range(size_t{1}, size_t{1} << 24))
+      ->capture_default_str();
+  app.add_option("--max-gltf-nodes", l.max_gltf_nodes, "per-job cap: entries of a glTF's nodes (and other top-level arrays)")
+      ->capture_default_str();
+  app.add_option("--max-file-json-depth", l.max_file_json_depth, "per-job cap: nesting depth of a glTF's JSON")
+      ->check(CLI::Range(size_t{4}, size_t{1024}))
+      ->capture_default_str();
+  app.add_option("--max-polygon-vertices", l.max_polygon_vertices, "per-job cap: corners of one OBJ face")
+      ->check(CLI::Range(size_t{3}, size_t{65536}))
+      ->capture_default_str();
+  app.add_option("--max-image-channels", l.max_image_channels, "per-job cap: channels of one image file")
+      ->check(CLI::Range(size_t{1}, size_t{1024}))
+      ->capture_default_str();
+  app.add_option("--max-decode-bytes", l.max_decode_bytes, "per-job cap: bytes decoding a scene's images takes")
+      ->capture_default_str();
 }
 
 }  // namespace tally

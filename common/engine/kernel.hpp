@@ -137,6 +137,10 @@ class Kernel {
   virtual ErrorSummary error_summary(const JobState& state, double confidence) const;
   // Default: none, and progress shows channel 0.
   virtual std::optional<Headline> headline(const JobState&) const { return std::nullopt; }
+  // Bytes the kernel itself holds while the job is in memory (a lighting job's scene:
+  // meshes, acceleration structure, textures, environment map), an estimate counted
+  // into the server's memory budget beside the job's state. Default: none.
+  virtual uint64_t resident_bytes() const { return 0; }
 };
 
 // "N non-finite sample values were excluded", for kernels that count them; nullopt for 0.

@@ -26,13 +26,26 @@ struct JobLimits {
   uint64_t max_pixels = 4096ULL * 4096ULL;
   uint64_t max_quadrature_points = 1ULL << 26;
   size_t max_table_size = 1 << 20;  // tabulated densities, inline meshes' vertices
-  // Triangles of one lighting scene, all meshes together (inline, OBJ, glTF); a glTF
-  // primitive may also have up to 3x this many vertices. Memory: ~100 bytes a triangle
-  // at peak while the scene is built (docs/performance.md).
+  // Triangles of one lighting scene, all meshes together (inline, OBJ, glTF); vertices
+  // are bounded by max_vertices below. Memory: ~100 bytes a triangle at peak while the
+  // scene is built (docs/performance.md).
   size_t max_triangles = 1 << 20;
   // Decoded texels of one lighting job's textures (12 bytes a texel: linear RGB floats);
   // a scene over it is refused naming the texture that crossed it.
   uint64_t max_texture_bytes = uint64_t{1} << 30;
+  // The files a lighting scene names (glTF/GLB, OBJ + .mtl, PNG/JPEG, EXR/HDR) are read
+  // by bounded readers (docs/security.md, "Scene files"): each count below is checked
+  // from the file's header or a pre-scan, before what it counts is allocated.
+  size_t max_vertices = size_t{3} << 20;  // mesh vertices of one scene, after each primitive keeps only those it uses
+  size_t max_shapes = 65536;              // shapes: glTF primitive instances, OBJ material groups, inline shapes
+  size_t max_gltf_nodes = size_t{1} << 16;  // entries of a glTF's "nodes" (and of its other top-level arrays)
+  size_t max_file_json_depth = 64;        // nesting of a glTF's JSON (the .gltf, or a .glb's JSON chunk)
+  size_t max_polygon_vertices = 256;      // vertices of one OBJ face (triangulated as a fan of ears)
+  size_t max_image_channels = 8;          // channels of one image file (8: tally's own 7-channel EXR reads as a map)
+  // Bytes decoding one job's image files may take, all images together: per image
+  // width x height x channels x (stored + decoded bytes a sample) + 12 a texel kept,
+  // read from the file's header before any pixel is decoded.
+  uint64_t max_decode_bytes = uint64_t{1} << 30;
   std::string asset_dir;            // OBJ files for lighting scenes; empty = none allowed
   // The content-addressed asset store ("sha256:<hex>" names in scenes, see
   // common/lighting/asset_resolver.hpp); empty = no store, such names are refused.

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "common/image/image_decode.hpp"
+#include "common/image/image_header.hpp"
 #include "common/image/image_module_abi.hpp"
 
 namespace tally {
@@ -186,17 +187,34 @@ void receive_decoded(void* context, const tally_decoded_image* im) {
 }
 }  // namespace
 
-DecodedImage decode_image(std::string_view bytes, uint64_t max_pixels) {
-  const auto format = sniff_image_format(bytes);
-  if (!format) throw std::runtime_error("not a PNG, JPEG, OpenEXR or Radiance HDR file");
+DecodedImage decode_image(std::string_view bytes, const ImageDecodeLimits& limits) {
+  const ImageHeader h = read_image_header(bytes);
+  if (h.pixels() > limits.max_pixels) {
+    throw std::runtime_error(fmt::format("the image has {}x{} pixels, more than the limit of {}", h.width, h.height,
+                                         limits.max_pixels));
+  }
+  if (h.channels > limits.max_channels) {
+    throw std::runtime_error(fmt::format("the image has {} channels, more than the limit of {} (max_image_channels)",
+                                         h.channels, limits.max_channels));
+  }
+  const uint64_t kept = h.pixels() > UINT64_MAX / std::max<uint64_t>(limits.kept_bytes_per_pixel, 1)
+                            ? UINT64_MAX
+                            : h.pixels() * limits.kept_bytes_per_pixel;
+  const uint64_t charge = kept > UINT64_MAX - h.decode_bytes() ? UINT64_MAX : kept + h.decode_bytes();
+  if (charge > limits.max_bytes) {
+    throw std::runtime_error(fmt::format("decoding the {}x{} image of {} channels takes {} bytes, more than the {} left "
+                                         "of the job's limit (max_decode_bytes)",
+                                         h.width, h.height, h.channels, charge, limits.max_bytes));
+  }
   const tally_image_api& a = api();
   DecodedImage out;
   std::string error;
-  if (a.decode(reinterpret_cast<const unsigned char*>(bytes.data()), bytes.size(), format->c_str(), max_pixels,
+  if (a.decode(reinterpret_cast<const unsigned char*>(bytes.data()), bytes.size(), h.format.c_str(), limits.max_pixels,
                &receive_decoded, &out, &append_to_string, &error) != 0) {
     throw std::runtime_error(error);
   }
   if (out.width <= 0 || out.height <= 0 || out.channels <= 0) throw std::runtime_error("the image has no pixels");
+  out.charged_bytes = charge;
   return out;
 }
 

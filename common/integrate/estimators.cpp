@@ -1,6 +1,7 @@
 #include "common/integrate/estimators.hpp"
 
 #include <algorithm>
+#include <limits>
 #include <array>
 #include <cmath>
 #include <fmt/format.h>
@@ -62,8 +63,10 @@ bool all_finite(const double* v, size_t n) {
   return (acc[0] + acc[1]) + (acc[2] + acc[3]) == 0.0;
 }
 
+// `what`: the sample's description when it is not the integrand's value itself (an
+// importance weight f/p); empty: "the integrand is NaN / infinite at ...".
 void record_fault(BlockResult& out, uint64_t sample_index, double value, const Scratch& s, size_t i,
-                  size_t dims) {
+                  size_t dims, const std::string& what = {}) {
   if (out.fault) return;
   SampleFault f;
   f.sample_index = sample_index;
@@ -71,8 +74,9 @@ void record_fault(BlockResult& out, uint64_t sample_index, double value, const S
   for (size_t k = 0; k < dims; ++k) f.point.push_back(s.x[k * kB + i]);
   std::string where;
   for (size_t k = 0; k < dims; ++k) where += fmt::format("{}x{} = {:.17g}", k ? ", " : "", k, f.point[k]);
-  f.message = fmt::format("the integrand is {} at {} (sample {})",
-                          std::isnan(value) ? "NaN" : "infinite", where, sample_index);
+  f.message = what.empty() ? fmt::format("the integrand is {} at {} (sample {})", std::isnan(value) ? "NaN" : "infinite",
+                                         where, sample_index)
+                           : fmt::format("{} at {} (sample {})", what, where, sample_index);
   out.fault = std::move(f);
 }
 
@@ -173,8 +177,8 @@ class PointwiseKernelBase : public IntegrationKernelBase {
  protected:
   // Fill the coordinate rows (and pdf, for importance sampling) of n points.
   virtual void draw(Scratch& s, uint64_t first, size_t n) const = 0;
-  // f values -> samples, in place.
-  virtual void weigh(const Scratch& s, double* v, size_t n, BlockResult& out) const = 0;
+  // f values -> samples, in place (samples first ... first + n - 1).
+  virtual void weigh(const Scratch& s, double* v, size_t n, uint64_t first, BlockResult& out) const = 0;
 
   size_t fill(uint64_t first, uint64_t count, double* values, BlockResult& out) const override {
     Scratch& s = scratch();
@@ -184,7 +188,7 @@ class PointwiseKernelBase : public IntegrationKernelBase {
       draw(s, first + off, n);
       double* v = values + off;
       p_.integrand->evaluate_batch(s.x_cptr.data(), n, v);
-      weigh(s, v, n, out);
+      weigh(s, v, n, first + off, out);
       out.counters.add(IntegrationCounter::evaluations, n);
       const size_t ok = check(v, n, first + off, s, out);
       if (ok < n) return static_cast<size_t>(off) + ok;
@@ -207,7 +211,7 @@ class UniformKernel final : public PointwiseKernelBase {
       D.map_uniform(s.u_ptr.data(), n, s.x_ptr.data());
     }
   }
-  void weigh(const Scratch&, double* v, size_t n, BlockResult&) const override {
+  void weigh(const Scratch&, double* v, size_t n, uint64_t, BlockResult&) const override {
     const double measure = p_.domain->measure();
     for (size_t i = 0; i < n; ++i) v[i] *= measure;
   }
@@ -224,13 +228,25 @@ class ImportanceKernelBase : public PointwiseKernelBase {
     draw_uniforms(s, first, n, p_.domain->uniforms());
     map(s, n);
   }
-  void weigh(const Scratch& s, double* v, size_t n, BlockResult& out) const override {
+  void weigh(const Scratch& s, double* v, size_t n, uint64_t first, BlockResult& out) const override {
     const double measure = p_.domain->measure();
+    bool faulted = false;  // check() reports the batch's first non-finite sample
     for (size_t i = 0; i < n; ++i) {
-      const double pdf = s.pdf[i];
+      const double pdf = s.pdf[i], f = v[i];
       // pdf -> 0 only where the density vanishes; weight 0 there, never Inf.
-      v[i] = pdf > 0.0 ? v[i] / pdf : 0.0;
+      v[i] = pdf > 0.0 ? f / pdf : 0.0;
       out.weights.add(pdf > 0.0 ? 1.0 / (pdf * measure) : 0.0);
+      if (faulted || std::isfinite(v[i])) continue;
+      faulted = true;
+      if (std::isfinite(f) || (std::isinf(f) && std::isinf(pdf))) {
+        // It is the weight that is not finite, not (only) the integrand: say so; check()
+        // counts it and keeps this message.
+        record_fault(out, first + i, v[i], s, i, p_.domain->dimensions(),
+                     std::isfinite(f) ? fmt::format("the weight f/p = {:.17g} / {:.17g} is not finite (the density "
+                                                    "vanishes or overflows there, the integrand is finite)", f, pdf)
+                                      : fmt::format("the weight f/p = {} / {} is NaN (the integrand and the density both "
+                                                    "overflow there)", f, pdf));
+      }
     }
   }
 };
@@ -249,15 +265,20 @@ class PowerImportanceKernel final : public ImportanceKernelBase {
       const double e = d_.exponents[k];
       const double inv = 1.0 / (e + 1.0);
       const double hi = D.upper()[k];
+      constexpr double kMinNormal = std::numeric_limits<double>::min();
+      const double min_dx = std::max({std::nextafter(lo, hi) - lo, kMinNormal, kMinNormal * w});
       for (size_t i = 0; i < n; ++i) {
         // Inverse CDF of (e+1) t^e on (0,1): t = u^(1/(e+1)).
         double t = std::pow(s.urow(k)[i], inv);
         double x = lo + t * w;
         // For e near -1 the draw can lie below the first double after lo (t
         // underflows to 0 when e <= -0.99), for large e it can round up to hi: keep x
-        // in the open interval, on the nearest double inside, with the density there.
-        if (!(x > lo) || !(x < hi)) {
-          x = x > lo ? std::nextafter(hi, lo) : std::nextafter(lo, hi);
+        // in the open interval, with the density there. Near lo, x - lo and t stay
+        // normal doubles (>= DBL_MIN): below that (x0 = 4.94e-324 for e = -0.99 on
+        // [0, 1]) t^e and a singular integrand like x0^e both overflow, and the weight
+        // f/p is inf/inf. From DBL_MIN up, f/p is finite wherever f is proportional to p.
+        if (!(x - lo >= min_dx) || !(x < hi)) {
+          x = x < hi ? lo + min_dx : std::nextafter(hi, lo);
           t = (x - lo) / w;
         }
         s.x_ptr[k][i] = x;

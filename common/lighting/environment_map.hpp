@@ -23,6 +23,7 @@
 //
 // Immutable after construction: every method is const and touches no mutable state, so
 // one map is shared read-only by all threads of a job (and by nothing else).
+#include <cstdint>
 #include <array>
 #include <cstddef>
 #include <optional>
@@ -34,6 +35,11 @@
 #include "common/sampling/piecewise_constant.hpp"
 
 namespace tally {
+
+// Bytes an environment map takes a texel: its decoded RGB floats (12) and, once built,
+// its texels and sampling tables (~70). Charged when a map is decoded (max_decode_bytes)
+// and in Scene::resident_bytes.
+inline constexpr uint64_t kEnvironmentTexelBytes = 12 + 70;
 
 class EnvironmentMap {
  public:

@@ -7,10 +7,14 @@
 #include <cmath>
 #include <cstring>
 #include <map>
+#include <optional>
+#include <algorithm>
 #include <limits>
 #include <stdexcept>
 
+#include "common/lighting/gltf_census.hpp"
 #include "common/lighting/texture.hpp"
+#include "common/spec/json_depth.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "common/sampling/safe_math.hpp"
 
@@ -123,6 +127,7 @@ class GltfLoader {
 
   void run() {
     triangles_ = scene_.triangle_count();
+    vertices_ = scene_.vertex_count();
     materials_.assign(model_.materials.size(), UINT32_MAX);
     if (model_.scenes.empty()) {
       // No scene: every node that is nobody's child is a root.
@@ -396,10 +401,10 @@ class GltfLoader {
       }
       fail(im.uri.empty() ? ip : ip + "/uri", why.empty() ? "the image has no data" : fmt::format("cannot be read: {}", why));
     }
-    const uint64_t left = limits_.max_texture_bytes > scene_.texture_bytes ? limits_.max_texture_bytes - scene_.texture_bytes : 0;
+    uint64_t charged = 0;
     try {
       cached = decode_texels(std::string_view(reinterpret_cast<const char*>(im.image.data()), im.image.size()), srgb,
-                             left / kTexelBytes);
+                             texture_decode_limits(scene_, limits_), &charged);
     } catch (const std::exception& e) {
       const std::string what = e.what();
       fail(ip, fmt::format("cannot be used as a texture: {}{}", what,
@@ -409,6 +414,7 @@ class GltfLoader {
                                              limits_.max_texture_bytes, kTexelBytes)));
     }
     scene_.texture_bytes += cached->bytes();
+    scene_.decode_bytes += charged;
     return cached;
   }
 
@@ -418,10 +424,43 @@ class GltfLoader {
     return static_cast<uint32_t>(scene_.materials.size() - 1);
   }
 
-  // The accessor's elements as doubles (count x components), every byte checked
-  // against its buffer view and buffer first.
-  std::vector<double> read_accessor(int index, const std::string& from, int want_type, bool allow_ints,
-                                    size_t max_count, size_t* count_out) const {
+  // An accessor's elements read in place (nothing is copied until a primitive takes
+  // the vertices it uses), every byte checked against its buffer view and buffer first.
+  struct AccessorView {
+    const unsigned char* base = nullptr;
+    uint64_t stride = 0;
+    size_t count = 0;
+    int ncomp = 0, csize = 0, component_type = 0;
+    bool normalized = false;
+    double get(size_t i, int c) const {
+      const unsigned char* p = base + i * stride + static_cast<size_t>(c * csize);
+      double v = 0;
+      switch (component_type) {
+        case TINYGLTF_COMPONENT_TYPE_FLOAT: {
+          float f;
+          std::memcpy(&f, p, 4);
+          return static_cast<double>(f);
+        }
+        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE: v = *p; break;
+        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: {
+          uint16_t x;
+          std::memcpy(&x, p, 2);
+          v = x;
+          break;
+        }
+        default: {
+          uint32_t x;
+          std::memcpy(&x, p, 4);
+          v = x;
+          break;
+        }
+      }
+      if (normalized) v /= component_type == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE ? 255.0 : 65535.0;
+      return v;
+    }
+  };
+
+  AccessorView view_accessor(int index, const std::string& from, int want_type, bool allow_ints) const {
     if (index < 0 || static_cast<size_t>(index) >= model_.accessors.size()) fail(from, "names no accessor");
     const std::string ap = fmt::format("/accessors/{}", index);
     const tinygltf::Accessor& a = model_.accessors[static_cast<size_t>(index)];
@@ -437,9 +476,7 @@ class GltfLoader {
       fail(ap + "/componentType", "is not allowed for this attribute");
     }
     if (a.count == 0) fail(ap + "/count", "must be at least 1");
-    if (a.count > max_count || a.count > (size_t{1} << 32)) {
-      fail(ap + "/count", fmt::format("{} exceeds the limit of {}", a.count, std::min(max_count, size_t{1} << 32)));
-    }
+    if (a.count > (size_t{1} << 32)) fail(ap + "/count", fmt::format("{} exceeds the limit of {}", a.count, size_t{1} << 32));
     if (a.bufferView < 0 || static_cast<size_t>(a.bufferView) >= model_.bufferViews.size()) {
       fail(ap + "/bufferView", "names no buffer view");
     }
@@ -456,7 +493,7 @@ class GltfLoader {
       fail(vp + "/byteLength", fmt::format("the view [{}, +{}) lies outside its buffer of {} bytes", bv.byteOffset,
                                            bv.byteLength, data.size()));
     }
-    // count <= max_count (<= 2^32) and stride <= 252: no overflow in 64 bits.
+    // count <= 2^32 and stride <= 252: no overflow in 64 bits.
     const uint64_t need = static_cast<uint64_t>(a.byteOffset) + stride * (a.count - 1) + elem;
     if (a.byteOffset > bv.byteLength || need > bv.byteLength) {
       fail(ap + "/count", fmt::format("{} elements from byte {} need {} bytes; the buffer view has {}", a.count,
@@ -465,42 +502,15 @@ class GltfLoader {
     if (static_cast<uint64_t>(a.byteOffset + bv.byteOffset) % static_cast<uint64_t>(csize) != 0) {
       fail(ap + "/byteOffset", "is not aligned to the component size");
     }
-    const unsigned char* base = data.data() + bv.byteOffset + a.byteOffset;
-    std::vector<double> out(a.count * static_cast<size_t>(ncomp));
-    for (size_t i = 0; i < a.count; ++i) {
-      const unsigned char* e = base + i * stride;
-      for (int c = 0; c < ncomp; ++c) {
-        const unsigned char* p = e + c * csize;
-        double v = 0;
-        switch (a.componentType) {
-          case TINYGLTF_COMPONENT_TYPE_FLOAT: {
-            float f;
-            std::memcpy(&f, p, 4);
-            v = static_cast<double>(f);
-            break;
-          }
-          case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE: v = *p; break;
-          case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: {
-            uint16_t x;
-            std::memcpy(&x, p, 2);
-            v = x;
-            break;
-          }
-          default: {
-            uint32_t x;
-            std::memcpy(&x, p, 4);
-            v = x;
-            break;
-          }
-        }
-        if (a.normalized && !is_float) {
-          v /= a.componentType == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE ? 255.0 : 65535.0;
-        }
-        out[i * static_cast<size_t>(ncomp) + static_cast<size_t>(c)] = v;
-      }
-    }
-    *count_out = a.count;
-    return out;
+    AccessorView v;
+    v.base = data.data() + bv.byteOffset + a.byteOffset;
+    v.stride = stride;
+    v.count = a.count;
+    v.ncomp = ncomp;
+    v.csize = csize;
+    v.component_type = a.componentType;
+    v.normalized = a.normalized && !is_float;
+    return v;
   }
 
   void add_mesh(int index, const Mat4& m, const std::string& from) {
@@ -513,79 +523,109 @@ class GltfLoader {
       if (prim.mode != -1 && prim.mode != TINYGLTF_MODE_TRIANGLES) {
         fail(pp + "/mode", "only triangles (mode 4) are supported");
       }
-      const size_t max_triangles = limits_.max_triangles;
-      const size_t limit = 3 * max_triangles;  // vertices: a primitive without indices has 3 a triangle
+      if (scene_.shapes.size() >= limits_.max_shapes) {
+        fail(pp, fmt::format("one shape more than the limit of {} in the scene (max_shapes)", limits_.max_shapes));
+      }
       auto pos_it = prim.attributes.find("POSITION");
       if (pos_it == prim.attributes.end()) fail(pp + "/attributes", "has no POSITION");
-      size_t nv = 0;
-      const std::vector<double> pos = read_accessor(pos_it->second, pp + "/attributes/POSITION", TINYGLTF_TYPE_VEC3,
-                                                    false, limit, &nv);
+      const AccessorView pos = view_accessor(pos_it->second, pp + "/attributes/POSITION", TINYGLTF_TYPE_VEC3, false);
+      const size_t nv = pos.count;
+      std::optional<AccessorView> nrm, uv;
+      if (auto it = prim.attributes.find("NORMAL"); it != prim.attributes.end()) {
+        nrm = view_accessor(it->second, pp + "/attributes/NORMAL", TINYGLTF_TYPE_VEC3, false);
+        if (nrm->count != nv) fail(fmt::format("/accessors/{}/count", it->second), "NORMAL and POSITION counts differ");
+      }
+      if (auto it = prim.attributes.find("TEXCOORD_0"); it != prim.attributes.end()) {
+        uv = view_accessor(it->second, pp + "/attributes/TEXCOORD_0", TINYGLTF_TYPE_VEC2, true);
+        if (uv->count != nv) fail(fmt::format("/accessors/{}/count", it->second), "TEXCOORD_0 and POSITION counts differ");
+      }
       Shape s;
       s.type = ShapeType::mesh;
       s.pointer = fmt::format("{} ({}{})", req_.pointer, req_.file, pp);
       s.material = material(prim.material, pp + "/material");
-      s.vertices.resize(nv);
-      for (size_t i = 0; i < nv; ++i) {
-        const Vec3 p = m.point({pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]});
+      if (!uv && scene_.materials[s.material].textured()) {
+        fail(pp + "/attributes", "has no TEXCOORD_0, but its material has textures");
+      }
+      // The triangles first (their count is checked before anything is copied), then
+      // only the vertices they use: primitives that share one large accessor each keep
+      // their own few vertices, not a copy of all of them.
+      const size_t ni = prim.indices >= 0 ? view_accessor(prim.indices, pp + "/indices", TINYGLTF_TYPE_SCALAR, true).count : nv;
+      if (ni % 3 != 0) fail(prim.indices >= 0 ? fmt::format("/accessors/{}/count", prim.indices) : pp, "is not a multiple of 3");
+      if (triangles_ + ni / 3 > limits_.max_triangles) {
+        fail(pp, fmt::format("{} more triangles, more than the limit of {} in the scene (max_triangles)", ni / 3,
+                             limits_.max_triangles));
+      }
+      std::vector<uint32_t> used;  // the vertices the triangles use, ascending
+      if (prim.indices >= 0) {
+        const AccessorView idx = view_accessor(prim.indices, pp + "/indices", TINYGLTF_TYPE_SCALAR, true);
+        if (idx.component_type == TINYGLTF_COMPONENT_TYPE_FLOAT) {
+          fail(fmt::format("/accessors/{}/componentType", prim.indices), "indices must be integers");
+        }
+        s.triangles.resize(ni / 3);
+        for (size_t t = 0; t < ni / 3; ++t) {
+          for (size_t k = 0; k < 3; ++k) {
+            const double v = idx.get(3 * t + k, 0);
+            if (!(v < static_cast<double>(nv))) {
+              fail(fmt::format("/accessors/{}", prim.indices), fmt::format("index {} = {} is out of range ({} vertices)", 3 * t + k, v, nv));
+            }
+            s.triangles[t][k] = static_cast<uint32_t>(v);
+          }
+        }
+        used.reserve(ni);
+        for (const auto& t : s.triangles) used.insert(used.end(), t.begin(), t.end());
+        std::sort(used.begin(), used.end());
+        used.erase(std::unique(used.begin(), used.end()), used.end());
+        for (auto& t : s.triangles) {
+          for (uint32_t& v : t) v = static_cast<uint32_t>(std::lower_bound(used.begin(), used.end(), v) - used.begin());
+        }
+      } else {
+        s.triangles.resize(ni / 3);
+        for (size_t t = 0; t < ni / 3; ++t) {
+          for (size_t k = 0; k < 3; ++k) s.triangles[t][k] = static_cast<uint32_t>(3 * t + k);
+        }
+      }
+      const size_t nu = prim.indices >= 0 ? used.size() : nv;
+      auto source = [&](size_t i) { return prim.indices >= 0 ? static_cast<size_t>(used[i]) : i; };
+      if (vertices_ + nu > limits_.max_vertices) {
+        fail(pp, fmt::format("{} more vertices, more than the limit of {} in the scene (max_vertices)", nu,
+                             limits_.max_vertices));
+      }
+      vertices_ += nu;
+      triangles_ += ni / 3;
+      s.vertices.resize(nu);
+      for (size_t i = 0; i < nu; ++i) {
+        const size_t j = source(i);
+        const Vec3 p = m.point({pos.get(j, 0), pos.get(j, 1), pos.get(j, 2)});
         for (int c = 0; c < 3; ++c) {
           if (!std::isfinite(p[c]) || std::fabs(p[c]) > kCoordLimit) {
-            fail(fmt::format("/accessors/{}", pos_it->second), fmt::format("vertex {} is not finite or out of range", i));
+            fail(fmt::format("/accessors/{}", pos_it->second), fmt::format("vertex {} is not finite or out of range", j));
           }
         }
         s.vertices[i] = p;
       }
-      if (auto it = prim.attributes.find("NORMAL"); it != prim.attributes.end()) {
-        size_t nn = 0;
-        const std::vector<double> nrm = read_accessor(it->second, pp + "/attributes/NORMAL", TINYGLTF_TYPE_VEC3, false, limit, &nn);
-        if (nn != nv) fail(fmt::format("/accessors/{}/count", it->second), "NORMAL and POSITION counts differ");
-        s.normals.resize(nv);
-        for (size_t i = 0; i < nv; ++i) {
-          const Vec3 w = m.normal({nrm[3 * i], nrm[3 * i + 1], nrm[3 * i + 2]});
+      if (nrm) {
+        s.normals.resize(nu);
+        for (size_t i = 0; i < nu; ++i) {
+          const size_t j = source(i);
+          const Vec3 w = m.normal({nrm->get(j, 0), nrm->get(j, 1), nrm->get(j, 2)});
           const double len = length(w);
           s.normals[i] = len > 0 && std::isfinite(len) ? w / len : Vec3{};  // zero: no shading normal there
         }
       }
-      if (auto it = prim.attributes.find("TEXCOORD_0"); it != prim.attributes.end()) {
-        size_t nt = 0;
-        const std::vector<double> uv = read_accessor(it->second, pp + "/attributes/TEXCOORD_0", TINYGLTF_TYPE_VEC2, true, limit, &nt);
-        if (nt != nv) fail(fmt::format("/accessors/{}/count", it->second), "TEXCOORD_0 and POSITION counts differ");
-        s.uvs.resize(nv);
-        for (size_t i = 0; i < nv; ++i) {
-          if (!std::isfinite(uv[2 * i]) || !std::isfinite(uv[2 * i + 1])) {
-            fail(fmt::format("/accessors/{}", it->second), "texture coordinates must be finite");
+      if (uv) {
+        s.uvs.resize(nu);
+        for (size_t i = 0; i < nu; ++i) {
+          const size_t j = source(i);
+          const double u = uv->get(j, 0), v = uv->get(j, 1);
+          if (!std::isfinite(u) || !std::isfinite(v)) {
+            fail(fmt::format("/accessors/{}", prim.attributes.at("TEXCOORD_0")), "texture coordinates must be finite");
           }
-          s.uvs[i] = {uv[2 * i], uv[2 * i + 1]};
+          s.uvs[i] = {u, v};
         }
       }
-      if (s.uvs.empty() && scene_.materials[s.material].textured()) {
-        fail(pp + "/attributes", "has no TEXCOORD_0, but its material has textures");
+      if (flip) {
+        for (auto& t : s.triangles) std::swap(t[1], t[2]);
       }
-      std::vector<double> idx;
-      size_t ni = 0;
-      if (prim.indices >= 0) {
-        idx = read_accessor(prim.indices, pp + "/indices", TINYGLTF_TYPE_SCALAR, true, 3 * max_triangles, &ni);
-        const auto ct = model_.accessors[static_cast<size_t>(prim.indices)].componentType;
-        if (ct == TINYGLTF_COMPONENT_TYPE_FLOAT) fail(fmt::format("/accessors/{}/componentType", prim.indices), "indices must be integers");
-      } else {
-        ni = nv;
-        idx.resize(nv);
-        for (size_t i = 0; i < nv; ++i) idx[i] = static_cast<double>(i);
-      }
-      if (ni % 3 != 0) fail(prim.indices >= 0 ? fmt::format("/accessors/{}/count", prim.indices) : pp, "is not a multiple of 3");
-      if (triangles_ + ni / 3 > max_triangles) fail(pp, fmt::format("too many triangles (limit {})", max_triangles));
-      triangles_ += ni / 3;
-      s.triangles.resize(ni / 3);
-      for (size_t t = 0; t < ni / 3; ++t) {
-        for (size_t k = 0; k < 3; ++k) {
-          const double v = idx[3 * t + k];
-          if (!(v < static_cast<double>(nv))) {
-            fail(fmt::format("/accessors/{}", prim.indices), fmt::format("index {} = {} is out of range ({} vertices)", 3 * t + k, v, nv));
-          }
-          s.triangles[t][k] = static_cast<uint32_t>(v);
-        }
-        if (flip) std::swap(s.triangles[t][1], s.triangles[t][2]);
-      }
-      if (scene_.shapes.size() >= 65536) fail("/meshes", "too many shapes (limit 65536 in the scene)");
       scene_.shapes.push_back(std::move(s));
     }
   }
@@ -601,7 +641,31 @@ class GltfLoader {
   bool camera_found_ = false;
   size_t nodes_visited_ = 0;
   size_t triangles_ = 0;  // in the scene so far (shapes before the glTF included)
+  size_t vertices_ = 0;   // likewise
 };
+
+// The glTF's JSON against the limits before tinygltf parses it (gltf_census.hpp).
+void check_gltf_json(std::string_view bytes, bool binary, const GltfRequest& req, const JobLimits& limits) {
+  auto refuse = [&](const std::string& what) {
+    return SpecError(req.pointer, fmt::format("glTF \"{}\": {}", req.file, what));
+  };
+  const std::optional<std::string_view> json = binary ? glb_json_chunk(bytes) : std::optional<std::string_view>(bytes);
+  if (!json) throw refuse("the .glb header or its JSON chunk is malformed");
+  if (json_nesting_depth(*json, limits.max_file_json_depth) > limits.max_file_json_depth) {
+    throw refuse(fmt::format("the JSON nests deeper than {} levels (max_file_json_depth)", limits.max_file_json_depth));
+  }
+  const GltfCensus census = gltf_census(*json);
+  for (const auto& [name, count] : census.arrays) {
+    if (count > limits.max_gltf_nodes) {
+      throw refuse(fmt::format("/{} has {} entries, more than the limit of {} (max_gltf_nodes)", name, count,
+                               limits.max_gltf_nodes));
+    }
+  }
+  if (census.primitives > limits.max_shapes) {
+    throw refuse(fmt::format("/meshes declare {} primitives, more than the limit of {} (max_shapes)", census.primitives,
+                             limits.max_shapes));
+  }
+}
 
 }  // namespace
 
@@ -610,6 +674,7 @@ void load_gltf(Scene& scene, const GltfRequest& req, const AssetReader& read, co
   // Binary glTF by its magic, not its name: a store reference ("sha256:...") has none.
   const bool binary = bytes.size() >= 4 && bytes.compare(0, 4, "glTF") == 0;
   if (bytes.size() > std::numeric_limits<unsigned int>::max()) throw SpecError(req.pointer, "glTF file is too large");
+  check_gltf_json(bytes, binary, req, limits);
 
   FsContext ctx;
   ctx.read = &read;

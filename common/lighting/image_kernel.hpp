@@ -59,6 +59,7 @@ class ImageKernel final : public Kernel, public ImageSource {
   ErrorSummary error_summary(const JobState& state, double confidence) const override;
   // The image's mean radiance over all pixels and channels, with its standard error.
   std::optional<Headline> headline(const JobState& state) const override;
+  uint64_t resident_bytes() const override { return scene_->scene.resident_bytes(); }
 
   // ImageSource
   int width() const override { return width_; }

@@ -42,6 +42,7 @@ class PointKernel final : public Kernel {
   ErrorSummary error_summary(const JobState& state, double confidence) const override;
   // Progress shows estimator 0 at point 0 (red), replicates combined.
   std::optional<Headline> headline(const JobState& state) const override;
+  uint64_t resident_bytes() const override { return scene_->scene.resident_bytes(); }
 
   size_t channel(size_t estimator, size_t point, int rgb, uint32_t replicate = 0) const {
     return ((estimator * points_.size() + point) * k_ + replicate) * 3 + static_cast<size_t>(rgb);

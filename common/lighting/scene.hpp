@@ -134,10 +134,21 @@ struct Scene {
   // textures is decoded once) and immutable (texture.hpp).
   std::vector<Texture> textures;
   uint64_t texture_bytes = 0;  // decoded texels of all textures, each grid counted once
+  uint64_t decode_bytes = 0;   // what decoding the scene's images was charged (JobLimits::max_decode_bytes)
   Vec3 origin{};  // world position of the local origin (see above)
   size_t triangle_count() const {
     size_t n = 0;
     for (const Shape& s : shapes) n += s.triangles.size();
+    return n;
+  }
+  // What the scene holds once compiled, estimated from its sizes (docs/performance.md):
+  // per vertex 24 bytes (doubles) + 16 (Embree's floats), per triangle 12 + ~100 for the
+  // BVH and light tables at their peak, normals 24, uvs 16, the textures' texels, and
+  // 82 bytes an environment texel (its RGB and sampling tables).
+  uint64_t resident_bytes() const;
+  size_t vertex_count() const {
+    size_t n = 0;
+    for (const Shape& s : shapes) n += s.vertices.size();
     return n;
   }
 };

@@ -3,11 +3,11 @@
 #include "common/image/image_decode.hpp"
 #include "common/lighting/asset_resolver.hpp"
 #include "common/lighting/environment_map.hpp"
+#include "common/lighting/obj_scene.hpp"
 #include "common/lighting/texture.hpp"
 #include "common/sampling/safe_math.hpp"
 
 #include <fmt/format.h>
-#include <tiny_obj_loader.h>
 
 #include <cmath>
 #include <limits>
@@ -69,241 +69,13 @@ void add_triangle_mesh(Shape& s, std::vector<Vec3> vertices, std::vector<std::ar
   s.triangles = std::move(tris);
 }
 
-// The `mtllib` names of an OBJ (each line may list several files).
-std::vector<std::string> mtllib_names(const std::string& obj_text) {
-  std::vector<std::string> out;
-  size_t pos = 0;
-  while (pos < obj_text.size()) {
-    size_t end = obj_text.find('\n', pos);
-    if (end == std::string::npos) end = obj_text.size();
-    std::string line = obj_text.substr(pos, end - pos);
-    pos = end + 1;
-    const size_t b = line.find_first_not_of(" \t");
-    if (b == std::string::npos || line.compare(b, 6, "mtllib") != 0) continue;
-    size_t i = b + 6;
-    if (i < line.size() && line[i] != ' ' && line[i] != '\t') continue;
-    while (i < line.size()) {
-      const size_t w = line.find_first_not_of(" \t\r", i);
-      if (w == std::string::npos) break;
-      const size_t e = std::min(line.find_first_of(" \t\r", w), line.size());
-      out.push_back(line.substr(w, e - w));
-      i = e;
-    }
-  }
-  return out;
-}
-
-Rgb mtl_rgb(const tinyobj::real_t* v) {
-  Rgb c{static_cast<double>(v[0]), static_cast<double>(v[1]), static_cast<double>(v[2])};
-  for (int k = 0; k < 3; ++k) {
-    const double x = c[k];
-    const double clamped = std::isfinite(x) ? std::clamp(x, 0.0, 1e12) : 0.0;
-    if (k == 0) c.x = clamped;
-    if (k == 1) c.y = clamped;
-    if (k == 2) c.z = clamped;
-  }
-  return c;
-}
-
-// An .mtl material as a tally material (docs/lighting.md, "OBJ materials"): Kd -> the
-// Lambertian albedo, Ks + Ns -> a normalised Phong lobe, Ke -> emission; where Kd + Ks
-// exceeds 1 both are scaled down so the material cannot create energy. map_Kd (read by
-// the caller) multiplies the albedo.
-Material mtl_material(const tinyobj::material_t& t, const std::string& name) {
-  Material m;
-  m.name = name;
-  Rgb kd = mtl_rgb(t.diffuse), ks = mtl_rgb(t.specular);
-  const Rgb ke = mtl_rgb(t.emission);
-  const double peak = max_component(kd + ks);
-  if (peak > 1.0) {
-    kd = kd / peak;
-    ks = ks / peak;
-  }
-  if (!is_black(ks)) {
-    m.type = MaterialType::phong;
-    m.reflectance = ks;
-    m.exponent = std::isfinite(t.shininess) ? std::clamp(static_cast<double>(t.shininess), 0.0, 1e6) : 0.0;
-    m.albedo = kd;
-  } else {
-    m.type = is_black(ke) ? MaterialType::diffuse : MaterialType::emissive;
-    m.albedo = kd;
-  }
-  m.emission = ke;
-  return m;
-}
-
-// The map_Kd texture of an .mtl material as an index into scene.textures (-1: none).
-// The file is named relative to the OBJ's directory and read through `read` (the same
-// checks as every asset); it is decoded as sRGB unless "-colorspace linear"; "-clamp on"
-// clamps to the edge, otherwise it repeats. Other options are refused.
-int32_t mtl_texture(const tinyobj::material_t& t, const std::string& dir, const std::string& pointer,
-                    const AssetReader& read, const JobLimits& limits, Scene& scene) {
-  if (t.diffuse_texname.empty()) return -1;
-  const tinyobj::texture_option_t& o = t.diffuse_texopt;
-  const std::string what = fmt::format("material \"{}\": map_Kd \"{}\"", t.name, t.diffuse_texname);
-  if (o.origin_offset[0] != 0 || o.origin_offset[1] != 0 || o.origin_offset[2] != 0 || o.scale[0] != 1 ||
-      o.scale[1] != 1 || o.scale[2] != 1 || o.turbulence[0] != 0 || o.turbulence[1] != 0 || o.turbulence[2] != 0 ||
-      o.brightness != 0 || o.contrast != 1) {
-    throw SpecError(pointer, what + ": the options -o, -s, -t and -mm are not supported");
-  }
-  if (!o.colorspace.empty() && o.colorspace != "sRGB" && o.colorspace != "linear") {
-    throw SpecError(pointer, what + fmt::format(": unknown -colorspace \"{}\" (sRGB or linear)", o.colorspace));
-  }
-  const bool srgb = o.colorspace != "linear";
-  const std::string bytes = [&] {
-    try {
-      return read(dir + t.diffuse_texname, pointer);
-    } catch (const SpecError& e) {
-      throw SpecError(pointer, fmt::format("{}: {}", what, e.detail()));
-    }
-  }();
-  const uint64_t left = limits.max_texture_bytes > scene.texture_bytes ? limits.max_texture_bytes - scene.texture_bytes : 0;
-  Texture tex;
-  try {
-    tex.texels = decode_texels(bytes, srgb, left / kTexelBytes);
-  } catch (const std::exception& e) {
-    throw SpecError(pointer, fmt::format("{}: cannot be used as a texture: {}", what, e.what()));
-  }
-  tex.wrap_s = tex.wrap_t = o.clamp ? TextureWrap::clamp_to_edge : TextureWrap::repeat;
-  scene.texture_bytes += tex.texels->bytes();
-  if (scene.textures.size() >= 4096) throw SpecError(pointer, "too many textures (limit 4096)");
-  scene.textures.push_back(std::move(tex));
-  return static_cast<int32_t>(scene.textures.size() - 1);
-}
-
-// Loads an OBJ into one shape per material. With `material` set (the scene names one)
-// every face gets it and `mtllib` opens nothing; otherwise the .mtl files it names are
-// read through `read` (relative to the OBJ's directory, with the same checks as every
-// asset) and each face gets its `usemtl` material.
-std::vector<Shape> load_obj(const std::string& relative, const std::string& pointer, const AssetReader& read,
-                            const JobLimits& limits, size_t triangles_so_far, std::optional<uint32_t> material,
-                            Scene& scene) {
-  tinyobj::ObjReaderConfig config;
-  config.triangulate = true;
-  config.vertex_color = false;
-  const std::string text = read(relative, pointer);
-  std::string mtl_text;
-  if (!material) {
-    const auto slash = relative.find_last_of('/');
-    const std::string dir = slash == std::string::npos ? std::string() : relative.substr(0, slash + 1);
-    for (const std::string& lib : mtllib_names(text)) mtl_text += read(dir + lib, pointer) + "\n";
-  }
-  tinyobj::ObjReader reader;
-  if (!reader.ParseFromString(text, mtl_text, config)) {
-    throw SpecError(pointer, fmt::format("cannot read OBJ: {}", reader.Error()));
-  }
-  const auto& attrib = reader.GetAttrib();
-  const size_t nv = attrib.vertices.size() / 3;
-  std::vector<Vec3> verts(nv);
-  for (size_t i = 0; i < nv; ++i) {
-    verts[i] = {attrib.vertices[3 * i], attrib.vertices[3 * i + 1], attrib.vertices[3 * i + 2]};
-    for (int c = 0; c < 3; ++c) {
-      if (!std::isfinite(verts[i][c]) || std::fabs(verts[i][c]) > kCoordLimit) {
-        throw SpecError(pointer, fmt::format("OBJ vertex {} is not finite or out of range", i));
-      }
-    }
-  }
-  // Faces grouped by OBJ material (-1: none), in order of first use.
-  std::vector<int> group_ids;
-  std::vector<std::vector<std::array<uint32_t, 3>>> groups;
-  std::vector<std::vector<std::array<int, 3>>> group_vt;  // vt indices of the same faces (-1: none)
-  const size_t nvt = attrib.texcoords.size() / 2;
-  size_t total = 0;
-  for (const auto& shape : reader.GetShapes()) {
-    const auto& idx = shape.mesh.indices;
-    if (triangles_so_far + total + idx.size() / 3 > limits.max_triangles) {
-      throw SpecError(pointer, fmt::format("too many triangles (limit {})", limits.max_triangles));
-    }
-    for (size_t f = 0; f + 2 < idx.size(); f += 3) {
-      std::array<uint32_t, 3> t{};
-      std::array<int, 3> vt{};
-      for (size_t k = 0; k < 3; ++k) {
-        const int vi = idx[f + k].vertex_index;
-        if (vi < 0 || static_cast<size_t>(vi) >= nv) throw SpecError(pointer, "OBJ index out of range");
-        t[k] = static_cast<uint32_t>(vi);
-        const int ti = idx[f + k].texcoord_index;
-        if (ti >= 0 && static_cast<size_t>(ti) >= nvt) throw SpecError(pointer, "OBJ texture coordinate index out of range");
-        vt[k] = ti;
-      }
-      const int mid = material ? -1 : (f / 3 < shape.mesh.material_ids.size() ? shape.mesh.material_ids[f / 3] : -1);
-      auto it = std::find(group_ids.begin(), group_ids.end(), mid);
-      if (it == group_ids.end()) {
-        group_ids.push_back(mid);
-        groups.emplace_back();
-        group_vt.emplace_back();
-        it = group_ids.end() - 1;
-      }
-      groups[static_cast<size_t>(it - group_ids.begin())].push_back(t);
-      group_vt[static_cast<size_t>(it - group_ids.begin())].push_back(vt);
-      ++total;
-    }
-  }
-  if (total == 0) throw SpecError(pointer, "OBJ file has no triangles");
-  const auto& mats = reader.GetMaterials();
-  const auto slash = relative.find_last_of('/');
-  const std::string dir = slash == std::string::npos ? std::string() : relative.substr(0, slash + 1);
-  std::vector<Shape> out;
-  for (size_t g = 0; g < groups.size(); ++g) {
-    Shape s;
-    s.type = ShapeType::mesh;
-    s.pointer = pointer;
-    if (material) {
-      s.material = *material;
-    } else {
-      const int mid = group_ids[g];
-      if (mid < 0 || static_cast<size_t>(mid) >= mats.size()) {
-        throw SpecError(pointer, "some OBJ faces have no .mtl material (no usemtl, or an unknown one) and the shape names no \"material\"");
-      }
-      if (scene.materials.size() >= 4096) throw SpecError(pointer, "too many materials (limit 4096)");
-      const tinyobj::material_t& mt = mats[static_cast<size_t>(mid)];
-      Material m = mtl_material(mt, relative + "#" + mt.name);
-      m.base_color_texture = mtl_texture(mt, dir, pointer, read, limits, scene);
-      scene.materials.push_back(std::move(m));
-      s.material = static_cast<uint32_t>(scene.materials.size() - 1);
-    }
-    if (scene.materials[s.material].textured()) {
-      // One vertex per distinct (v, vt) pair, so each carries its texture coordinates.
-      // OBJ's v runs up the image, glTF's (and tally's) down: v -> 1 - v.
-      std::map<std::pair<uint32_t, int>, uint32_t> seen;
-      for (size_t f = 0; f < groups[g].size(); ++f) {
-        for (size_t k = 0; k < 3; ++k) {
-          const int ti = group_vt[g][f][k];
-          if (ti < 0) {
-            throw SpecError(pointer, fmt::format("material \"{}\" has a texture, but face {} of its faces has no vt",
-                                                 scene.materials[s.material].name, f));
-          }
-          const auto key = std::make_pair(groups[g][f][k], ti);
-          auto [it, fresh] = seen.emplace(key, static_cast<uint32_t>(s.vertices.size()));
-          if (fresh) {
-            s.vertices.push_back(verts[key.first]);
-            s.uvs.push_back({attrib.texcoords[2 * static_cast<size_t>(ti)],
-                             1.0 - static_cast<double>(attrib.texcoords[2 * static_cast<size_t>(ti) + 1])});
-          }
-          groups[g][f][k] = it->second;
-        }
-      }
-      for (const Vec2& uv : s.uvs) {
-        if (!std::isfinite(uv.x) || !std::isfinite(uv.y)) throw SpecError(pointer, "OBJ texture coordinates must be finite");
-      }
-      s.triangles = std::move(groups[g]);
-      out.push_back(std::move(s));
-      continue;
-    }
-    // Every group keeps all vertices (simple; Embree ignores unreferenced ones).
-    add_triangle_mesh(s, g + 1 == groups.size() ? std::move(verts) : verts, std::move(groups[g]));
-    out.push_back(std::move(s));
-  }
-  return out;
-}
-
 std::vector<Shape> parse_shape(SpecReader r, Scene& scene, const JobLimits& limits, size_t triangles_so_far) {
   Shape s;
   s.pointer = r.pointer();
   const std::string type = r.enumeration("type", {"mesh", "sphere", "quad", "disk", "triangle"});
   if (type == "mesh" && r.has("obj") && !r.has("material")) {  // materials from the OBJ's .mtl
     const std::string rel = r.string("obj", 1024);
-    std::vector<Shape> shapes = load_obj(rel, r.pointer_of("obj"), scene_asset_reader(limits), limits,
-                                         triangles_so_far, std::nullopt, scene);
+    std::vector<Shape> shapes = load_obj(rel, r.pointer_of("obj"), scene_asset_reader(limits), limits, std::nullopt, scene);
     r.finish();
     return shapes;
   }
@@ -342,8 +114,7 @@ std::vector<Shape> parse_shape(SpecReader r, Scene& scene, const JobLimits& limi
     s.type = ShapeType::mesh;
     if (r.has("obj")) {
       const std::string rel = r.string("obj", 1024);
-      std::vector<Shape> shapes = load_obj(rel, r.pointer_of("obj"), scene_asset_reader(limits), limits,
-                                           triangles_so_far, s.material, scene);
+      std::vector<Shape> shapes = load_obj(rel, r.pointer_of("obj"), scene_asset_reader(limits), limits, s.material, scene);
       s.vertices = std::move(shapes[0].vertices);
       s.triangles = std::move(shapes[0].triangles);
       s.uvs = std::move(shapes[0].uvs);
@@ -359,6 +130,9 @@ std::vector<Shape> parse_shape(SpecReader r, Scene& scene, const JobLimits& limi
       }
       if (vj.size() / 3 > limits.max_table_size) {
         throw SpecError(vp, fmt::format("too many vertices (limit {})", limits.max_table_size));
+      }
+      if (scene.vertex_count() + vj.size() / 3 > limits.max_vertices) {
+        throw SpecError(vp, fmt::format("more than {} vertices in the scene (max_vertices)", limits.max_vertices));
       }
       if (triangles_so_far + ij.size() / 3 > limits.max_triangles) {
         throw SpecError(ip, fmt::format("too many triangles (limit {})", limits.max_triangles));
@@ -506,7 +280,13 @@ void parse_sky(SpecReader& l, Scene& scene, const JobLimits& limits) {
   }
   DecodedImage im;
   try {
-    im = decode_image(bytes, kMaxEnvironmentTexels);
+    ImageDecodeLimits dl;
+    dl.max_pixels = kMaxEnvironmentTexels;
+    dl.max_channels = static_cast<uint32_t>(std::min<size_t>(limits.max_image_channels, UINT32_MAX));
+    dl.max_bytes = limits.max_decode_bytes > scene.decode_bytes ? limits.max_decode_bytes - scene.decode_bytes : 0;
+    dl.kept_bytes_per_pixel = kEnvironmentTexelBytes;
+    im = decode_image(bytes, dl);
+    scene.decode_bytes += im.charged_bytes;
   } catch (const std::runtime_error& e) {
     throw refuse(e.what());
   }
@@ -571,7 +351,9 @@ Scene parse_scene(SpecReader& r, const JobLimits& limits) {
   if (const nlohmann::json* sj = r.find("shapes")) {
     const std::string sp = r.pointer_of("shapes");
     if (!sj->is_array()) throw SpecError(sp, "must be an array");
-    if (sj->size() > 65536) throw SpecError(sp, "too many shapes (limit 65536)");
+    if (sj->size() > limits.max_shapes) {
+      throw SpecError(sp, fmt::format("{} shapes, more than the limit of {} (max_shapes)", sj->size(), limits.max_shapes));
+    }
     for (size_t i = 0; i < sj->size(); ++i) {
       const nlohmann::json& e = (*sj)[i];
       if (e.is_object() && e.contains("type") && e["type"] == "gltf") {
@@ -579,7 +361,9 @@ Scene parse_scene(SpecReader& r, const JobLimits& limits) {
         continue;
       }
       for (Shape& s : parse_shape(SpecReader(e, json_pointer_append(sp, i)), scene, limits, scene.triangle_count())) {
-        if (scene.shapes.size() >= 65536) throw SpecError(sp, "too many shapes (limit 65536)");
+        if (scene.shapes.size() >= limits.max_shapes) {
+          throw SpecError(sp, fmt::format("more than {} shapes in the scene (max_shapes)", limits.max_shapes));
+        }
         scene.shapes.push_back(std::move(s));
       }
     }

@@ -59,13 +59,26 @@ std::shared_ptr<const TexelGrid> make_texels(const DecodedImage& im, bool srgb) 
   return grid;
 }
 
-std::shared_ptr<const TexelGrid> decode_texels(std::string_view bytes, bool srgb, uint64_t max_texels) {
+std::shared_ptr<const TexelGrid> decode_texels(std::string_view bytes, bool srgb, ImageDecodeLimits limits,
+                                               uint64_t* charged) {
   const auto format = sniff_image_format(bytes);
   if (!format || (*format != "png" && *format != "jpeg")) {
     throw std::runtime_error(format ? fmt::format("{} textures are not supported (PNG and JPEG are)", *format)
                                     : std::string("is not a PNG or JPEG image"));
   }
-  return make_texels(decode_image(bytes, max_texels), srgb);
+  limits.kept_bytes_per_pixel = kTexelBytes;
+  const DecodedImage im = decode_image(bytes, limits);
+  if (charged) *charged = im.charged_bytes;
+  return make_texels(im, srgb);
+}
+
+ImageDecodeLimits texture_decode_limits(const Scene& scene, const JobLimits& limits) {
+  ImageDecodeLimits d;
+  d.max_pixels = (limits.max_texture_bytes > scene.texture_bytes ? limits.max_texture_bytes - scene.texture_bytes : 0) /
+                 kTexelBytes;
+  d.max_channels = static_cast<uint32_t>(std::min<size_t>(limits.max_image_channels, UINT32_MAX));
+  d.max_bytes = limits.max_decode_bytes > scene.decode_bytes ? limits.max_decode_bytes - scene.decode_bytes : 0;
+  return d;
 }
 
 int64_t wrap_texel(int64_t i, int64_t n, TextureWrap wrap) {

@@ -17,11 +17,12 @@
 #include <string_view>
 #include <vector>
 
+#include "common/engine/limits.hpp"
+#include "common/image/image_decode.hpp"
 #include "common/math/vec3.hpp"
 
 namespace tally {
 
-struct DecodedImage;
 struct Material;
 struct Scene;
 using Rgb = Vec3;
@@ -52,10 +53,19 @@ double srgb_eotf(double encoded);
 // float texel.
 std::shared_ptr<const TexelGrid> make_texels(const DecodedImage& image, bool srgb);
 
-// Decodes an encoded file (PNG or JPEG; common/image) into texels of at most
-// `max_texels` texels. Throws std::runtime_error (what() says why) or
+// Decodes an encoded file (PNG or JPEG; common/image) into texels within `limits`
+// (kept_bytes_per_pixel is set to kTexelBytes here); `*charged` (if given) receives the
+// bytes the decode was charged. Throws std::runtime_error (what() says why) or
 // ImageModuleUnavailable.
-std::shared_ptr<const TexelGrid> decode_texels(std::string_view bytes, bool srgb, uint64_t max_texels);
+std::shared_ptr<const TexelGrid> decode_texels(std::string_view bytes, bool srgb, ImageDecodeLimits limits,
+                                               uint64_t* charged = nullptr);
+inline std::shared_ptr<const TexelGrid> decode_texels(std::string_view bytes, bool srgb, uint64_t max_texels) {
+  return decode_texels(bytes, srgb, ImageDecodeLimits{max_texels});
+}
+
+// What one more texture of `scene` may take: the texels left of
+// limits.max_texture_bytes, the channels, and the bytes left of limits.max_decode_bytes.
+ImageDecodeLimits texture_decode_limits(const Scene& scene, const JobLimits& limits);
 
 struct Texture {
   std::shared_ptr<const TexelGrid> texels;

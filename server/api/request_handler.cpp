@@ -6,8 +6,8 @@
 #include <chrono>
 #include <cmath>
 
+#include "common/spec/json_depth.hpp"
 #include "common/spec/spec_reader.hpp"
-#include "server/api/json_depth.hpp"
 #include "server/http/problem.hpp"
 #include "server/api/prometheus.hpp"
 #include "server/api/route_support.hpp"

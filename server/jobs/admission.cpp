@@ -29,10 +29,12 @@ uint64_t Admission::state_bytes(const JobDefinition& def) {
               static_cast<uint64_t>(k.partition_count()) * sizeof(uint64_t));
 }
 
+uint64_t Admission::memory_bytes(const JobDefinition& def) { return state_bytes(def) + def.kernel()->resident_bytes(); }
+
 std::optional<std::string> Admission::over_budget(uint64_t need) const {
   if (limits_.memory_budget == 0 || need <= limits_.memory_budget) return std::nullopt;
   const auto mib = [](uint64_t b) { return fmt::format("{:.1f} MiB", static_cast<double>(b) / (1 << 20)); };
-  return fmt::format("the job needs {} of memory for its state, more than the server's memory budget of {} "
+  return fmt::format("the job needs {} of memory for its state and scene, more than the server's memory budget of {} "
                      "(--memory-budget)",
                      mib(need), mib(limits_.memory_budget));
 }

@@ -43,6 +43,9 @@ class Admission {
   // Bytes a job's state takes in memory: its channels and partitions, twice (the
   // runner's and the copy published to readers at each pass boundary).
   static uint64_t state_bytes(const JobDefinition& def);
+  // What the budget is charged for a job: its state and what its kernel holds
+  // (Kernel::resident_bytes: a lighting job's scene).
+  static uint64_t memory_bytes(const JobDefinition& def);
   // Why a job whose state needs `need` bytes could never run, or nullopt if it fits the
   // budget alone (the refusal's text; the caller names the field).
   std::optional<std::string> over_budget(uint64_t need) const;

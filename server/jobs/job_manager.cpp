@@ -161,7 +161,7 @@ std::shared_ptr<Job> JobManager::submit(const json& spec, int priority, const Su
     }
     results_.counted(false);
   }
-  const uint64_t need = state_bytes(*def);
+  const uint64_t need = Admission::memory_bytes(*def);
   std::shared_ptr<Job> job;
   {
     std::lock_guard lock(mu_);
@@ -221,7 +221,7 @@ std::shared_ptr<Job> JobManager::answer_from(const std::string& source, const js
   }
   job->cache_key_ = key;
   job->cached_from_ = source;
-  const uint64_t need = state_bytes(*def);
+  const uint64_t need = Admission::memory_bytes(*def);
   {
     std::lock_guard jl(job->mu_);
     job->answer_locked(std::move(def), limits.caps(),
@@ -570,7 +570,7 @@ void JobManager::recover() {
       order_.push_back(job);
       next_seq_ = std::max(next_seq_, job->seq() + 1);
       std::lock_guard jl(job->mu_);
-      const uint64_t bytes = job->def_ ? state_bytes(*job->def_) : 0;
+      const uint64_t bytes = job->def_ ? Admission::memory_bytes(*job->def_) : 0;
       if (job->def_) job->cache_key_ = ResultCache::key_of(job->spec(), job->def_->seed());
       if (job->status_ == JobStatus::succeeded && answers_its_spec(job->def_.get(), job->facts_.get())) {
         results_.add(job->cache_key_, job->id(), job->owner(), job->facts_->samples);

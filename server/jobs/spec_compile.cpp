@@ -11,7 +11,7 @@ namespace tally {
 std::unique_ptr<JobDefinition> compile_within_budget(const JobCompiler& compiler, const nlohmann::json& spec,
                                                      const JobLimits& limits, const Admission& admission) {
   std::unique_ptr<JobDefinition> def = compiler(spec, limits);  // throws SpecError
-  const std::optional<std::string> why = admission.over_budget(Admission::state_bytes(*def));
+  const std::optional<std::string> why = admission.over_budget(Admission::memory_bytes(*def));
   if (!why) return def;
   // The kind's own channel limit names the field: compile again with the channels
   // the budget allows.

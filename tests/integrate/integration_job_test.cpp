@@ -358,6 +358,20 @@ TEST(IntegrationJob, PowerDensityNearMinusOneStaysInsideTheInterval) {
     EXPECT_EQ(r->state().counters[IntegrationCounter::nonfinite], 0u) << e;
     EXPECT_TRUE(std::isfinite(r->estimate(0).mean)) << e;
   }
+  // The density's own shape as the integrand: f/p = x0^-0.99 / (0.01 x0^-0.99) = 100 at
+  // every point. Draws below the smallest normal double (x0 = 4.94e-324) made both
+  // overflow and the job failed on the NaN weight inf/inf; they now stay at x0 >= DBL_MIN,
+  // where f/p is finite, so the estimate is 100 to rounding (issue 27).
+  {
+    const auto r = run_spec({{"kind", "integrate"},
+                             {"integrand", {{"expression", "x0^(-0.99)"}}},
+                             {"domain", {{"type", "interval"}, {"lower", 0}, {"upper", 1}}},
+                             {"estimator", {{"type", "importance"}, {"density", {{"type", "power"}, {"exponent", -0.99}}}}},
+                             {"stop", {{"max_samples", 200000}}}});
+    EXPECT_EQ(r->stop_reason(), StopReason::max_samples);
+    EXPECT_EQ(r->state().counters[IntegrationCounter::nonfinite], 0u);
+    EXPECT_NEAR(r->estimate(0).mean, 100.0, 1e-9);
+  }
   // Large exponents round t up to 1: x0 must stay below the upper bound too.
   const auto r = run_spec({{"kind", "integrate"},
                            {"integrand", {{"expression", "log(1 - x0)"}}},

@@ -93,7 +93,7 @@ TEST(Admission, OverBudgetNamesTheNeedAndTheBudget) {
   Admission a({.max_running = 1, .max_queued = 1, .memory_budget = 64ULL << 20});
   EXPECT_FALSE(a.over_budget(64ULL << 20).has_value());
   EXPECT_EQ(a.over_budget(96ULL << 20).value_or(""),
-            "the job needs 96.0 MiB of memory for its state, more than the server's memory budget of 64.0 MiB "
+            "the job needs 96.0 MiB of memory for its state and scene, more than the server's memory budget of 64.0 MiB "
             "(--memory-budget)");
 }
 

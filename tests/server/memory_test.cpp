@@ -159,6 +159,44 @@ TEST(Memory, JobOverTheBudgetIs422NamingTheResolution) {
   h.call("DELETE", "/v1/jobs/" + json::parse(ok.body).at("id").get<std::string>());
 }
 
+// A lighting job's scene counts toward the budget beside its state (issue 27 N2): a
+// point job of 3 channels whose mesh of 10,000 triangles (30,000 vertices) is estimated
+// at 40 x 30,000 + 112 x 10,000 = 2.32 MB (Scene::resident_bytes) is over 1 MiB and
+// within 4 MiB.
+TEST(Memory, LightingSceneIsChargedToTheBudget) {
+  json v = json::array(), idx = json::array();
+  for (int t = 0; t < 10000; ++t) {
+    const double x = t % 100, y = t / 100;
+    for (const double dx : {0.0, 1.0, 0.0}) {
+      v.push_back(x + dx);
+      v.push_back(y + (dx == 0.0 && idx.size() % 3 == 2 ? 1.0 : 0.0));
+      v.push_back(2.0);
+      idx.push_back(idx.size());
+    }
+  }
+  const json spec = {{"kind", "lighting"}, {"seed", 1},
+                     {"scene", {{"shapes", json::array({{{"type", "mesh"}, {"vertices", v}, {"indices", idx},
+                                                         {"material", {{"type", "emissive"}, {"radiance", {1, 1, 1}}}}}})}}},
+                     {"query", {{"type", "points"},
+                                {"points", json::array({{{"p", {0, 0, 0}}, {"n", {0, 0, 1}},
+                                                         {"material", {{"type", "diffuse"}, {"albedo", {0.5, 0.5, 0.5}}}}}})}}},
+                     {"estimators", {"light_area"}}, {"stop", {{"max_samples", 1000}}}};
+  ManagerConfig mc = config();
+  mc.memory_budget = 1ULL << 20;
+  {
+    AnyHarness h(mc);
+    const HttpResponse r = h.call("POST", "/v1/jobs", spec.dump());
+    EXPECT_EQ(r.status, 422) << r.body;
+    EXPECT_NE(r.body.find("of memory for its state and scene, more than the server's memory budget of 1.0 MiB"),
+              std::string::npos) << r.body;
+  }
+  mc.memory_budget = 4ULL << 20;
+  AnyHarness h(mc);
+  const HttpResponse ok = h.call("POST", "/v1/jobs", spec.dump());
+  EXPECT_EQ(ok.status, 202) << ok.body;
+  h.call("DELETE", "/v1/jobs/" + json::parse(ok.body).at("id").get<std::string>());
+}
+
 TEST(Memory, JobWaitsUntilItsStateFitsAndThenStarts) {
   ManagerConfig mc = config();
   mc.max_running = 4;

@@ -9,7 +9,7 @@
 #include "client/sse_parser.hpp"
 #include "server/executor/cpu_quota.hpp"
 #include "server/jobs/event_log.hpp"
-#include "server/api/json_depth.hpp"
+#include "common/spec/json_depth.hpp"
 #include "server/http/listen_address.hpp"
 #include "server/http/problem.hpp"
 #include "server/api/router.hpp"

@@ -57,6 +57,8 @@ set(spec_readers
   common/lighting/lighting_spec.hpp common/lighting/lighting_spec.cpp
   common/lighting/scene_json.hpp common/lighting/scene_json.cpp
   common/lighting/gltf_scene.cpp       # scene reader: glTF files, errors are SpecErrors
+  common/lighting/gltf_census.hpp common/lighting/gltf_census.cpp  # scene reader: a glTF's JSON counted before it is parsed
+  common/lighting/obj_scene.cpp        # scene reader: OBJ + .mtl files, errors are SpecErrors
   common/lighting/asset_resolver.hpp common/lighting/asset_resolver.cpp)  # scene file names -> files, errors are SpecErrors
 set(json_patterns "<nlohmann/" "nlohmann::" "\"common/protocol/" "\"common/spec/" "_spec\\.hpp\""
   "scene_json\\.hpp\"")

@@ -1,6 +1,6 @@
-#include "server/api/json_depth.hpp"
+#include "common/spec/json_depth.hpp"
 
-#include <nlohmann/json.hpp>
+#include "common/spec/json_value_sax.hpp"
 #include <vector>
 
 namespace tally {
@@ -8,7 +8,7 @@ namespace tally {
 namespace {
 
 // SAX handler that keeps the path to the value being parsed.
-class PathTracker : public nlohmann::json_sax<nlohmann::json> {
+class PathTracker : public JsonValueSax {
  public:
   std::string pointer() const {
     std::string out;
@@ -31,13 +31,6 @@ class PathTracker : public nlohmann::json_sax<nlohmann::json> {
     return out;
   }
 
-  bool null() override { return value(); }
-  bool boolean(bool) override { return value(); }
-  bool number_integer(number_integer_t) override { return value(); }
-  bool number_unsigned(number_unsigned_t) override { return value(); }
-  bool number_float(number_float_t, const string_t&) override { return value(); }
-  bool string(string_t&) override { return value(); }
-  bool binary(binary_t&) override { return value(); }
   bool start_object(std::size_t) override {
     enter(true);
     return true;
@@ -52,7 +45,6 @@ class PathTracker : public nlohmann::json_sax<nlohmann::json> {
     return true;
   }
   bool end_array() override { return leave(); }
-  bool parse_error(std::size_t, const std::string&, const nlohmann::detail::exception&) override { return false; }
 
  private:
   struct Level {
@@ -62,7 +54,7 @@ class PathTracker : public nlohmann::json_sax<nlohmann::json> {
   };
   // A value in an array advances the index; the pointer of a value being parsed is
   // the index it will get.
-  bool value() {
+  bool value() override {
     if (!path_.empty() && !path_.back().object) path_.back().index++;
     return true;
   }
