@@ -111,7 +111,15 @@ TEST(ClusterPools, AJobWhosePoolHasNoLiveWorkerReadsAsQueuedNamingThePool) {
   EXPECT_EQ(s.at("bits"), expected);
   EXPECT_FALSE(s.contains("waiting_reason"));
   EXPECT_TRUE(jobs_in_log(cl.worker(0).log()).empty()) << cl.worker(0).log();
-  EXPECT_EQ(worker_named(c, "wgpu").at("pools"), json::array({"big", "gpu"}));
+  // The registry is read on the coordinator's refresh tick, which may come after a job
+  // this short has ended: wait for it (bounded) before reading the worker's pools.
+  json wgpu = worker_named(c, "wgpu");
+  for (int i = 0; i < 250 && wgpu.is_null(); ++i) {
+    std::this_thread::sleep_for(20ms);
+    wgpu = worker_named(c, "wgpu");
+  }
+  ASSERT_FALSE(wgpu.is_null()) << get_json(c, "/v1/workers").dump();
+  EXPECT_EQ(wgpu.at("pools"), json::array({"big", "gpu"}));
 }
 
 // A bad pool name is refused at submit with a 422 naming /pool; tally-worker refuses a

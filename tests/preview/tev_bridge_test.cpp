@@ -4,6 +4,7 @@
 // (finished) job state, channel by channel, selected by name. A second test stops
 // the fake tev mid-job and starts it again on the same port: the bridge must
 // reconnect and re-send the whole image.
+#include <cctype>
 #include <arpa/inet.h>
 #include <fcntl.h>
 #include <gtest/gtest.h>
@@ -378,7 +379,17 @@ TEST(TevBridgeEndToEnd, ReconnectsWhenTevRestartsAndResendsTheImage) {
   const auto rc = cli.wait(120s);
   ASSERT_TRUE(rc.has_value()) << "tally preview did not finish:\n" << cli.log();
   EXPECT_EQ(*rc, 0) << cli.log();
-  EXPECT_NE(cli.log().find("1 tev reconnects"), std::string::npos) << cli.log();
+  // At least one reconnect: the restarted tev may refuse or drop the bridge's first
+  // attempt while it comes up (a loaded machine counted 2), so the count is not exact.
+  {
+    const std::string log = cli.log();
+    const size_t at = log.find(" tev reconnects");
+    ASSERT_NE(at, std::string::npos) << log;
+    size_t from = at;
+    while (from > 0 && std::isdigit(static_cast<unsigned char>(log[from - 1]))) --from;
+    ASSERT_LT(from, at) << log;
+    EXPECT_GE(std::stoi(log.substr(from, at - from)), 1) << log;
+  }
   for (int i = 0; i < 500 && status(server, id).at("state") == "running"; ++i) std::this_thread::sleep_for(20ms);
   ASSERT_EQ(status(server, id).at("state"), "cancelled");
 
