@@ -21,6 +21,7 @@
 #include "common/protocol/job_kinds.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "common/protocol/status_json.hpp"
+#include "server/jobs/memory_budget.hpp"
 
 namespace tally {
 
@@ -98,6 +99,9 @@ int run(const RunOptions& o) {
   std::unique_ptr<JobDefinition> job;
   try {
     JobLimits limits;
+    // One job in this process: its state may take half the machine's memory, as
+    // tally-server's default (server/jobs/memory_budget.hpp).
+    if (const uint64_t m = default_memory_budget()) limits.max_state_bytes = m;
     if (!o.asset_dir.empty()) {
       limits.asset_dir = o.asset_dir;
     } else {

@@ -2,17 +2,32 @@
 // The per-job caps (JobLimits) as command-line flags, written once for tally-server and
 // tally-worker: a worker re-validates every spec it reads with its own limits, so the
 // two must offer the same flags (give workers at least the server's values).
+// --max-state-bytes defaults to the machine's default memory budget (half its memory or
+// cgroup limit, server/jobs/memory_budget.hpp), so a worker on the same kind of machine
+// admits what the server admits.
 #include <CLI/CLI.hpp>
 
 #include <cstddef>
+#include <string>
 
 #include "common/engine/limits.hpp"
+#include "server/jobs/memory_budget.hpp"
 
 namespace tally {
 
 inline void add_job_limit_flags(CLI::App& app, JobLimits& l) {
   app.add_option("--max-dimensions", l.max_dimensions, "per-job cap: integration dimensions")->capture_default_str();
-  app.add_option("--max-channels", l.max_channels, "per-job cap: channels")->capture_default_str();
+  if (const uint64_t m = default_memory_budget()) l.max_state_bytes = m;
+  app.add_option_function<std::string>(
+         "--max-state-bytes",
+         [&l](const std::string& v) {
+           const auto b = parse_byte_size(v);
+           if (!b || *b == 0) throw CLI::ValidationError("--max-state-bytes", v + " is not a size (4GiB, 512MiB, bytes)");
+           l.max_state_bytes = *b;
+         },
+         "per-job cap: bytes of a job's state in memory (an image's pixels, a point query's points); default: half "
+         "the machine's memory")
+      ->default_str(std::to_string(l.max_state_bytes));
   app.add_option("--max-samples", l.max_samples, "per-job cap: samples")->capture_default_str();
   app.add_option("--max-seconds", l.max_seconds, "per-job cap: compute seconds")->capture_default_str();
   app.add_option("--max-pixels", l.max_pixels, "per-job cap: image pixels")->capture_default_str();

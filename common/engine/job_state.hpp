@@ -2,6 +2,7 @@
 // Everything a running job has accumulated. It is exactly what a checkpoint stores:
 // a job resumed from it continues bit-identically.
 #include <cstdint>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -41,5 +42,19 @@ struct JobState {
 
   static constexpr size_t kMaxTrace = 512;
 };
+
+// Bytes a job's state takes in memory while it runs, the one estimate both the spec
+// readers (against JobLimits::max_state_bytes) and the server's admission (against its
+// memory budget) use: the runner's JobState plus one more copy in flight (a pass's
+// block results, a snapshot or a checkpoint being written), each a Tally per channel
+// and a sample count per partition. Saturates at UINT64_MAX.
+inline uint64_t job_state_bytes(uint64_t channels, uint64_t partitions) {
+  constexpr uint64_t kCopies = 2;
+  constexpr uint64_t kMax = std::numeric_limits<uint64_t>::max();
+  if (channels > kMax / (kCopies * 2 * sizeof(Tally)) || partitions > kMax / (kCopies * 2 * sizeof(uint64_t))) {
+    return kMax;
+  }
+  return kCopies * (channels * sizeof(Tally) + partitions * sizeof(uint64_t));
+}
 
 }  // namespace tally

@@ -8,6 +8,7 @@
 
 #include "common/spec/pool_field.hpp"
 #include "common/spec/spec_reader.hpp"
+#include "common/engine/job_state.hpp"
 #include "common/lighting/compiled_scene.hpp"
 #include "common/lighting/image_kernel.hpp"
 #include "common/lighting/point_kernel.hpp"
@@ -110,8 +111,14 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
     const nlohmann::json& pj = q.at("points");
     const std::string pp = q.pointer_of("points");
     if (!pj.is_array() || pj.empty()) throw SpecError(pp, "must be a non-empty array of points");
-    const size_t max_points = std::min<size_t>(65536, limits.max_channels / (3 * strategies.size() * sampler.k()));
-    if (pj.size() > max_points) throw SpecError(pp, fmt::format("too many points (limit {})", max_points));
+    constexpr size_t kMaxPoints = 65536;
+    if (pj.size() > kMaxPoints) throw SpecError(pp, fmt::format("too many points (limit {})", kMaxPoints));
+    const uint64_t need = job_state_bytes(uint64_t{3} * strategies.size() * sampler.k() * pj.size(), 1);
+    if (need > limits.max_state_bytes) {
+      throw SpecError(pp, fmt::format("{} points x {} estimators x 3 colours x {} replicates need {} bytes of job state; "
+                                      "the limit is {} bytes",
+                                      pj.size(), strategies.size(), sampler.k(), need, limits.max_state_bytes));
+    }
     for (size_t i = 0; i < pj.size(); ++i) {
       SpecReader pr(pj[i], json_pointer_append(pp, i));
       RawPoint rp;
@@ -129,13 +136,17 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
   } else {
     if (!scene.camera) throw SpecError("/scene/camera", "is required for image queries");
     if (strategies.size() != 1) throw SpecError("/estimators", "an image query takes exactly one estimator");
-    const uint64_t pixels = static_cast<uint64_t>(scene.camera->width) * static_cast<uint64_t>(scene.camera->height);
-    if (3 * sampler.k() * pixels > limits.max_channels) {
-      throw SpecError("/scene/camera/resolution", fmt::format("{} pixels need {} channels ({} replicates); the limit is {}",
-                                                              pixels, 3 * sampler.k() * pixels, sampler.k(),
-                                                              limits.max_channels));
-    }
     tile_size = static_cast<int>(q.integer_or("tile_size", 32, 4, 256));
+    const uint64_t w = static_cast<uint64_t>(scene.camera->width), h = static_cast<uint64_t>(scene.camera->height);
+    const uint64_t ts = static_cast<uint64_t>(tile_size);
+    const uint64_t tiles = ((w + ts - 1) / ts) * ((h + ts - 1) / ts);
+    const uint64_t need = job_state_bytes(3 * sampler.k() * w * h, tiles);
+    if (need > limits.max_state_bytes) {
+      throw SpecError("/scene/camera/resolution",
+                      fmt::format("{}x{} pixels x 3 colours x {} replicates need {} bytes of job state; the limit is {} "
+                                  "bytes",
+                                  w, h, sampler.k(), need, limits.max_state_bytes));
+    }
     max_pass_spp = q.integer_or("max_pass_spp", 64, 1, 1 << 16);
     if (q.has("adaptive")) {
       SpecReader a = q.object("adaptive");

@@ -4,6 +4,8 @@
 
 #include <algorithm>
 
+#include "common/engine/job_state.hpp"
+
 namespace tally {
 
 namespace {
@@ -25,8 +27,7 @@ bool goes_before(const Job& a, const Job& b, const std::map<std::string, uint64_
 
 uint64_t Admission::state_bytes(const JobDefinition& def) {
   const Kernel& k = *def.kernel();
-  return 2 * (static_cast<uint64_t>(k.channel_count()) * sizeof(Tally) +
-              static_cast<uint64_t>(k.partition_count()) * sizeof(uint64_t));
+  return job_state_bytes(k.channel_count(), k.partition_count());
 }
 
 uint64_t Admission::memory_bytes(const JobDefinition& def) { return state_bytes(def) + def.kernel()->resident_bytes(); }

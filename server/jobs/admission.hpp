@@ -40,8 +40,9 @@ class Admission {
   };
   explicit Admission(Limits limits) : limits_(limits) {}
 
-  // Bytes a job's state takes in memory: its channels and partitions, twice (the
-  // runner's and the copy published to readers at each pass boundary).
+  // Bytes a job's state takes in memory: job_state_bytes (common/engine/job_state.hpp)
+  // of its kernel's channels and partitions, the estimate the spec readers check
+  // against JobLimits::max_state_bytes.
   static uint64_t state_bytes(const JobDefinition& def);
   // What the budget is charged for a job: its state and what its kernel holds
   // (Kernel::resident_bytes: a lighting job's scene).

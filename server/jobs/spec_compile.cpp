@@ -13,10 +13,11 @@ std::unique_ptr<JobDefinition> compile_within_budget(const JobCompiler& compiler
   std::unique_ptr<JobDefinition> def = compiler(spec, limits);  // throws SpecError
   const std::optional<std::string> why = admission.over_budget(Admission::memory_bytes(*def));
   if (!why) return def;
-  // The kind's own channel limit names the field: compile again with the channels
-  // the budget allows.
+  // The kind's own state limit names the field: compile again with the state bytes
+  // the budget leaves beside the kernel's resident bytes (the scene).
   JobLimits fit = limits;
-  fit.max_channels = std::min<size_t>(limits.max_channels, admission.memory_budget() / (2 * sizeof(Tally)));
+  const uint64_t budget = admission.memory_budget(), resident = def->kernel()->resident_bytes();
+  fit.max_state_bytes = std::min<uint64_t>(limits.max_state_bytes, budget > resident ? budget - resident : 0);
   try {
     compiler(spec, fit);
   } catch (const SpecError& e) {

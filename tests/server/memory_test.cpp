@@ -140,7 +140,7 @@ TEST(Memory, JobOverTheBudgetIs422NamingTheResolution) {
   ManagerConfig mc = config();
   mc.memory_budget = 64ULL << 20;
   AnyHarness h(mc);
-  // 512 × 512 × 3 × 8 replicates = 6.3 M channels: within --max-channels, but its
+  // 512 × 512 × 3 × 8 replicates = 6.3 M channels: within --max-state-bytes, but its
   // 2 × 144 MiB are over the budget.
   const HttpResponse r = h.call("POST", "/v1/jobs", image_spec(512, 512).dump());
   EXPECT_EQ(r.status, 422) << r.body;

@@ -1,0 +1,68 @@
+// Production frames over the wire (issue 28): the real tally-server with its default
+// limits admits a 1920x1080 image job and runs it to the end; with --max-state-bytes
+// below what the frame's state needs it refuses it with 422 naming the resolution, the
+// bytes the state would need and the limit.
+#include <gtest/gtest.h>
+
+#include <string>
+
+#include "server_process.hpp"
+
+namespace tally::e2e {
+namespace {
+
+using nlohmann::json;
+
+// One pass of 8 samples a pixel (one per sobol replicate), direct light only, big tiles:
+// a few seconds of work on two threads.
+json frame_spec(int w, int h) {
+  json spec = json::parse(R"({
+    "kind": "lighting", "seed": 7,
+    "scene": {
+      "camera": {"position": [0, -4.5, 3.2], "look_at": [0, 0, 0.6], "up": [0, 0, 1], "fov_deg": 50},
+      "materials": {"white": {"type": "diffuse", "albedo": [0.8, 0.8, 0.8]},
+                    "lamp": {"type": "emissive", "radiance": [5, 5, 5]}},
+      "shapes": [
+        {"type": "quad", "corner": [-3, -3, 0], "edge_u": [6, 0, 0], "edge_v": [0, 6, 0], "material": "white"},
+        {"type": "quad", "corner": [-0.5, -0.5, 2], "edge_u": [0, 1, 0], "edge_v": [1, 0, 0], "material": "lamp"}]
+    },
+    "query": {"type": "image", "max_depth": 1, "tile_size": 32, "max_pass_spp": 8},
+    "estimators": ["mis"], "stop": {"max_samples": 8}
+  })");
+  spec["scene"]["camera"]["resolution"] = {w, h};
+  return spec;
+}
+
+TEST(FramesE2E, FullHdImageRunsWithDefaultLimits) {
+  TempDir tmp;
+  ServerProcess server(tmp.path / "data");
+  HttpClient c = server.client(60);
+  const std::string id = submit(c, frame_spec(1920, 1080));
+  const json st = wait_state(c, id, "succeeded", 240);
+  EXPECT_EQ(st.at("samples"), 8) << st.dump();
+  EXPECT_EQ(st.at("passes"), 1) << st.dump();
+}
+
+TEST(FramesE2E, FrameOverMaxStateBytesIs422WithTheBytes) {
+  TempDir tmp;
+  ServerProcess server(tmp.path / "data", {"--max-state-bytes", "1GiB"});
+  HttpClient c = server.client();
+  const ClientResponse r =
+      c.request("POST", "/v1/jobs", frame_spec(1920, 1080).dump(), {{"Content-Type", "application/json"}});
+  EXPECT_EQ(r.status, 422) << r.body;
+  EXPECT_EQ(r.header("Content-Type"), "application/problem+json");
+  const json p = json::parse(r.body);
+  EXPECT_EQ(p.at("pointer"), "/scene/camera/resolution") << r.body;
+  // 2 x (3 x 8 x 1920 x 1080 tallies of 24 bytes + 60 x 34 tiles' counts of 8 bytes).
+  EXPECT_EQ(p.at("detail"),
+            "1920x1080 pixels x 3 colours x 8 replicates need 2388819840 bytes of job state; the limit is 1073741824 "
+            "bytes")
+      << r.body;
+  EXPECT_EQ(get_json(c, "/v1/jobs").at("jobs").size(), 0u);
+  // A frame within it is admitted.
+  const std::string id = submit(c, frame_spec(640, 360));
+  EXPECT_EQ(wait_state(c, id, "succeeded", 120).at("samples"), 8);
+}
+
+}  // namespace
+}  // namespace tally::e2e

@@ -1,0 +1,89 @@
+// The lighting spec reader's limit on a job's state in bytes (JobLimits::max_state_bytes,
+// job_state_bytes): 1920x1080 and 3840x2160 frames fit half of a 24 GB machine (what
+// tally-server and `tally run` take by default); a frame over the limit is refused
+// naming /scene/camera/resolution, the bytes it would need and the limit.
+#include <gtest/gtest.h>
+
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "common/engine/job_state.hpp"
+#include "common/engine/limits.hpp"
+#include "common/lighting/lighting_spec.hpp"
+#include "common/spec/spec_reader.hpp"
+
+namespace tally {
+namespace {
+
+using nlohmann::json;
+
+json frame_spec(int w, int h) {
+  json spec = json::parse(R"({
+    "kind": "lighting", "seed": 7,
+    "scene": {
+      "camera": {"position": [0, -4.5, 3.2], "look_at": [0, 0, 0.6], "up": [0, 0, 1], "fov_deg": 50},
+      "materials": {"white": {"type": "diffuse", "albedo": [0.8, 0.8, 0.8]},
+                    "lamp": {"type": "emissive", "radiance": [5, 5, 5]}},
+      "shapes": [
+        {"type": "quad", "corner": [-3, -3, 0], "edge_u": [6, 0, 0], "edge_v": [0, 6, 0], "material": "white"},
+        {"type": "quad", "corner": [-0.5, -0.5, 2], "edge_u": [0, 1, 0], "edge_v": [1, 0, 0], "material": "lamp"}]
+    },
+    "query": {"type": "image", "max_depth": 1}, "estimators": ["mis"], "stop": {"max_samples": 8}
+  })");
+  spec["scene"]["camera"]["resolution"] = {w, h};
+  return spec;
+}
+
+// Half of 24 GB, what default_memory_budget() gives on this project's reference machine.
+constexpr uint64_t kHalfOf24GB = 12ULL << 30;
+
+TEST(StateLimit, FullHdAndFourKFitHalfOf24GB) {
+  // 3 colours x 8 replicates x 24-byte tallies + 8 bytes a 32-pixel tile, twice.
+  EXPECT_EQ(job_state_bytes(uint64_t{3} * 8 * 1920 * 1080, 60 * 34), 2388819840ULL);
+  EXPECT_EQ(job_state_bytes(uint64_t{3} * 8 * 3840 * 2160, 120 * 68), 9555279360ULL);
+  JobLimits limits;
+  limits.max_state_bytes = kHalfOf24GB;
+  for (const auto& [w, h] : {std::pair{1920, 1080}, std::pair{3840, 2160}}) {
+    const auto def = compile_lighting_job(frame_spec(w, h), limits);
+    EXPECT_EQ(def->kernel()->channel_count(), uint64_t{3} * 8 * w * h);
+  }
+}
+
+TEST(StateLimit, FrameOverTheLimitNamesResolutionAndBytes) {
+  JobLimits limits;
+  limits.max_state_bytes = 9555279360ULL - 1;  // one byte short of the 4K frame's state
+  try {
+    compile_lighting_job(frame_spec(3840, 2160), limits);
+    FAIL() << "a 4K frame over the state limit was accepted";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.pointer(), "/scene/camera/resolution");
+    EXPECT_EQ(e.detail(),
+              "3840x2160 pixels x 3 colours x 8 replicates need 9555279360 bytes of job state; the limit is "
+              "9555279359 bytes");
+  }
+  limits.max_state_bytes = 9555279360ULL;  // exactly at the limit is fine
+  EXPECT_NO_THROW(compile_lighting_job(frame_spec(3840, 2160), limits));
+}
+
+TEST(StateLimit, PointsOverTheLimitNameThePoints) {
+  json spec = frame_spec(1, 1);
+  spec["scene"].erase("camera");
+  const json point = {{"p", {0, 0, 0}}, {"n", {0, 0, 1}}, {"material", "white"}};
+  spec["query"] = {{"type", "points"}, {"points", json::array({point, point})}};
+  JobLimits limits;
+  // 2 points x 1 estimator x 3 colours x 8 replicates = 48 tallies and 1 partition, twice.
+  limits.max_state_bytes = 2 * (48 * 24 + 8) - 1;
+  try {
+    compile_lighting_job(spec, limits);
+    FAIL() << "points over the state limit were accepted";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.pointer(), "/query/points");
+    EXPECT_EQ(e.detail(),
+              "2 points x 1 estimators x 3 colours x 8 replicates need 2320 bytes of job state; the limit is 2319 bytes");
+  }
+  limits.max_state_bytes = 2320;
+  EXPECT_NO_THROW(compile_lighting_job(spec, limits));
+}
+
+}  // namespace
+}  // namespace tally
