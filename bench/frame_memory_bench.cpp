@@ -1,0 +1,224 @@
+// Memory per pixel of an image job (issue 28): job state (job_state_bytes, the estimate
+// the limits and the server's budget use) and process peak RSS, at two resolutions of
+// the same scene, and the same for Blender Cycles where `blender` is on PATH. Each
+// render runs as a child process (this program with --child, or blender -b -P) so its
+// peak RSS (wait4's ru_maxrss) is its own; bytes per pixel are the slope between the two
+// resolutions, which cancels each program's fixed cost (code, scene, BVH).
+//
+//   frame_memory_bench [--small 512] [--large 2048] [--spp 8]
+//
+// tally: `tally run`'s path in process (compile_lighting_job, run_local, 1 thread),
+// the default sobol sampler (K = 8 replicates, so at least 8 samples a pixel), direct
+// light (max_depth 1). Cycles: 1 thread, the given spp, the same quads and camera.
+#include <sys/resource.h>
+#include <sys/types.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "common/engine/job_state.hpp"
+#include "common/engine/pass_loop.hpp"
+#include "common/lighting/lighting_spec.hpp"
+
+using namespace tally;
+using json = nlohmann::json;
+
+namespace {
+
+json frame_spec(int w, int h, uint64_t spp) {
+  json spec = json::parse(R"({
+    "kind": "lighting", "seed": 7,
+    "scene": {
+      "camera": {"position": [0, -4.5, 3.2], "look_at": [0, 0, 0.6], "up": [0, 0, 1], "fov_deg": 50},
+      "materials": {"white": {"type": "diffuse", "albedo": [0.8, 0.8, 0.8]},
+                    "lamp": {"type": "emissive", "radiance": [5, 5, 5]}},
+      "shapes": [
+        {"type": "quad", "corner": [-3, -3, 0], "edge_u": [6, 0, 0], "edge_v": [0, 6, 0], "material": "white"},
+        {"type": "quad", "corner": [-0.5, -0.5, 2], "edge_u": [0, 1, 0], "edge_v": [1, 0, 0], "material": "lamp"}]
+    },
+    "query": {"type": "image", "max_depth": 1}, "estimators": ["mis"]
+  })");
+  spec["scene"]["camera"]["resolution"] = {w, h};
+  spec["stop"] = {{"max_samples", spp}};
+  return spec;
+}
+
+// The same scene for Cycles: a 6x6 diffuse floor at z = 0, a 1x1 emitter at z = 2
+// facing down, the camera at (0, -4.5, 3.2) looking at (0, 0, 0.6), 50 degrees.
+constexpr const char* kCyclesScript = R"PY(
+import bpy, sys, mathutils
+w, h, spp, out = int(sys.argv[-4]), int(sys.argv[-3]), int(sys.argv[-2]), sys.argv[-1]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+sc = bpy.context.scene
+sc.render.engine = 'CYCLES'
+sc.cycles.device = 'CPU'
+sc.cycles.samples = spp
+sc.cycles.use_adaptive_sampling = False
+sc.cycles.use_denoising = False
+sc.cycles.max_bounces = 1
+sc.render.threads_mode = 'FIXED'
+sc.render.threads = 1
+sc.render.resolution_x, sc.render.resolution_y, sc.render.resolution_percentage = w, h, 100
+sc.render.image_settings.file_format = 'OPEN_EXR'
+sc.render.filepath = out
+def quad(name, corner, eu, ev, mat):
+    c, u, v = map(mathutils.Vector, (corner, eu, ev))
+    me = bpy.data.meshes.new(name)
+    me.from_pydata([c, c + u, c + u + v, c + v], [], [(0, 1, 2, 3)])
+    ob = bpy.data.objects.new(name, me)
+    ob.data.materials.append(mat)
+    sc.collection.objects.link(ob)
+white = bpy.data.materials.new('white'); white.use_nodes = True
+white.node_tree.nodes['Principled BSDF'].inputs['Base Color'].default_value = (0.8, 0.8, 0.8, 1)
+lamp = bpy.data.materials.new('lamp'); lamp.use_nodes = True
+nt = lamp.node_tree; nt.nodes.clear()
+em = nt.nodes.new('ShaderNodeEmission'); em.inputs['Color'].default_value = (1, 1, 1, 1); em.inputs['Strength'].default_value = 5
+mo = nt.nodes.new('ShaderNodeOutputMaterial'); nt.links.new(em.outputs[0], mo.inputs[0])
+quad('floor', (-3, -3, 0), (6, 0, 0), (0, 6, 0), white)
+quad('lamp', (-0.5, -0.5, 2), (0, 1, 0), (1, 0, 0), lamp)
+cam = bpy.data.objects.new('cam', bpy.data.cameras.new('cam'))
+sc.collection.objects.link(cam); sc.camera = cam
+cam.location = (0, -4.5, 3.2)
+cam.rotation_euler = (mathutils.Vector((0, 0, 0.6)) - cam.location).to_track_quat('-Z', 'Y').to_euler()
+cam.data.sensor_fit = 'HORIZONTAL'
+import math; cam.data.angle = math.radians(50)
+bpy.ops.render.render(write_still=True)
+)PY";
+
+struct Child {
+  bool ok = false;
+  double seconds = 0;
+  uint64_t peak_rss = 0;  // bytes
+};
+
+// Runs argv, waits, returns its own peak RSS.
+Child run_child(const std::vector<std::string>& args, bool quiet) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const pid_t pid = fork();
+  if (pid < 0) return {};
+  if (pid == 0) {
+    if (quiet) {
+      std::FILE* devnull = std::fopen("/dev/null", "w");
+      if (devnull) {
+        dup2(fileno(devnull), 1);
+        dup2(fileno(devnull), 2);
+      }
+    }
+    std::vector<char*> argv;
+    for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    execvp(argv[0], argv.data());
+    _exit(127);
+  }
+  int status = 0;
+  rusage ru{};
+  if (wait4(pid, &status, 0, &ru) != pid) return {};
+  Child c;
+  c.ok = WIFEXITED(status) && WEXITSTATUS(status) == 0;
+  c.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  c.peak_rss = static_cast<uint64_t>(ru.ru_maxrss) * 1024;  // Linux: kilobytes
+  return c;
+}
+
+bool on_path(const std::string& name) {
+  const char* path = std::getenv("PATH");
+  if (!path) return false;
+  std::string p(path);
+  for (size_t a = 0; a <= p.size();) {
+    const size_t b = p.find(':', a);
+    const std::string dir = p.substr(a, b == std::string::npos ? std::string::npos : b - a);
+    if (!dir.empty() && access((std::filesystem::path(dir) / name).c_str(), X_OK) == 0) return true;
+    if (b == std::string::npos) break;
+    a = b + 1;
+  }
+  return false;
+}
+
+JobLimits unlimited_state() {
+  JobLimits l;
+  l.max_state_bytes = UINT64_MAX;
+  return l;
+}
+
+int child_main(int w, int h, uint64_t spp) {
+  auto job = compile_lighting_job(frame_spec(w, h, spp), unlimited_state());
+  JobRunner runner(job->kernel(), job->stop_rule(), JobCaps{});
+  LocalRunOptions o;
+  o.threads = 1;
+  run_local(runner, o);
+  return runner.state().samples == spp ? 0 : 1;
+}
+
+double per_pixel(uint64_t a, uint64_t b, uint64_t pa, uint64_t pb) {
+  return (static_cast<double>(b) - static_cast<double>(a)) / static_cast<double>(pb - pa);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int small = 512, large = 2048;
+  uint64_t spp = 8;
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string f = argv[i];
+    if (f == "--child" && i + 3 < argc) return child_main(std::atoi(argv[i + 1]), std::atoi(argv[i + 2]), std::strtoull(argv[i + 3], nullptr, 10));
+    if (f == "--small") small = std::atoi(argv[i + 1]);
+    else if (f == "--large") large = std::atoi(argv[i + 1]);
+    else if (f == "--spp") spp = std::strtoull(argv[i + 1], nullptr, 10);
+  }
+  const uint64_t ps = uint64_t(small) * small, pl = uint64_t(large) * large;
+  std::printf("frame_memory_bench: %dx%d and %dx%d, %llu spp, 1 thread, direct light\n", small, small, large, large,
+              static_cast<unsigned long long>(spp));
+  // The state estimate as the limits compute it (32-pixel tiles, K = 8).
+  const auto state = [&](int s) {
+    auto job = compile_lighting_job(frame_spec(s, s, spp), unlimited_state());
+    return job_state_bytes(job->kernel()->channel_count(), job->kernel()->partition_count());
+  };
+  const uint64_t ss = state(small), sl = state(large);
+  std::printf("tally job state (job_state_bytes): %.1f MB, %.1f MB: %.1f bytes/pixel\n", ss / 1e6, sl / 1e6,
+              per_pixel(ss, sl, ps, pl));
+  const std::string self = std::filesystem::canonical("/proc/self/exe").string();
+  const auto tally_run = [&](int s) {
+    return run_child({self, "--child", std::to_string(s), std::to_string(s), std::to_string(spp)}, false);
+  };
+  const Child ts = tally_run(small), tl = tally_run(large);
+  if (!ts.ok || !tl.ok) {
+    std::printf("tally child failed\n");
+    return 1;
+  }
+  const double tally_bpp = per_pixel(ts.peak_rss, tl.peak_rss, ps, pl);
+  std::printf("tally peak RSS: %.1f MB (%.1f s), %.1f MB (%.1f s): %.1f bytes/pixel\n", ts.peak_rss / 1e6, ts.seconds,
+              tl.peak_rss / 1e6, tl.seconds, tally_bpp);
+  if (!on_path("blender")) {
+    std::printf("blender is not on PATH: Cycles not measured\n");
+    return 0;
+  }
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("frame_memory_bench." + std::to_string(getpid()));
+  std::filesystem::create_directories(dir);
+  { std::ofstream(dir / "scene.py") << kCyclesScript; }
+  const auto cycles_run = [&](int s) {
+    return run_child({"blender", "-b", "--factory-startup", "-P", (dir / "scene.py").string(), "--", std::to_string(s),
+                      std::to_string(s), std::to_string(spp), (dir / "out.exr").string()},
+                     true);
+  };
+  const Child cs = cycles_run(small), cl = cycles_run(large);
+  std::filesystem::remove_all(dir);
+  if (!cs.ok || !cl.ok) {
+    std::printf("blender failed\n");
+    return 1;
+  }
+  const double cycles_bpp = per_pixel(cs.peak_rss, cl.peak_rss, ps, pl);
+  std::printf("Cycles peak RSS: %.1f MB (%.1f s), %.1f MB (%.1f s): %.1f bytes/pixel\n", cs.peak_rss / 1e6, cs.seconds,
+              cl.peak_rss / 1e6, cl.seconds, cycles_bpp);
+  std::printf("tally / Cycles bytes per pixel of peak RSS: %.2f (goal <= 1.0)\n", tally_bpp / cycles_bpp);
+  return 0;
+}
