@@ -29,29 +29,14 @@
 #include "common/engine/job_state.hpp"
 #include "common/engine/pass_loop.hpp"
 #include "common/lighting/lighting_spec.hpp"
+#include "tests/support/frame_scene.hpp"
 
 using namespace tally;
 using json = nlohmann::json;
 
 namespace {
 
-json frame_spec(int w, int h, uint64_t spp) {
-  json spec = json::parse(R"({
-    "kind": "lighting", "seed": 7,
-    "scene": {
-      "camera": {"position": [0, -4.5, 3.2], "look_at": [0, 0, 0.6], "up": [0, 0, 1], "fov_deg": 50},
-      "materials": {"white": {"type": "diffuse", "albedo": [0.8, 0.8, 0.8]},
-                    "lamp": {"type": "emissive", "radiance": [5, 5, 5]}},
-      "shapes": [
-        {"type": "quad", "corner": [-3, -3, 0], "edge_u": [6, 0, 0], "edge_v": [0, 6, 0], "material": "white"},
-        {"type": "quad", "corner": [-0.5, -0.5, 2], "edge_u": [0, 1, 0], "edge_v": [1, 0, 0], "material": "lamp"}]
-    },
-    "query": {"type": "image", "max_depth": 1}, "estimators": ["mis"]
-  })");
-  spec["scene"]["camera"]["resolution"] = {w, h};
-  spec["stop"] = {{"max_samples", spp}};
-  return spec;
-}
+using scenes::frame_spec;
 
 // The same scene for Cycles: a 6x6 diffuse floor at z = 0, a 1x1 emitter at z = 2
 // facing down, the camera at (0, -4.5, 3.2) looking at (0, 0, 0.6), 50 degrees.
@@ -163,6 +148,19 @@ double per_pixel(uint64_t a, uint64_t b, uint64_t pa, uint64_t pb) {
   return (static_cast<double>(b) - static_cast<double>(a)) / static_cast<double>(pb - pa);
 }
 
+// Prints a program's two peaks and their slope; nullopt (said) if a run failed.
+std::optional<double> peak_per_pixel(const char* name, const Child& small, const Child& large, uint64_t ps,
+                                     uint64_t pl) {
+  if (!small.ok || !large.ok) {
+    std::printf("%s failed\n", name);
+    return std::nullopt;
+  }
+  const double bpp = per_pixel(small.peak_rss, large.peak_rss, ps, pl);
+  std::printf("%s peak RSS: %.1f MB (%.1f s), %.1f MB (%.1f s): %.1f bytes/pixel\n", name, small.peak_rss / 1e6,
+              small.seconds, large.peak_rss / 1e6, large.seconds, bpp);
+  return bpp;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -190,14 +188,8 @@ int main(int argc, char** argv) {
   const auto tally_run = [&](int s) {
     return run_child({self, "--child", std::to_string(s), std::to_string(s), std::to_string(spp)}, false);
   };
-  const Child ts = tally_run(small), tl = tally_run(large);
-  if (!ts.ok || !tl.ok) {
-    std::printf("tally child failed\n");
-    return 1;
-  }
-  const double tally_bpp = per_pixel(ts.peak_rss, tl.peak_rss, ps, pl);
-  std::printf("tally peak RSS: %.1f MB (%.1f s), %.1f MB (%.1f s): %.1f bytes/pixel\n", ts.peak_rss / 1e6, ts.seconds,
-              tl.peak_rss / 1e6, tl.seconds, tally_bpp);
+  const std::optional<double> tally_bpp = peak_per_pixel("tally", tally_run(small), tally_run(large), ps, pl);
+  if (!tally_bpp) return 1;
   if (!on_path("blender")) {
     std::printf("blender is not on PATH: Cycles not measured\n");
     return 0;
@@ -212,13 +204,8 @@ int main(int argc, char** argv) {
   };
   const Child cs = cycles_run(small), cl = cycles_run(large);
   std::filesystem::remove_all(dir);
-  if (!cs.ok || !cl.ok) {
-    std::printf("blender failed\n");
-    return 1;
-  }
-  const double cycles_bpp = per_pixel(cs.peak_rss, cl.peak_rss, ps, pl);
-  std::printf("Cycles peak RSS: %.1f MB (%.1f s), %.1f MB (%.1f s): %.1f bytes/pixel\n", cs.peak_rss / 1e6, cs.seconds,
-              cl.peak_rss / 1e6, cl.seconds, cycles_bpp);
-  std::printf("tally / Cycles bytes per pixel of peak RSS: %.2f (goal <= 1.0)\n", tally_bpp / cycles_bpp);
+  const std::optional<double> cycles_bpp = peak_per_pixel("Cycles", cs, cl, ps, pl);
+  if (!cycles_bpp) return 1;
+  std::printf("tally / Cycles bytes per pixel of peak RSS: %.2f (goal <= 1.0)\n", *tally_bpp / *cycles_bpp);
   return 0;
 }

@@ -7,31 +7,16 @@
 #include <string>
 
 #include "server_process.hpp"
+#include "tests/support/frame_scene.hpp"
 
 namespace tally::e2e {
 namespace {
 
 using nlohmann::json;
 
-// One pass of 8 samples a pixel (one per sobol replicate), direct light only, big tiles:
-// a few seconds of work on two threads.
-json frame_spec(int w, int h) {
-  json spec = json::parse(R"({
-    "kind": "lighting", "seed": 7,
-    "scene": {
-      "camera": {"position": [0, -4.5, 3.2], "look_at": [0, 0, 0.6], "up": [0, 0, 1], "fov_deg": 50},
-      "materials": {"white": {"type": "diffuse", "albedo": [0.8, 0.8, 0.8]},
-                    "lamp": {"type": "emissive", "radiance": [5, 5, 5]}},
-      "shapes": [
-        {"type": "quad", "corner": [-3, -3, 0], "edge_u": [6, 0, 0], "edge_v": [0, 6, 0], "material": "white"},
-        {"type": "quad", "corner": [-0.5, -0.5, 2], "edge_u": [0, 1, 0], "edge_v": [1, 0, 0], "material": "lamp"}]
-    },
-    "query": {"type": "image", "max_depth": 1, "tile_size": 32, "max_pass_spp": 8},
-    "estimators": ["mis"], "stop": {"max_samples": 8}
-  })");
-  spec["scene"]["camera"]["resolution"] = {w, h};
-  return spec;
-}
+// One pass of 8 samples a pixel (one per sobol replicate), direct light only: a few
+// seconds of work on two threads.
+json frame_spec(int w, int h) { return scenes::frame_spec(w, h, 8); }
 
 TEST(FramesE2E, FullHdImageRunsWithDefaultLimits) {
   TempDir tmp;

@@ -11,28 +11,14 @@
 #include "common/engine/limits.hpp"
 #include "common/lighting/lighting_spec.hpp"
 #include "common/spec/spec_reader.hpp"
+#include "tests/support/frame_scene.hpp"
 
 namespace tally {
 namespace {
 
 using nlohmann::json;
 
-json frame_spec(int w, int h) {
-  json spec = json::parse(R"({
-    "kind": "lighting", "seed": 7,
-    "scene": {
-      "camera": {"position": [0, -4.5, 3.2], "look_at": [0, 0, 0.6], "up": [0, 0, 1], "fov_deg": 50},
-      "materials": {"white": {"type": "diffuse", "albedo": [0.8, 0.8, 0.8]},
-                    "lamp": {"type": "emissive", "radiance": [5, 5, 5]}},
-      "shapes": [
-        {"type": "quad", "corner": [-3, -3, 0], "edge_u": [6, 0, 0], "edge_v": [0, 6, 0], "material": "white"},
-        {"type": "quad", "corner": [-0.5, -0.5, 2], "edge_u": [0, 1, 0], "edge_v": [1, 0, 0], "material": "lamp"}]
-    },
-    "query": {"type": "image", "max_depth": 1}, "estimators": ["mis"], "stop": {"max_samples": 8}
-  })");
-  spec["scene"]["camera"]["resolution"] = {w, h};
-  return spec;
-}
+json frame_spec(int w, int h) { return scenes::frame_spec(w, h, 8); }
 
 // Half of 24 GB, what default_memory_budget() gives on this project's reference machine.
 constexpr uint64_t kHalfOf24GB = 12ULL << 30;
