@@ -6,6 +6,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace tally {
@@ -21,6 +22,8 @@ struct IntegrandInfo {
   std::string family;                     // genz: one family ...
   std::vector<std::string> families;      // ... or several (a vector integrand)
   std::vector<double> a, u;               // genz parameters
+  // A parameterized expression (`expression` is its template): name, one value per component.
+  std::vector<std::pair<std::string, std::vector<double>>> parameters;
 };
 
 class Integrand {
