@@ -427,12 +427,9 @@ class SweepKernelBase : public IntegrationKernelBase {
   void run_vector_block(const Block& b, BlockResult& out) const {
     const size_t count = static_cast<size_t>(b.sample_count);
     thread_local std::vector<double> vals, fbuf, totals;
-    thread_local std::vector<double*> fptr;
     vals.assign(m_ * count, 0.0);
-    fbuf.resize(m_ * kB);
+    fbuf.resize(kB);  // one component's batch at a time: memory does not grow with m
     totals.resize(m_);
-    fptr.resize(m_);
-    for (size_t c = 0; c < m_; ++c) fptr[c] = fbuf.data() + c * kB;
     Scratch& s = scratch();
     const Domain& D = *p_.domain;
     s.ensure(D.uniforms(), D.dimensions());
@@ -449,9 +446,9 @@ class SweepKernelBase : public IntegrationKernelBase {
         const size_t n = static_cast<size_t>(std::min<uint64_t>(kB, points_ - j0));
         const bool weighted = sweep_uniforms(s, sample, j0, n);
         D.map_uniform(s.u_ptr.data(), n, s.x_ptr.data());
-        p_.integrand->evaluate_components(s.x_cptr.data(), n, fptr.data());
         for (size_t c = 0; c < m_ && done == count; ++c) {
-          const double* f = fptr[c];
+          double* f = fbuf.data();
+          p_.integrand->evaluate_component(c, s.x_cptr.data(), n, f);
           if (!all_finite(f, n)) {
             for (size_t i = 0; i < n; ++i) {
               if (!std::isfinite(f[i])) {

@@ -38,6 +38,11 @@ class Integrand {
   virtual void evaluate_components(const double* const* xs, size_t n, double* const* out) const {
     evaluate_batch(xs, n, out[0]);
   }
+  // Component c alone (n values to out), for callers that consume one component at a
+  // time and so need one batch buffer, not components() of them. Default: component 0.
+  virtual void evaluate_component(size_t /*c*/, const double* const* xs, size_t n, double* out) const {
+    evaluate_batch(xs, n, out);
+  }
   virtual IntegrandInfo describe() const = 0;
 };
 

@@ -125,6 +125,14 @@ std::string IntegrationJob::summary_line(const JobRunner& runner) const {
     return fmt::format("{:.12g} ({}, error estimate {:.3g}, not a confidence interval)", e.mean, s_.estimator.type,
                        runner.error().abs_error);
   }
+  if (s_.integrand->components() > 1) {  // the vector in one line: how many met, the worst one
+    const IntegrationResult r = result(runner);
+    const ComponentsSummary& cs = *r.components_summary;
+    const ComponentEstimate& w = r.components[cs.worst];
+    const std::string met = cs.met ? fmt::format(", {} meet the error target", *cs.met) : std::string();
+    return fmt::format("{} components{}; worst: component {} = {:.10g} ± {:.3g} (relative half-width {:.3g})",
+                       cs.count, met, cs.worst, w.mean, w.std_error, cs.worst_rel_half_width);
+  }
   const Estimate e = runner.headline();  // channel 0, or VEGAS's combined passes
   return fmt::format("{:.10g} ± {:.3g} ({:g}% CI [{:.10g}, {:.10g}])", e.mean, e.std_error, 100.0 * e.confidence,
                      e.ci_lo, e.ci_hi);

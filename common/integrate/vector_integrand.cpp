@@ -23,6 +23,9 @@ class VectorExpressionIntegrand final : public Integrand {
   void evaluate_components(const double* const* xs, size_t n, double* const* out) const override {
     for (size_t c = 0; c < exprs_.size(); ++c) exprs_[c].evaluate_batch(xs, n, out[c]);
   }
+  void evaluate_component(size_t c, const double* const* xs, size_t n, double* out) const override {
+    exprs_[c].evaluate_batch(xs, n, out);
+  }
   IntegrandInfo describe() const override {
     IntegrandInfo info;
     if (!parameters_.empty()) {  // the template and its values, not m bound texts
@@ -57,6 +60,9 @@ class GenzSet final : public Integrand {
   }
   void evaluate_components(const double* const* xs, size_t n, double* const* out) const override {
     for (size_t c = 0; c < fs_.size(); ++c) fs_[c]->evaluate_batch(xs, n, out[c]);
+  }
+  void evaluate_component(size_t c, const double* const* xs, size_t n, double* out) const override {
+    fs_[c]->evaluate_batch(xs, n, out);
   }
   IntegrandInfo describe() const override {
     return {.builtin = "genz", .families = names_, .a = a_, .u = u_};

@@ -69,6 +69,9 @@ TEST(VectorJobs, ParameterizedLatticeJobMeetsEveryClosedFormWithinItsErrorBar) {
     ASSERT_GT(e.std_error, 0.0) << c;
     EXPECT_LT(std::fabs(e.mean - exact) / e.std_error, 7.0) << "a = " << a[c];
   }
+  // The CLI's one line is about the vector: the count and the worst component.
+  const std::string line = r.job->summary_line(*r.runner);
+  EXPECT_EQ(line.rfind("200 components; worst: component ", 0), 0u) << line;
   // The result names the template and its values, not 200 bound texts.
   const json j = integration_result_json(res);
   EXPECT_EQ(j["integrand"]["expression"], integrand["expression"]);
