@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 #include <numeric>
 
+#include "common/engine/channel_summary.hpp"
 #include "common/engine/check.hpp"
 
 #include "common/engine/job_state.hpp"
@@ -58,9 +59,13 @@ std::vector<uint32_t> Kernel::active_partitions(const JobState&) const {
 }
 
 ErrorSummary Kernel::error_summary(const JobState& state, double confidence) const {
+  return worst_channel_summary(state.channels, confidence);
+}
+
+ErrorSummary worst_channel_summary(std::span<const Tally> channels, double confidence) {
   ErrorSummary worst;
   bool any = false;
-  for (const Tally& t : state.channels) {
+  for (const Tally& t : channels) {
     if (t.n < 2) {
       return {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
               std::numeric_limits<double>::quiet_NaN(), t.mean};

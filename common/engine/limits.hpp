@@ -30,6 +30,10 @@ struct JobLimits {
   size_t max_expression_length = 4096;
   uint64_t max_pixels = 4096ULL * 4096ULL;
   uint64_t max_quadrature_points = 1ULL << 26;
+  // Components of one vector integrand ("expressions", Genz "families", or the values of
+  // a parameterized expression): each costs its own evaluations and ~24 bytes of state a
+  // result group; the covariance of the means (m^2 / 2 channels) is only kept when asked.
+  size_t max_components = 16384;
   size_t max_table_size = 1 << 20;  // tabulated densities, inline meshes' vertices
   // Triangles of one lighting scene, all meshes together (inline, OBJ, glTF); vertices
   // are bounded by max_vertices below. Memory: ~100 bytes a triangle at peak while the

@@ -39,6 +39,20 @@ const FunctionInfo* find_function(std::string_view name) {
   return nullptr;
 }
 
+}  // namespace
+
+bool is_reserved_name(std::string_view name) {
+  if (find_function(name) || name == "_pi" || name == "_e") return true;
+  if (name == "x" || name == "y" || name == "z") return true;
+  if (name.size() < 2 || name[0] != 'x') return false;
+  for (char c : name.substr(1)) {
+    if (c < '0' || c > '9') return false;
+  }
+  return true;
+}
+
+namespace {
+
 class Parser {
  public:
   Parser(std::vector<Token> tokens, size_t dimensions, size_t max_depth)

@@ -27,4 +27,8 @@ Ast parse(std::string_view text, size_t dimensions, size_t max_depth);
 // (same functions, same order), so folding never changes a result.
 void fold_constants(Ast& ast);
 
+// True for the names the grammar gives a meaning: functions, _pi, _e, and what reads as a
+// variable (x, y, z, x<digits>). Such names cannot be bound as parameters.
+bool is_reserved_name(std::string_view name);
+
 }  // namespace tally::expr

@@ -8,6 +8,7 @@
 #include <numbers>
 #include <span>
 
+#include "common/engine/channel_summary.hpp"
 #include "common/engine/block_abandon.hpp"
 #include "common/engine/job_state.hpp"
 #include "common/integrate/integration_counters.hpp"
@@ -356,8 +357,24 @@ class CosineImportanceKernel final : public ImportanceKernelBase {
 class SweepKernelBase : public IntegrationKernelBase {
  public:
   SweepKernelBase(IntegrationProblem p, uint64_t points)
-      : IntegrationKernelBase(std::move(p)), points_(points) {}
+      : IntegrationKernelBase(std::move(p)), points_(points), m_(p_.integrand->components()) {}
   uint64_t evaluations_per_sample() const override { return points_; }
+
+  // A vector integrand: one channel per component (then, with covariance, one per pair
+  // a < c holding f_a + f_c). Every component is averaged over the same point sets, so
+  // component c is bit-identical to the scalar job of its function with the same seed.
+  size_t channel_count() const override { return m_ + (p_.covariance ? m_ * (m_ - 1) / 2 : 0); }
+  void run_block(const Block& b, BlockResult& out) const override {
+    if (channel_count() == 1) {
+      IntegrationKernelBase::run_block(b, out);
+      return;
+    }
+    run_vector_block(b, out);
+  }
+  ErrorSummary error_summary(const JobState& st, double confidence) const override {
+    const std::span<const Tally> all(st.channels);
+    return worst_channel_summary(all.first(std::min(m_, all.size())), confidence);
+  }
 
  protected:
   // Fill the scratch uniform rows with points [j0, j0 + n) of sweep `sample`. True if
@@ -403,6 +420,86 @@ class SweepKernelBase : public IntegrationKernelBase {
   }
 
   uint64_t points_;
+
+ private:
+  // The vector form of fill + IntegrationKernelBase::run_block: per sample (point set),
+  // each component's average over the set, summed batch by batch in the scalar order.
+  void run_vector_block(const Block& b, BlockResult& out) const {
+    const size_t count = static_cast<size_t>(b.sample_count);
+    thread_local std::vector<double> vals, fbuf, totals;
+    vals.assign(m_ * count, 0.0);
+    fbuf.resize(kB);  // one component's batch at a time: memory does not grow with m
+    totals.resize(m_);
+    Scratch& s = scratch();
+    const Domain& D = *p_.domain;
+    s.ensure(D.uniforms(), D.dimensions());
+    const double measure = D.measure();
+    size_t done = count;
+    for (size_t k = 0; k < count && done == count; ++k) {
+      const uint64_t sample = b.first_sample + k;
+      std::fill(totals.begin(), totals.end(), 0.0);
+      for (uint64_t j0 = 0; j0 < points_; j0 += kB) {
+        if (block_abandoned()) {  // dropped (block_abandon.hpp)
+          done = k;
+          break;
+        }
+        const size_t n = static_cast<size_t>(std::min<uint64_t>(kB, points_ - j0));
+        const bool weighted = sweep_uniforms(s, sample, j0, n);
+        D.map_uniform(s.u_ptr.data(), n, s.x_ptr.data());
+        for (size_t c = 0; c < m_ && done == count; ++c) {
+          double* f = fbuf.data();
+          p_.integrand->evaluate_component(c, s.x_cptr.data(), n, f);
+          if (!all_finite(f, n)) {
+            for (size_t i = 0; i < n; ++i) {
+              if (!std::isfinite(f[i])) {
+                out.counters.add(IntegrationCounter::nonfinite);
+                record_fault(out, sample, f[i], s, i, D.dimensions());
+                if (out.fault) out.fault->channel = static_cast<uint32_t>(c);
+                break;
+              }
+            }
+            done = k;
+            break;
+          }
+          double batch = 0.0;
+          if (weighted) {
+            for (size_t i = 0; i < n; ++i) batch += f[i] * s.pdf[i];
+          } else {
+            for (size_t i = 0; i < n; ++i) batch += f[i];
+          }
+          totals[c] += batch;
+        }
+        if (done != count) break;
+      }
+      if (done != count) break;
+      out.counters.add(IntegrationCounter::evaluations, points_);
+      for (size_t c = 0; c < m_; ++c) vals[c * count + k] = measure * totals[c] / static_cast<double>(points_);
+    }
+    out.first_channel = 0;
+    out.tallies.assign(channel_count(), Tally{});
+    for (size_t c = 0; c < m_; ++c) out.tallies[c] = Tally::from_batch(vals.data() + c * count, done);
+    if (p_.covariance) {
+      thread_local std::vector<double> pair;
+      pair.resize(done);
+      size_t ch = m_;
+      for (size_t a = 0; a < m_; ++a) {
+        for (size_t c = a + 1; c < m_; ++c) {
+          for (size_t i = 0; i < done; ++i) pair[i] = vals[a * count + i] + vals[c * count + i];
+          out.tallies[ch++] = Tally::from_batch(pair.data(), done);
+        }
+      }
+    }
+    double threshold = out.tail.threshold();
+    for (size_t i = 0; i < done; ++i) {  // the tail of component 0, as the scalar job's
+      const double v = std::fabs(vals[i]);
+      if (v > threshold) {
+        out.tail.offer(v);
+        threshold = out.tail.threshold();
+      }
+    }
+  }
+
+  size_t m_;
 };
 
 class StratifiedKernel final : public SweepKernelBase {

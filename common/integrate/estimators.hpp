@@ -24,6 +24,9 @@ struct IntegrationProblem {
   std::shared_ptr<const Integrand> integrand;
   std::shared_ptr<const Domain> domain;
   uint64_t seed = 1;
+  // Vector integrands: also tally f_a + f_c for every pair a < c, so that the result has
+  // the covariance of the component means (m (m - 1) / 2 more channels).
+  bool covariance = false;
 };
 
 // One-dimensional density factor of an importance-sampling density on a box.

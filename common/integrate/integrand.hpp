@@ -6,6 +6,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace tally {
@@ -21,6 +22,8 @@ struct IntegrandInfo {
   std::string family;                     // genz: one family ...
   std::vector<std::string> families;      // ... or several (a vector integrand)
   std::vector<double> a, u;               // genz parameters
+  // A parameterized expression (`expression` is its template): name, one value per component.
+  std::vector<std::pair<std::string, std::vector<double>>> parameters;
 };
 
 class Integrand {
@@ -34,6 +37,11 @@ class Integrand {
   virtual size_t components() const { return 1; }
   virtual void evaluate_components(const double* const* xs, size_t n, double* const* out) const {
     evaluate_batch(xs, n, out[0]);
+  }
+  // Component c alone (n values to out), for callers that consume one component at a
+  // time and so need one batch buffer, not components() of them. Default: component 0.
+  virtual void evaluate_component(size_t /*c*/, const double* const* xs, size_t n, double* out) const {
+    evaluate_batch(xs, n, out);
   }
   virtual IntegrandInfo describe() const = 0;
 };

@@ -21,6 +21,33 @@ IntegrationJob::IntegrationJob(Setup s) : s_(std::move(s)) {
   plan_.seed = s_.seed;
 }
 
+ComponentsSummary summarize_components(const std::vector<ComponentEstimate>& comps, const StopRule& stop) {
+  ComponentsSummary cs;
+  cs.count = comps.size();
+  if (stop.has_error_target()) cs.met = 0;
+  double worst_score = -1.0;
+  for (size_t c = 0; c < comps.size(); ++c) {
+    const ComponentEstimate& e = comps[c];
+    const double half = e.error_estimate ? std::fabs(*e.error_estimate) : 0.5 * (e.ci_hi - e.ci_lo);
+    const double rel = e.mean != 0.0 ? half / std::fabs(e.mean) : std::numeric_limits<double>::infinity();
+    double score = rel;  // no target: the largest relative half-width is the worst
+    if (stop.has_error_target()) {
+      score = std::numeric_limits<double>::infinity();
+      if (stop.abs_error > 0) score = std::min(score, half / stop.abs_error);
+      if (stop.rel_error > 0) score = std::min(score, rel / stop.rel_error);
+      if (score <= 1.0) ++*cs.met;
+    }
+    if (std::isnan(score)) score = std::numeric_limits<double>::infinity();  // unknown reads as worst
+    if (score > worst_score) {
+      worst_score = score;
+      cs.worst = c;
+      cs.worst_half_width = half;
+      cs.worst_rel_half_width = rel;
+    }
+  }
+  return cs;
+}
+
 IntegrationResult IntegrationJob::result(const JobRunner& runner) const {
   IntegrationResult r;
   r.integrand = plan_.integrand;
@@ -54,12 +81,15 @@ IntegrationResult IntegrationJob::result(const JobRunner& runner) const {
       }
       r.components.push_back({e.mean, e.std_error, e.ci_lo, e.ci_hi, std::nullopt});
     }
-    const std::vector<double> cov = component_mean_covariance(runner.state(), m);
-    for (size_t a = 0; a < m; ++a) {
-      r.covariance_of_means.emplace_back(cov.begin() + static_cast<std::ptrdiff_t>(a * m),
-                                         cov.begin() + static_cast<std::ptrdiff_t>((a + 1) * m));
+    if (runner.state().channels.size() >= m + m * (m - 1) / 2) {  // the job keeps the pair channels
+      const std::vector<double> cov = component_mean_covariance(runner.state(), m);
+      for (size_t a = 0; a < m; ++a) {
+        r.covariance_of_means.emplace_back(cov.begin() + static_cast<std::ptrdiff_t>(a * m),
+                                           cov.begin() + static_cast<std::ptrdiff_t>((a + 1) * m));
+      }
     }
   }
+  if (m > 1) r.components_summary = summarize_components(r.components, s_.stop);
   if (rep) {
     VegasSummary v;
     for (const VegasIteration& it : rep->iterations) {
@@ -94,6 +124,14 @@ std::string IntegrationJob::summary_line(const JobRunner& runner) const {
     const Estimate e = runner.headline();
     return fmt::format("{:.12g} ({}, error estimate {:.3g}, not a confidence interval)", e.mean, s_.estimator.type,
                        runner.error().abs_error);
+  }
+  if (s_.integrand->components() > 1) {  // the vector in one line: how many met, the worst one
+    const IntegrationResult r = result(runner);
+    const ComponentsSummary& cs = *r.components_summary;
+    const ComponentEstimate& w = r.components[cs.worst];
+    const std::string met = cs.met ? fmt::format(", {} meet the error target", *cs.met) : std::string();
+    return fmt::format("{} components{}; worst: component {} = {:.10g} ± {:.3g} (relative half-width {:.3g})",
+                       cs.count, met, cs.worst, w.mean, w.std_error, cs.worst_rel_half_width);
   }
   const Estimate e = runner.headline();  // channel 0, or VEGAS's combined passes
   return fmt::format("{:.10g} ± {:.3g} ({:g}% CI [{:.10g}, {:.10g}])", e.mean, e.std_error, 100.0 * e.confidence,

@@ -26,6 +26,7 @@ class IntegrationJob final : public JobDefinition {
   };
   explicit IntegrationJob(Setup s);
 
+
   std::string_view kind() const override { return "integrate"; }
   std::shared_ptr<const Kernel> kernel() const override { return s_.kernel; }
   StopRule stop_rule() const override { return s_.stop; }
@@ -41,5 +42,8 @@ class IntegrationJob final : public JobDefinition {
   Setup s_;
   IntegrationPlan plan_;
 };
+
+// Count, met (against the stop rule's error target) and worst of a vector's components.
+ComponentsSummary summarize_components(const std::vector<ComponentEstimate>& comps, const StopRule& stop);
 
 }  // namespace tally

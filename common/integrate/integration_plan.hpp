@@ -86,6 +86,20 @@ struct ComponentEstimate {
   std::optional<double> error_estimate;
 };
 
+// How a vector integrand's components stand against the job's error target: the whole
+// vector is summarised so that progress of thousands of components reads in one line.
+struct ComponentsSummary {
+  uint64_t count = 0;
+  // Components whose interval half-width (or, for rules, error estimate) meets the stop
+  // rule's abs_error or rel_error; absent when the job has no error target.
+  std::optional<uint64_t> met;
+  // The component furthest from the target (half-width / target, the smaller over the two
+  // targets), or with the largest relative half-width when there is no target.
+  uint64_t worst = 0;
+  double worst_half_width = 0.0;
+  double worst_rel_half_width = 0.0;
+};
+
 struct VegasIterationSummary {
   uint64_t n = 0;
   double mean = 0.0;
@@ -114,7 +128,8 @@ struct IntegrationResult {
   std::optional<double> error_estimate;
   // Vector integrands: each component's estimate and the covariance of the means.
   std::vector<ComponentEstimate> components;
-  std::vector<std::vector<double>> covariance_of_means;
+  std::vector<std::vector<double>> covariance_of_means;  // only when the job keeps it
+  std::optional<ComponentsSummary> components_summary;
   std::optional<VegasSummary> vegas;
   // Built-ins on their natural domains: the closed form and how far the estimate is.
   std::optional<double> reference;

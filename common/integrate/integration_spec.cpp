@@ -5,6 +5,7 @@
 #include <numbers>
 
 #include "common/expr/compiled_expression.hpp"
+#include "common/expr/expr_parameters.hpp"
 #include "common/integrate/domain.hpp"
 #include "common/integrate/estimators.hpp"
 #include "common/integrate/genz.hpp"
@@ -36,10 +37,40 @@ struct ParsedIntegrand {
   std::string builtin;  // empty for expressions
   std::string expression;
   std::vector<std::string> expressions;  // a vector integrand
+  // A parameterized expression: one component per position of the value lists.
+  std::vector<std::pair<std::string, std::vector<double>>> parameters;
+  std::optional<bool> covariance;  // as asked; default: m <= kDefaultCovarianceComponents
   size_t dims = 0;  // 0: take the domain's
 };
 
-constexpr size_t kMaxComponents = 64;
+// Vector integrands up to this many components keep the covariance of their means
+// unless told otherwise (m (m - 1) / 2 pair channels: 2,016 at 64); larger ones only
+// when asked, so that memory stays linear in the component count.
+constexpr size_t kDefaultCovarianceComponents = 64;
+constexpr size_t kMaxVegasComponents = 64;
+
+// "parameters": {"a": [...], "b": [...]}: names the grammar leaves free, lists of one
+// common length (the component count), finite values.
+void parse_parameters(SpecReader& r, const JobLimits& limits, ParsedIntegrand& out) {
+  const json& obj = r.at("parameters");
+  const std::string ptr = r.pointer_of("parameters");
+  SpecReader pr(obj, ptr);
+  if (obj.empty()) throw SpecError(ptr, "must name at least one parameter");
+  if (obj.size() > 16) throw SpecError(ptr, "may name at most 16 parameters");
+  size_t count = 0;
+  for (const auto& [name, values] : obj.items()) {
+    const std::string why = expr::check_parameter_name(name);
+    if (!why.empty()) throw SpecError(json_pointer_append(ptr, name), "parameter name " + why);
+    std::vector<double> v = pr.numbers(name, 1, limits.max_components, -1e300, 1e300);
+    if (count != 0 && v.size() != count) {
+      throw SpecError(json_pointer_append(ptr, name),
+                      fmt::format("has {} values; every parameter needs the same count ({})", v.size(), count));
+    }
+    count = v.size();
+    out.parameters.emplace_back(name, std::move(v));
+  }
+  pr.finish();
+}
 
 ParsedIntegrand parse_integrand(SpecReader r, const JobLimits& limits) {
   ParsedIntegrand out;
@@ -49,11 +80,16 @@ ParsedIntegrand parse_integrand(SpecReader r, const JobLimits& limits) {
   if (int{has_expr} + int{has_exprs} + int{has_builtin} != 1) {
     throw SpecError(r.pointer(), "needs exactly one of \"expression\", \"expressions\" or \"builtin\"");
   }
+  if (r.has("covariance")) out.covariance = r.boolean_or("covariance", false);
+  if (r.has("parameters") && !has_expr) {
+    throw SpecError(r.pointer_of("parameters"), "applies to one \"expression\" (the template it binds)");
+  }
+  const size_t max_components = limits.max_components;
   if (has_exprs) {
     const json& a = r.at("expressions");
     const std::string ptr = r.pointer_of("expressions");
-    if (!a.is_array() || a.empty() || a.size() > kMaxComponents) {
-      throw SpecError(ptr, fmt::format("must be an array of 1 to {} expression strings", kMaxComponents));
+    if (!a.is_array() || a.empty() || a.size() > max_components) {
+      throw SpecError(ptr, fmt::format("must be an array of 1 to {} expression strings", max_components));
     }
     for (size_t i = 0; i < a.size(); ++i) {
       if (!a[i].is_string()) throw SpecError(json_pointer_append(ptr, i), "must be a string");
@@ -69,6 +105,7 @@ ParsedIntegrand parse_integrand(SpecReader r, const JobLimits& limits) {
   }
   if (has_expr) {
     out.expression = r.string("expression", limits.max_expression_length);
+    if (r.has("parameters")) parse_parameters(r, limits, out);
     r.finish();
     return out;  // compiled once the domain fixes the dimension
   }
@@ -83,8 +120,8 @@ ParsedIntegrand parse_integrand(SpecReader r, const JobLimits& limits) {
     // A built-in vector integrand: several Genz families sharing a and u.
     const json& fams = r.at("families");
     const std::string ptr = r.pointer_of("families");
-    if (!fams.is_array() || fams.empty() || fams.size() > kMaxComponents) {
-      throw SpecError(ptr, fmt::format("must be an array of 1 to {} Genz family names", kMaxComponents));
+    if (!fams.is_array() || fams.empty() || fams.size() > max_components) {
+      throw SpecError(ptr, fmt::format("must be an array of 1 to {} Genz family names", max_components));
     }
     GenzParams p;
     p.a = r.numbers("a", 1, limits.max_dimensions, 1e-9, 1e6);
@@ -260,10 +297,19 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
                       fmt::format("{} needs an interval or box domain, not {}", what, D.type()));
     }
   };
-  if (vector && type != "uniform" && type != "vegas" && type != "cubature") {
-    throw SpecError(r.pointer_of("type"), fmt::format("vector integrands support the uniform, vegas and "
-                                                      "cubature estimators, not {}", type));
+  if (vector && type != "uniform" && type != "vegas" && type != "cubature" && type != "qmc" && type != "lattice") {
+    throw SpecError(r.pointer_of("type"), fmt::format("vector integrands support the uniform, qmc, lattice, vegas "
+                                                      "and cubature estimators, not {}", type));
   }
+  const size_t m = prob.integrand->components();
+  if (type == "vegas" && m > kMaxVegasComponents) {
+    // The grid is steered by per-component bin sums: m x dimensions x bins doubles a block.
+    throw SpecError(r.pointer_of("type"),
+                    fmt::format("vegas steers its grid with every component's bin sums and supports at most {} "
+                                "components; {} components run with uniform, qmc or lattice",
+                                kMaxVegasComponents, m));
+  }
+  if (vector) c.plan.components = m;
   if (type == "uniform" && vector) {
     frozen_uniform(r.pointer_of("type"));
   } else if (type == "uniform") {
@@ -513,14 +559,26 @@ std::unique_ptr<IntegrationJob> compile_integration_job(const json& spec, const 
                                            limits.max_dimensions));
   }
   if (!in.f && !in.expressions.empty()) {
+    ExprLimits el;
+    el.max_length = limits.max_expression_length;
+    std::vector<CompiledExpression> compiled;
+    compiled.reserve(in.expressions.size());
     for (size_t i = 0; i < in.expressions.size(); ++i) {
       try {
-        make_expression_integrand(in.expressions[i], domain->dimensions(), limits.max_expression_length);
+        compiled.push_back(CompiledExpression::compile(in.expressions[i], domain->dimensions(), el));
       } catch (const ExprError& e) {
         throw SpecError(json_pointer_append("/integrand/expressions", i), e.what());
       }
     }
-    in.f = make_vector_expression_integrand(in.expressions, domain->dimensions(), limits.max_expression_length);
+    in.f = make_vector_expression_integrand(std::move(compiled));
+  }
+  if (!in.f && !in.parameters.empty()) {
+    try {
+      in.f = make_parameterized_integrand(in.expression, in.parameters, domain->dimensions(),
+                                          limits.max_expression_length);
+    } catch (const ExprError& e) {
+      throw SpecError("/integrand/expression", e.what());
+    }
   }
   if (!in.f) {
     try {
@@ -529,7 +587,14 @@ std::unique_ptr<IntegrationJob> compile_integration_job(const json& spec, const 
       throw SpecError("/integrand/expression", e.what());
     }
   }
-  IntegrationProblem prob{in.f, domain, job.seed};
+  const size_t m = in.f->components();
+  const bool covariance = m > 1 && in.covariance.value_or(m <= kDefaultCovarianceComponents);
+  if (covariance && m + m * (m - 1) / 2 > limits.max_channels) {
+    throw SpecError("/integrand/covariance",
+                    fmt::format("the covariance of {} components needs {} channels; the limit is {}", m,
+                                m + m * (m - 1) / 2, limits.max_channels));
+  }
+  IntegrationProblem prob{in.f, domain, job.seed, covariance};
   SpecReader stop = top.object("stop");
   job.stop = parse_stop_rule(stop, limits);
   EstimatorChoice est =

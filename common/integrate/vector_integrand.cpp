@@ -1,6 +1,9 @@
 #include "common/integrate/vector_integrand.hpp"
 
+#include <cstdint>
+
 #include "common/expr/compiled_expression.hpp"
+#include "common/expr/expr_parameters.hpp"
 
 namespace tally {
 
@@ -8,7 +11,10 @@ namespace {
 
 class VectorExpressionIntegrand final : public Integrand {
  public:
-  explicit VectorExpressionIntegrand(std::vector<CompiledExpression> e) : exprs_(std::move(e)) {}
+  using Parameters = std::vector<std::pair<std::string, std::vector<double>>>;
+  explicit VectorExpressionIntegrand(std::vector<CompiledExpression> e, std::string tmpl = {},
+                                     Parameters parameters = {})
+      : exprs_(std::move(e)), template_(std::move(tmpl)), parameters_(std::move(parameters)) {}
   size_t dimensions() const override { return exprs_[0].dimensions(); }
   size_t components() const override { return exprs_.size(); }
   void evaluate_batch(const double* const* xs, size_t n, double* out) const override {
@@ -17,14 +23,24 @@ class VectorExpressionIntegrand final : public Integrand {
   void evaluate_components(const double* const* xs, size_t n, double* const* out) const override {
     for (size_t c = 0; c < exprs_.size(); ++c) exprs_[c].evaluate_batch(xs, n, out[c]);
   }
+  void evaluate_component(size_t c, const double* const* xs, size_t n, double* out) const override {
+    exprs_[c].evaluate_batch(xs, n, out);
+  }
   IntegrandInfo describe() const override {
     IntegrandInfo info;
+    if (!parameters_.empty()) {  // the template and its values, not m bound texts
+      info.expression = template_;
+      info.parameters = parameters_;
+      return info;
+    }
     for (const auto& e : exprs_) info.expressions.push_back(e.text());
     return info;
   }
 
  private:
   std::vector<CompiledExpression> exprs_;
+  std::string template_;
+  Parameters parameters_;
 };
 
 class GenzSet final : public Integrand {
@@ -45,6 +61,9 @@ class GenzSet final : public Integrand {
   void evaluate_components(const double* const* xs, size_t n, double* const* out) const override {
     for (size_t c = 0; c < fs_.size(); ++c) fs_[c]->evaluate_batch(xs, n, out[c]);
   }
+  void evaluate_component(size_t c, const double* const* xs, size_t n, double* out) const override {
+    fs_[c]->evaluate_batch(xs, n, out);
+  }
   IntegrandInfo describe() const override {
     return {.builtin = "genz", .families = names_, .a = a_, .u = u_};
   }
@@ -64,6 +83,37 @@ std::unique_ptr<Integrand> make_vector_expression_integrand(const std::vector<st
   std::vector<CompiledExpression> e;
   for (const std::string& t : texts) e.push_back(CompiledExpression::compile(t, dimensions, limits));
   return std::make_unique<VectorExpressionIntegrand>(std::move(e));
+}
+
+std::unique_ptr<Integrand> make_vector_expression_integrand(std::vector<CompiledExpression> compiled) {
+  return std::make_unique<VectorExpressionIntegrand>(std::move(compiled));
+}
+
+std::unique_ptr<Integrand> make_parameterized_integrand(
+    const std::string& text, const std::vector<std::pair<std::string, std::vector<double>>>& parameters,
+    size_t dimensions, size_t max_length) {
+  ExprLimits limits;
+  limits.max_length = max_length;
+  if (text.size() > max_length) {
+    throw ExprError(ExprErrorKind::limit, "the expression is longer than " + std::to_string(max_length) + " characters");
+  }
+  // The template with every parameter bound to 1: names the grammar does not know and
+  // syntax errors are reported once, at the template's own positions.
+  // Bound texts are longer than the template (a literal per use): the template's own
+  // length was checked by the spec reader; the bound texts' is not limited again.
+  ExprLimits bound_limits = limits;
+  bound_limits.max_length = SIZE_MAX;
+  std::vector<expr::Parameter> bound;
+  for (const auto& [name, values] : parameters) bound.push_back({name, 1.0});
+  CompiledExpression::compile(expr::bind_parameters(text, bound), dimensions, bound_limits);
+  const size_t m = parameters.front().second.size();
+  std::vector<CompiledExpression> e;
+  e.reserve(m);
+  for (size_t c = 0; c < m; ++c) {
+    for (size_t p = 0; p < parameters.size(); ++p) bound[p].value = parameters[p].second[c];
+    e.push_back(CompiledExpression::compile(expr::bind_parameters(text, bound), dimensions, bound_limits));
+  }
+  return std::make_unique<VectorExpressionIntegrand>(std::move(e), text, parameters);
 }
 
 std::unique_ptr<Integrand> make_genz_set(const std::vector<GenzParams>& members) {

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "common/engine/job_state.hpp"
+#include "common/expr/compiled_expression.hpp"
 #include "common/integrate/genz.hpp"
 #include "common/integrate/integrand.hpp"
 
@@ -16,6 +17,14 @@ namespace tally {
 // failing one's text.
 std::unique_ptr<Integrand> make_vector_expression_integrand(const std::vector<std::string>& texts,
                                                             size_t dimensions, size_t max_length);
+// The same from expressions already compiled (at least one, all of one dimension).
+std::unique_ptr<Integrand> make_vector_expression_integrand(std::vector<CompiledExpression> compiled);
+// One expression over x0..x{d-1} and named parameters, component c binding every
+// parameter to its c-th value (common/expr/expr_parameters.hpp); all value lists have
+// the same length. Throws ExprError for the template (a syntax error, an unknown name).
+std::unique_ptr<Integrand> make_parameterized_integrand(
+    const std::string& text, const std::vector<std::pair<std::string, std::vector<double>>>& parameters,
+    size_t dimensions, size_t max_length);
 // Several Genz families sharing a and u (built-in vector integrand).
 std::unique_ptr<Integrand> make_genz_set(const std::vector<GenzParams>& members);
 

@@ -249,14 +249,18 @@ class VegasKernel final : public Kernel {
     }
   }
 
-  // Components, then one channel per pair (c < c') holding f_c + f_c' (covariance).
-  size_t channel_count() const override { return m_ + static_cast<size_t>(m_) * (m_ - 1) / 2; }
+  // Components, then (with covariance) one channel per pair (c < c') holding f_c + f_c'.
+  size_t channel_count() const override {
+    return m_ + (p_.covariance ? static_cast<size_t>(m_) * (m_ - 1) / 2 : 0);
+  }
 
   PassSchedule schedule() const override {
     PassSchedule s;
     // The grid adapts once per pass, so passes stay short (at most 2^17 samples,
     // ~10 ms for a cheap integrand): a long run keeps refining its grid.
-    s.block_samples = 2048;
+    // A block holds its values per component (m x block_samples doubles): many components
+    // get shorter blocks, so a thread's buffer stays near 1 MB per 64 components.
+    s.block_samples = m_ <= 64 ? 2048 : std::max<uint64_t>(256, (2048 * 64 / m_) / 256 * 256);
     s.first_pass_samples = 4096;
     s.max_pass_samples = o_.max_pass_samples;
     if (o_.stratify) s.sample_quantum = kVegasRound;  // passes of whole rounds
@@ -450,7 +454,7 @@ class VegasKernel final : public Kernel {
     size_t ch = m_;
     thread_local std::vector<double> pair;
     pair.resize(ok_total);
-    for (size_t a = 0; a < m_; ++a) {
+    for (size_t a = 0; a < m_ && p_.covariance; ++a) {
       for (size_t c = a + 1; c < m_; ++c) {
         const double* va = vals.data() + a * count;
         const double* vc = vals.data() + c * count;

@@ -22,6 +22,11 @@ json integrand_json(const IntegrandInfo& info) {
   if (!info.builtin.empty()) j["builtin"] = info.builtin;
   if (info.expression) j["expression"] = *info.expression;
   if (!info.expressions.empty()) j["expressions"] = info.expressions;
+  if (!info.parameters.empty()) {
+    json p = json::object();
+    for (const auto& [name, values] : info.parameters) p[name] = values;
+    j["parameters"] = std::move(p);
+  }
   if (info.builtin == "genz") {
     if (info.families.empty()) {
       j["family"] = info.family;
@@ -134,6 +139,16 @@ json integration_result_json(const IntegrationResult& r) {
       }
     }
     j["components"] = comps;
+    if (r.components_summary) {
+      const ComponentsSummary& cs = *r.components_summary;
+      json sj = {{"count", cs.count},
+                 {"worst",
+                  {{"index", cs.worst},
+                   {"half_width", finite_or_null(cs.worst_half_width)},
+                   {"rel_half_width", finite_or_null(cs.worst_rel_half_width)}}}};
+      if (cs.met) sj["met"] = *cs.met;
+      j["components_summary"] = std::move(sj);
+    }
     if (!r.covariance_of_means.empty()) {
       json rows = json::array();
       for (const auto& row : r.covariance_of_means) rows.push_back(row);
