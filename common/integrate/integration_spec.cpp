@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 #include <numbers>
 
+#include "common/engine/job_state.hpp"
 #include "common/expr/compiled_expression.hpp"
 #include "common/expr/expr_parameters.hpp"
 #include "common/integrate/domain.hpp"
@@ -589,10 +590,12 @@ std::unique_ptr<IntegrationJob> compile_integration_job(const json& spec, const 
   }
   const size_t m = in.f->components();
   const bool covariance = m > 1 && in.covariance.value_or(m <= kDefaultCovarianceComponents);
-  if (covariance && m + m * (m - 1) / 2 > limits.max_channels) {
+  if (covariance && job_state_bytes(m + m * (m - 1) / 2, 1) > limits.max_state_bytes) {
     throw SpecError("/integrand/covariance",
-                    fmt::format("the covariance of {} components needs {} channels; the limit is {}", m,
-                                m + m * (m - 1) / 2, limits.max_channels));
+                    fmt::format("the covariance of {} components needs {} channels, {} bytes of job state; the "
+                                "limit is {} bytes",
+                                m, m + m * (m - 1) / 2, job_state_bytes(m + m * (m - 1) / 2, 1),
+                                limits.max_state_bytes));
   }
   IntegrationProblem prob{in.f, domain, job.seed, covariance};
   SpecReader stop = top.object("stop");

@@ -155,7 +155,7 @@ TEST(VectorJobs, BadVectorSpecsNameTheField) {
                 job({{"expression", "a*x0"}, {"parameters", {{"a", std::vector<double>(16385, 1.0)}}}}, lat, 1)),
             "/integrand/parameters/a");
   EXPECT_EQ(spec_error_pointer(job({{"expression", "a*x0"},
-                                    {"parameters", {{"a", std::vector<double>(6000, 1.0)}}},
+                                    {"parameters", {{"a", std::vector<double>(16000, 1.0)}}},
                                     {"covariance", true}},
                                    lat, 1)),
             "/integrand/covariance");
