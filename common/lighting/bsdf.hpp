@@ -3,16 +3,26 @@
 // materials), a perfect mirror (a delta distribution), normalised Phong,
 //   f = k_d / pi + k_s (e + 2) / (2 pi) cos^e(alpha),  alpha = angle(w_i, mirror(w_o)),
 // (k_d = 0 unless an OBJ .mtl gives both Kd and Ks) whose albedo is <= k_d + k_s, and
-// glTF's metallic-roughness model (docs/lighting.md, "glTF"):
-//   f = F(w_o.h) D(h) G2(w_o, w_i) / (4 cos_o cos_i)                      (GGX specular)
-//     + (1 - metallic) base / pi (1 - F_d(cos_o)) (1 - F_d(cos_i))      (diffuse base)
-// with Trowbridge-Reitz D and Smith's height-correlated G2 at alpha = roughness^2,
-// Schlick's F with F0 = lerp(0.04, base, metallic), and F_d Schlick's at F0 = 0.04: the
-// diffuse layer gets what the dielectric coating transmits on the way in and out, so
-// the albedo stays <= 1 (a furnace test checks it). Specular directions are drawn from
-// the distribution of visible normals (Heitz 2018, "Sampling the GGX Distribution of
-// Visible Normals", JCGT 7(4)). Directions are in world space; `n` is the unit (shading)
-// normal on the side of w_o. Every routine returns 0 (never NaN/Inf) below the horizon.
+// glTF's metallic-roughness model in one of two forms (Material::model; docs/lighting.md,
+// "Glossy materials"). With S = D(h) G2(w_o, w_i) / (4 cos_o cos_i) the GGX specular lobe,
+// F_d(c) = Schlick with F0 = min(0.04 specular_color, 1) specular and F90 = specular
+// (KHR_materials_specular; 0.04 and 1 without it), F_m(c) Schlick with F0 = base:
+//   gltf_reference (glTF 2.0 Appendix B: mix(fresnel_mix(ior 1.5, diffuse, specular),
+//   conductor_fresnel(base, specular), metallic)), per colour channel:
+//     f = (1 - metallic) [(1 - F_d(w_o.h)) base / pi + F_d(w_o.h) S] + metallic F_m(w_o.h) S
+//   energy_conserving:
+//     f = F(w_o.h) S + (1 - metallic) base / pi (1 - F_d(cos_o)) (1 - F_d(cos_i))
+//     with F = Schlick at F0 = lerp(F0_d, base, metallic), F90 = lerp(F90_d, 1, metallic)
+//     and F_d taken on its largest channel: the diffuse layer gets what the dielectric
+//     coating transmits on the way in and out, so the albedo stays <= 1 (a furnace test
+//     checks it). The reference form reflects more than 1 at grazing angles (its diffuse
+//     term is weighted by F at the half vector, not at the directions themselves).
+// Both are reciprocal. Trowbridge-Reitz D and Smith's height-correlated G2 at alpha =
+// roughness^2. Specular directions are drawn from the distribution of visible normals
+// (Heitz 2018, "Sampling the GGX Distribution of Visible Normals", JCGT 7(4)); the lobe is
+// chosen by the form's own weights at w_o, and the pdf is the mixture. Directions are in
+// world space; `n` is the unit (shading) normal on the side of w_o. Every routine
+// returns 0 (never NaN/Inf) below the horizon.
 #include <algorithm>
 #include <cmath>
 
@@ -58,16 +68,44 @@ inline Rgb schlick(const Rgb& f0, double c) {
   return f0 + (Rgb{1, 1, 1} - f0) * w;
 }
 inline double schlick(double f0, double c) { return f0 + (1.0 - f0) * schlick_weight(c); }
+// Schlick with a reflectance f90 at grazing incidence (KHR_materials_specular); at
+// f90 = 1 it is bit for bit the two-argument form.
+inline Rgb schlick(const Rgb& f0, double f90, double c) {
+  const double w = schlick_weight(c);
+  return f0 + (Rgb{f90, f90, f90} - f0) * w;
+}
+inline double schlick(double f0, double f90, double c) { return f0 + (f90 - f0) * schlick_weight(c); }
 
-inline Rgb mr_f0(const Material& m) {
-  return Rgb{kDielectricF0, kDielectricF0, kDielectricF0} * (1.0 - m.metallic) + m.base_color * m.metallic;
+// The dielectric layer's normal-incidence reflectance: min(0.04 specular_color, 1) x
+// specular (exactly 0.04 without KHR_materials_specular).
+inline Rgb dielectric_f0(const Material& m) {
+  const Rgb c = m.specular_color * kDielectricF0;
+  return Rgb{std::min(c.x, 1.0), std::min(c.y, 1.0), std::min(c.z, 1.0)} * m.specular;
+}
+// The specular layer's F0 and F90 mixed by metallic (base colour as F0 of metals).
+inline Rgb mr_f0(const Material& m) { return dielectric_f0(m) * (1.0 - m.metallic) + m.base_color * m.metallic; }
+inline double mr_f90(const Material& m) { return m.specular + (1.0 - m.specular) * m.metallic; }
+
+// The energy-conserving form's scalar Fresnel of the coating over the diffuse base:
+// Schlick on the largest channel of the dielectric F0 (0.04 without the extension).
+inline double coating_fresnel(const Material& m, double c) {
+  const Rgb f0 = dielectric_f0(m);
+  return schlick(std::max({f0.x, f0.y, f0.z}), m.specular, c);
+}
+
+// The weight of the diffuse base at cos_o for lobe selection (its albedo, roughly).
+inline double mr_diffuse_weight(const Material& m, double cos_o) {
+  if (m.model == MaterialModel::gltf_reference) {
+    return luminance(m.base_color * (Rgb{1, 1, 1} - schlick(dielectric_f0(m), m.specular, cos_o))) * (1.0 - m.metallic);
+  }
+  return luminance(m.base_color) * (1.0 - m.metallic) * (1.0 - coating_fresnel(m, cos_o));
 }
 
 // Probability that metallic-roughness sampling picks the specular lobe: the lobes'
 // albedos at w_o, estimated by Schlick's F at cos_o (1 for a pure metal).
 inline double mr_specular_probability(const Material& m, double cos_o) {
-  const double ws = luminance(schlick(mr_f0(m), cos_o));
-  const double wd = luminance(m.base_color) * (1.0 - m.metallic) * (1.0 - schlick(kDielectricF0, cos_o));
+  const double ws = luminance(schlick(mr_f0(m), mr_f90(m), cos_o));
+  const double wd = mr_diffuse_weight(m, cos_o);
   return ws + wd > 0 ? ws / (ws + wd) : 1.0;
 }
 
@@ -82,14 +120,26 @@ inline Rgb mr_eval(const Material& m, const Vec3& n, const Vec3& wo, const Vec3&
   if (cos_o <= 0 || cos_i <= 0) return {};
   const Vec3 hv = wo + wi;
   const double hl = length(hv);
+  if (m.model == MaterialModel::gltf_reference) {
+    if (!(hl > 0)) return {};
+    const Vec3 h = hv / hl;
+    const double voh = dot(wo, h);
+    const double alpha = ggx_alpha(m.roughness);
+    const double g2 = 1.0 / (1.0 + ggx_lambda(cos_o, alpha) + ggx_lambda(cos_i, alpha));
+    const double s = ggx_d(dot(n, h), alpha) * g2 / (4.0 * cos_o * cos_i);
+    const Rgb fd = schlick(dielectric_f0(m), m.specular, voh);
+    const Rgb fm = schlick(m.base_color, voh);
+    const Rgb diffuse = (Rgb{1, 1, 1} - fd) * m.base_color * ((1.0 - m.metallic) * kInvPi);
+    return diffuse + (fd * (1.0 - m.metallic) + fm * m.metallic) * s;
+  }
   Rgb f{};
   if (hl > 0) {
     const Vec3 h = hv / hl;
     const double alpha = ggx_alpha(m.roughness);
     const double g2 = 1.0 / (1.0 + ggx_lambda(cos_o, alpha) + ggx_lambda(cos_i, alpha));
-    f = schlick(mr_f0(m), dot(wo, h)) * (ggx_d(dot(n, h), alpha) * g2 / (4.0 * cos_o * cos_i));
+    f = schlick(mr_f0(m), mr_f90(m), dot(wo, h)) * (ggx_d(dot(n, h), alpha) * g2 / (4.0 * cos_o * cos_i));
   }
-  const double kd = (1.0 - m.metallic) * (1.0 - schlick(kDielectricF0, cos_o)) * (1.0 - schlick(kDielectricF0, cos_i));
+  const double kd = (1.0 - m.metallic) * (1.0 - coating_fresnel(m, cos_o)) * (1.0 - coating_fresnel(m, cos_i));
   return f + m.base_color * (kd * kInvPi);
 }
 

@@ -303,6 +303,7 @@ class GltfLoader {
         m.base_color = {1, 1, 1};
         m.metallic = 1.0;
         m.roughness = 1.0;
+        m.model = MaterialModel::gltf_reference;
         m.name = fmt::format("{}#default", req_.file);
         default_material_ = push_material(std::move(m));
       }
@@ -316,6 +317,7 @@ class GltfLoader {
     const auto& pbr = g.pbrMetallicRoughness;
     Material m;
     m.type = MaterialType::metallic_roughness;
+    m.model = MaterialModel::gltf_reference;
     m.name = fmt::format("{}#{}", req_.file, g.name.empty() ? std::to_string(index) : g.name);
     m.base_color = pbr.baseColorFactor.empty() ? Rgb{1, 1, 1}
                                                : color3(pbr.baseColorFactor, 1.0, mp + "/pbrMetallicRoughness/baseColorFactor");
@@ -342,8 +344,67 @@ class GltfLoader {
     m.metallic_roughness_texture =
         texture(pbr.metallicRoughnessTexture, mp + "/pbrMetallicRoughness/metallicRoughnessTexture", false);
     m.emission_texture = texture(g.emissiveTexture, mp + "/emissiveTexture", true);
+    specular(g, mp, m);
     slot = push_material(std::move(m));
     return slot;
+  }
+
+  // KHR_materials_specular: specularFactor (default 1, in [0, 1]), specularColorFactor
+  // (default [1, 1, 1], each >= 0) and specularColorTexture (sRGB RGB). specularTexture
+  // scales by its alpha channel, which tally's texels do not keep: refused.
+  void specular(const tinygltf::Material& g, const std::string& mp, Material& m) {
+    auto ext = g.extensions.find("KHR_materials_specular");
+    if (ext == g.extensions.end()) return;
+    const std::string ep = mp + "/extensions/KHR_materials_specular";
+    const tinygltf::Value& v = ext->second;
+    if (!v.IsObject()) fail(ep, "must be an object");
+    if (v.Has("specularFactor")) {
+      const tinygltf::Value& f = v.Get("specularFactor");
+      const double x = f.IsNumber() ? f.GetNumberAsDouble() : -1.0;
+      if (!(x >= 0 && x <= 1)) fail(ep + "/specularFactor", "must be a number in [0, 1]");
+      m.specular = x;
+    }
+    if (v.Has("specularColorFactor")) {
+      const tinygltf::Value& c = v.Get("specularColorFactor");
+      const std::string cp = ep + "/specularColorFactor";
+      if (!c.IsArray() || c.ArrayLen() != 3) fail(cp, "must be an array of 3 numbers");
+      double rgb[3];
+      for (int i = 0; i < 3; ++i) {
+        const tinygltf::Value& e = c.Get(i);
+        rgb[i] = e.IsNumber() ? e.GetNumberAsDouble() : -1.0;
+        if (!(rgb[i] >= 0 && rgb[i] <= 1e6)) fail(fmt::format("{}/{}", cp, i), "must be a number in [0, 1e6]");
+      }
+      m.specular_color = {rgb[0], rgb[1], rgb[2]};
+    }
+    if (v.Has("specularTexture")) {
+      fail(ep + "/specularTexture", "is not supported (it scales by the alpha channel, which tally's textures do not keep)");
+    }
+    if (v.Has("specularColorTexture")) {
+      const std::string tp = ep + "/specularColorTexture";
+      const tinygltf::Value& t = v.Get("specularColorTexture");
+      if (!t.IsObject() || !t.Has("index") || !t.Get("index").IsInt()) fail(tp + "/index", "must be an integer");
+      tinygltf::TextureInfo info;
+      info.index = t.Get("index").GetNumberAsInt();
+      if (info.index < 0) fail(tp + "/index", "must be >= 0");
+      if (t.Has("texCoord")) info.texCoord = t.Get("texCoord").IsInt() ? t.Get("texCoord").GetNumberAsInt() : -1;
+      if (t.Has("extensions") && t.Get("extensions").Has("KHR_texture_transform")) {
+        fail(tp + "/extensions/KHR_texture_transform", "is not supported");
+      }
+      m.specular_color_texture = texture(info, tp, true);
+    }
+  }
+
+  // glTF sampler filters: NEAREST (9728) magnification, or, with no magFilter, a
+  // NEAREST / NEAREST_MIPMAP_* (9728, 9984, 9986) minification, gives nearest-texel
+  // lookups; anything else bilinear (tally keeps no mipmaps).
+  static TextureFilter filter_mode(const tinygltf::Sampler& smp) {
+    if (smp.magFilter == TINYGLTF_TEXTURE_FILTER_NEAREST) return TextureFilter::nearest;
+    if (smp.magFilter < 0 && (smp.minFilter == TINYGLTF_TEXTURE_FILTER_NEAREST ||
+                              smp.minFilter == TINYGLTF_TEXTURE_FILTER_NEAREST_MIPMAP_NEAREST ||
+                              smp.minFilter == TINYGLTF_TEXTURE_FILTER_NEAREST_MIPMAP_LINEAR)) {
+      return TextureFilter::nearest;
+    }
+    return TextureFilter::linear;
   }
 
   static TextureWrap wrap_mode(int gl, const std::string& field, const GltfLoader& self) {
@@ -375,11 +436,12 @@ class GltfLoader {
       const tinygltf::Sampler& smp = model_.samplers[static_cast<size_t>(t.sampler)];
       tex.wrap_s = wrap_mode(smp.wrapS, sp + "/wrapS", *this);
       tex.wrap_t = wrap_mode(smp.wrapT, sp + "/wrapT", *this);
+      tex.filter = filter_mode(smp);
     }
     tex.texels = texels(t.source, srgb);
     for (size_t i = 0; i < scene_.textures.size(); ++i) {
       const Texture& o = scene_.textures[i];
-      if (o.texels == tex.texels && o.wrap_s == tex.wrap_s && o.wrap_t == tex.wrap_t) return static_cast<int32_t>(i);
+      if (o.texels == tex.texels && o.wrap_s == tex.wrap_s && o.wrap_t == tex.wrap_t && o.filter == tex.filter) return static_cast<int32_t>(i);
     }
     if (scene_.textures.size() >= 4096) fail("/textures", "too many textures (limit 4096 in the scene)");
     scene_.textures.push_back(std::move(tex));

@@ -4,7 +4,8 @@
 // transforms (matrix or TRS), indexed triangle primitives (POSITION, NORMAL as shading
 // normals, TEXCOORD_0), perspective cameras, KHR_lights_punctual (point, spot,
 // directional), and materials (metallic-roughness, emissiveFactor,
-// KHR_materials_emissive_strength). The mapping is documented in docs/lighting.md, "glTF".
+// KHR_materials_emissive_strength, KHR_materials_specular; glTF's reference BRDF by
+// default, Material::model) and the sampler filters (NEAREST or bilinear). The mapping is documented in docs/lighting.md, "glTF".
 //
 // Every file the glTF names is read through `read` (the scene's checked asset reader: no
 // escape from the asset directory, regular files only, never blocking); tinygltf's own

@@ -27,6 +27,13 @@ inline bool is_black(const Rgb& c) { return c.x == 0.0 && c.y == 0.0 && c.z == 0
 
 enum class MaterialType { diffuse, emissive, mirror, phong, metallic_roughness };
 
+// How a metallic-roughness material combines its diffuse base and its specular layer
+// (bsdf.hpp, docs/lighting.md "Glossy materials"): glTF 2.0's reference (Appendix B,
+// fresnel_mix with F(V.H)), the default for glTF files, or tally's energy-conserving
+// form (the base weighted by (1 - F(cos_o)) (1 - F(cos_i))), the default for JSON
+// materials. The scene's "material_model" field sets it for every one.
+enum class MaterialModel { energy_conserving, gltf_reference };
+
 struct Material {
   MaterialType type = MaterialType::diffuse;
   Rgb albedo{};       // Lambertian reflectance (diffuse; emissive may reflect too)
@@ -40,15 +47,22 @@ struct Material {
   Rgb base_color{};
   double metallic = 0.0;
   double roughness = 1.0;
+  MaterialModel model = MaterialModel::energy_conserving;
+  // KHR_materials_specular: the dielectric's F0 = min(0.04 specular_color, 1) specular
+  // and its F90 = specular (0: no specular layer, a pure Lambertian base).
+  double specular = 1.0;
+  Rgb specular_color{1, 1, 1};
   std::string name;
   // Image textures (indices into Scene::textures, -1: none), looked up at the hit's
   // texture coordinates by textured_material (texture.hpp), which multiplies them in.
   int32_t base_color_texture = -1;          // albedo or base_color x RGB (sRGB file)
   int32_t metallic_roughness_texture = -1;  // roughness x G, metallic x B (linear file)
   int32_t emission_texture = -1;            // emission x RGB (sRGB file)
+  int32_t specular_color_texture = -1;      // specular_color x RGB (sRGB file)
 
   bool textured() const {
-    return base_color_texture >= 0 || metallic_roughness_texture >= 0 || emission_texture >= 0;
+    return base_color_texture >= 0 || metallic_roughness_texture >= 0 || emission_texture >= 0 ||
+           specular_color_texture >= 0;
   }
   // Any material may emit (glTF emissive materials reflect too); the JSON "emissive"
   // type is a Lambertian reflector with an emission.
@@ -126,6 +140,9 @@ struct Scene {
   std::vector<Material> materials;
   std::vector<Shape> shapes;
   std::vector<DeltaLight> delta_lights;
+  // The spec's "material_model", if given: the form of every metallic-roughness
+  // material, including inline materials of query points.
+  std::optional<MaterialModel> material_model;
   // The sky, at most one of: a constant radiance, or an environment map (immutable,
   // shared read-only by every thread of the job). A constant map arrives as `sky`.
   std::optional<Rgb> sky;

@@ -240,6 +240,7 @@ uint32_t parse_material_ref(const nlohmann::json& j, const std::string& pointer,
   }
   if (j.is_object()) {
     scene.materials.push_back(parse_material(SpecReader(j, pointer), ""));
+    if (scene.material_model) scene.materials.back().model = *scene.material_model;
     return static_cast<uint32_t>(scene.materials.size() - 1);
   }
   throw SpecError(pointer, "must be a material name or a material object");
@@ -315,6 +316,15 @@ void parse_sky(SpecReader& l, Scene& scene, const JobLimits& limits) {
 
 Scene parse_scene(SpecReader& r, const JobLimits& limits) {
   Scene scene;
+  // "material_model" sets the form of every metallic-roughness material (bsdf.hpp); absent,
+  // glTF files' materials take glTF's reference form and JSON materials the
+  // energy-conserving one.
+  std::optional<MaterialModel>& model = scene.material_model;
+  if (r.has("material_model")) {
+    model = r.enumeration("material_model", {"gltf_reference", "energy_conserving"}) == "gltf_reference"
+                ? MaterialModel::gltf_reference
+                : MaterialModel::energy_conserving;
+  }
   if (r.has("camera")) {
     SpecReader c = r.object("camera");
     Camera cam;
@@ -367,6 +377,9 @@ Scene parse_scene(SpecReader& r, const JobLimits& limits) {
         scene.shapes.push_back(std::move(s));
       }
     }
+  }
+  if (model) {
+    for (Material& m : scene.materials) m.model = *model;
   }
   for (const Shape& s : scene.shapes) {
     if (scene.materials[s.material].textured() && s.uvs.empty()) {

@@ -112,6 +112,11 @@ Rgb lerp(const Rgb& a, const Rgb& b, double t) { return a + (b - a) * t; }
 
 Rgb Texture::lookup(Vec2 uv) const {
   const TexelGrid& g = *texels;
+  if (filter == TextureFilter::nearest) {
+    const auto ix = static_cast<int64_t>(std::floor(reduce(uv.x, wrap_s) * g.width));
+    const auto iy = static_cast<int64_t>(std::floor(reduce(uv.y, wrap_t) * g.height));
+    return g.at(wrap_texel(ix, g.width, wrap_s), wrap_texel(iy, g.height, wrap_t));
+  }
   const double x = reduce(uv.x, wrap_s) * g.width - 0.5;
   const double y = reduce(uv.y, wrap_t) * g.height - 0.5;
   const double x0 = std::floor(x), y0 = std::floor(y);
@@ -138,6 +143,9 @@ const Material& textured_material(const Scene& scene, uint32_t index, Vec2 uv, M
     const Rgb t = scene.textures[static_cast<size_t>(m.metallic_roughness_texture)].lookup(uv);
     scratch.roughness = m.roughness * t.y;
     scratch.metallic = m.metallic * t.z;
+  }
+  if (m.specular_color_texture >= 0) {
+    scratch.specular_color = m.specular_color * scene.textures[static_cast<size_t>(m.specular_color_texture)].lookup(uv);
   }
   if (m.emission_texture >= 0) scratch.emission = textured_emission(scene, m, uv);
   return scratch;

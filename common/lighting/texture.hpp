@@ -10,8 +10,9 @@
 //
 // Conventions (glTF 2.0): uv (0, 0) is the top-left corner of the image, u grows to the
 // right and v downwards; texel (i, j) has its centre at ((i + 0.5) / W, (j + 0.5) / H).
-// Filtering is bilinear between the four nearest texel centres; the wrap mode of each
-// axis (glTF sampler wrapS / wrapT) decides which texel lies beyond an edge.
+// Filtering is bilinear between the four nearest texel centres, or nearest (the texel
+// whose cell holds uv: glTF's NEAREST sampler filter); the wrap mode of each axis (glTF
+// sampler wrapS / wrapT) decides which texel lies beyond an edge.
 #include <cstdint>
 #include <memory>
 #include <string_view>
@@ -28,6 +29,7 @@ struct Scene;
 using Rgb = Vec3;
 
 enum class TextureWrap { repeat, clamp_to_edge, mirrored_repeat };
+enum class TextureFilter { linear, nearest };
 
 // Linear RGB texels, 3 floats each, rows from the top of the image.
 struct TexelGrid {
@@ -70,9 +72,11 @@ ImageDecodeLimits texture_decode_limits(const Scene& scene, const JobLimits& lim
 struct Texture {
   std::shared_ptr<const TexelGrid> texels;
   TextureWrap wrap_s = TextureWrap::repeat, wrap_t = TextureWrap::repeat;
+  TextureFilter filter = TextureFilter::linear;
 
-  // Bilinear lookup at any finite uv. Between four equal texels it returns exactly that
+  // Lookup at any finite uv. Bilinear: between four equal texels it returns exactly that
   // texel's value (each step is a + t (b - a)), so a constant texture equals its value.
+  // Nearest: the texel (floor(u W), floor(v H)), wrapped; exactly one texel's value.
   Rgb lookup(Vec2 uv) const;
 };
 

@@ -34,6 +34,24 @@ double mr_reference(double base, double metallic, double roughness, const Vec3& 
   return F * D * G2 / (4 * co * ci) + (1 - metallic) * base / kPi * (1 - Fd_o) * (1 - Fd_i);
 }
 
+// glTF 2.0's reference form (Appendix B), written out from the specification, one
+// channel: mix(fresnel_mix(ior 1.5, base / pi, S), conductor_fresnel(base, S), metallic)
+// with F at w_o.h for both the layer and the base.
+double mr_gltf_reference(double base, double metallic, double roughness, const Vec3& n, const Vec3& wo, const Vec3& wi) {
+  const double a = std::max(roughness * roughness, 1e-3), a2 = a * a;
+  const double co = dot(n, wo), ci = dot(n, wi);
+  const Vec3 h = normalize(wo + wi);
+  const double ch = dot(n, h), voh = dot(wo, h);
+  const double D = a2 / (kPi * std::pow(ch * ch * (a2 - 1) + 1, 2));
+  auto lambda = [&](double c) { return 0.5 * (std::sqrt(1 + a2 * (1 - c * c) / (c * c)) - 1); };
+  const double S = D / (1 + lambda(co) + lambda(ci)) / (4 * co * ci);
+  const double Fd = 0.04 + 0.96 * std::pow(1 - voh, 5);
+  const double Fm = base + (1 - base) * std::pow(1 - voh, 5);
+  const double dielectric = (1 - Fd) * base / kPi + Fd * S;
+  const double metal = Fm * S;
+  return (1 - metallic) * dielectric + metallic * metal;
+}
+
 json point_query(const json& scene, const json& material, const Vec3& wo, const std::vector<std::string>& est,
                  uint64_t samples) {
   return {{"kind", "lighting"}, {"seed", 11}, {"scene", scene},
@@ -54,13 +72,26 @@ TEST(GlossyScene, PointLightOnGgxIsTheClosedForm) {
   for (const Case c : {Case{0.9, 1.0, 0.3}, Case{0.5, 0.3, 0.7}, Case{0.8, 0.0, 0.15}, Case{0.2, 0.6, 1.0}}) {
     const json mat = {{"type", "metallic_roughness"}, {"base_color", {c.base, c.base, c.base}},
                       {"metallic", c.metallic}, {"roughness", c.roughness}};
-    const test::JobRun r = test::run_spec(point_query(scene, mat, wo, {"mis"}, 4));
     const Vec3 d = light;  // from the origin
     const double d2 = dot(d, d);
     const Vec3 wi = d / std::sqrt(d2);
-    const double expect = mr_reference(c.base, c.metallic, c.roughness, n, wo, wi) * I * dot(n, wi) / d2;
-    EXPECT_NEAR(r.channel(0).mean, expect, 1e-12 * expect) << c.base << " " << c.metallic << " " << c.roughness;
-    EXPECT_EQ(r.channel(0).m2, 0.0);  // deterministic
+    // JSON materials are energy-conserving unless the scene's material_model says otherwise.
+    for (const char* model : {"", "energy_conserving", "gltf_reference"}) {
+      json sc = scene;
+      if (*model) sc["material_model"] = model;
+      const test::JobRun r = test::run_spec(point_query(sc, mat, wo, {"mis"}, 4));
+      const double f = std::string(model) == "gltf_reference" ? mr_gltf_reference(c.base, c.metallic, c.roughness, n, wo, wi)
+                                                             : mr_reference(c.base, c.metallic, c.roughness, n, wo, wi);
+      const double expect = f * I * dot(n, wi) / d2;
+      EXPECT_NEAR(r.channel(0).mean, expect, 1e-12 * expect) << c.base << " " << c.metallic << " " << c.roughness << " " << model;
+      EXPECT_EQ(r.channel(0).m2, 0.0);  // deterministic
+    }
+    // The two forms differ wherever the base is not pure metal.
+    if (c.metallic < 1.0) {
+      EXPECT_GT(std::fabs(mr_gltf_reference(c.base, c.metallic, c.roughness, n, wo, wi) -
+                          mr_reference(c.base, c.metallic, c.roughness, n, wo, wi)),
+                1e-3 * mr_reference(c.base, c.metallic, c.roughness, n, wo, wi));
+    }
   }
   // The plan: glossy is not delta (specular off, and says why); shadows and light
   // samples stay what a diffuse receiver needs.
@@ -109,7 +140,9 @@ TEST(GlossyScene, ShadingNormalsShade) {
   // A glTF quad facing +z whose vertex normals all lean 30 degrees towards +x, seen from
   // straight above through a very narrow camera, lit by a directional light from +z:
   // the pixel is f(n_s; w_o, w_i) E cos(n_s, w_i) with the shading normal n_s (the
-  // camera ray's spread changes w_o by < 1e-5), not the flat value.
+  // camera ray's spread changes w_o by < 1e-5), not the flat value. f is glTF's
+  // reference form (the default for glTF materials), and tally's energy-conserving
+  // form when the scene's material_model asks for it.
   namespace fs = std::filesystem;
   const fs::path dir = fs::temp_directory_path() / "tally_gltf_shading_normals";
   fs::remove_all(dir);
@@ -135,10 +168,16 @@ TEST(GlossyScene, ShadingNormalsShade) {
   const test::JobRun r = test::run_spec(spec, 1, limits);
   const Vec3 ns = normalize(Vec3{static_cast<double>(sx), 0, static_cast<double>(cz)});
   const Vec3 up{0, 0, 1};
-  const double shaded = mr_reference(0.5, 0.0, 0.6, ns, up, up) * E * dot(ns, up);
-  const double flat = mr_reference(0.5, 0.0, 0.6, up, up, up) * E;
+  const double shaded = mr_gltf_reference(0.5, 0.0, 0.6, ns, up, up) * E * dot(ns, up);
+  const double flat = mr_gltf_reference(0.5, 0.0, 0.6, up, up, up) * E;
   EXPECT_NEAR(r.channel(0).mean, shaded, 1e-4 * shaded);
   EXPECT_GT(std::fabs(shaded - flat), 0.05 * flat);
+  json ec = spec;
+  ec["scene"]["material_model"] = "energy_conserving";
+  const test::JobRun r2 = test::run_spec(ec, 1, limits);
+  const double shaded_ec = mr_reference(0.5, 0.0, 0.6, ns, up, up) * E * dot(ns, up);
+  EXPECT_NEAR(r2.channel(0).mean, shaded_ec, 1e-4 * shaded_ec);
+  EXPECT_GT(std::fabs(shaded - shaded_ec), 1e-3 * shaded);
   fs::remove_all(dir);
 }
 

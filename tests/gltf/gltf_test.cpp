@@ -130,11 +130,15 @@ void expect_bit_identical(const test::JobRun& a, const test::JobRun& b) {
 }
 
 TEST(Gltf, RendersBitIdenticalToTheSameJsonScene) {
+  // glTF materials take glTF's reference form by default, JSON materials the
+  // energy-conserving one: the JSON scene names the reference form to be the same scene
+  // (and below, both name the energy-conserving form).
   TempDir dir("tally_gltf_identity");
   const GltfWriter w = reference_gltf();
   w.save_gltf(dir.assets(), "box");
   { std::ofstream(dir.assets() / "box.glb", std::ios::binary) << w.glb(); }
-  const json from_json = reference_json_scene();
+  json from_json = reference_json_scene();
+  from_json["material_model"] = "gltf_reference";
   const test::JobRun ref = test::run_spec(image_spec(from_json), 1, dir.limits());
   // Something was rendered: every pixel has samples and the image is not black.
   double sum = 0;
@@ -154,6 +158,13 @@ TEST(Gltf, RendersBitIdenticalToTheSameJsonScene) {
   shape["camera"] = 0;
   shape["resolution"] = {24, 16};
   expect_bit_identical(ref, test::run_spec(image_spec({{"shapes", json::array({shape})}}), 1, dir.limits()));
+  // Both in the energy-conserving form: the same again, and a different image.
+  from_json["material_model"] = "energy_conserving";
+  const test::JobRun ref_ec = test::run_spec(image_spec(from_json), 1, dir.limits());
+  const test::JobRun got_ec = test::run_spec(
+      image_spec({{"shapes", json::array({shape})}, {"material_model", "energy_conserving"}}), 1, dir.limits());
+  expect_bit_identical(ref_ec, got_ec);
+  EXPECT_GT(test::differing_channels(ref, ref_ec), 0u);
 }
 
 TEST(Gltf, HierarchyTransformsNormalsAndMaterials) {
