@@ -3,11 +3,17 @@
 //     ray; light_area, max_depth 1) on a Cornell-box-like scene, vs the rate of bare
 //     rtcIntersect1 calls (through Accel) on the same number of incoherent rays;
 //  2. the same job on 2 worker threads vs 1;
-//  3. the lecture's scene: variance, time per sample and efficiency of each estimator.
+//  3. the lecture's scene: variance, time per sample and efficiency of each estimator;
+//  4. the many-light room (bench/many_lights_scene.hpp, 1,000 emitters): variance per
+//     sample of MIS direct lighting at equal samples, light tree vs power selection.
+// `lighting_bench --many-lights-scene FILE` writes the many-light scene as a job spec.
 #include <chrono>
 #include <cstdio>
+#include <cstring>
+#include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "bench/many_lights_scene.hpp"
 #include "common/engine/pass_loop.hpp"
 #include "tests/support/cornell_box.hpp"
 #include "common/lighting/accel.hpp"
@@ -70,9 +76,59 @@ double bare_rays(uint64_t n) {
   return s;
 }
 
+// The many-light room as a job spec: MIS direct lighting at four receivers spread over
+// the room (floor centre, floor corner, a wall, a pillar top), independent samples.
+json many_lights_spec(const std::string& selection, uint64_t samples) {
+  const json white = scenes::cornell_diffuse(0.5, 0.5, 0.5);
+  return {{"kind", "lighting"}, {"seed", 7}, {"sampler", "independent"}, {"light_selection", selection},
+          {"scene", scenes::many_lights_scene(1000)},
+          {"query", {{"type", "points"}, {"max_depth", 1},
+                     {"points", json::array({{{"p", {1.0, 0, 1.0}}, {"n", {0, 1, 0}}, {"material", white}},
+                                             {{"p", {-5.5, 0, 5.5}}, {"n", {0, 1, 0}}, {"material", white}},
+                                             {{"p", {5.9, 1.0, 0.0}}, {"n", {-1, 0, 0}}, {"material", white}},
+                                             {{"p", {2.0, 1.2, 0.0}}, {"n", {0, 1, 0}}, {"material", white}}})}}},
+          {"estimators", {"mis"}}, {"stop", {{"max_samples", samples}}}};
+}
+
+void many_lights_line() {
+  const uint64_t n = 20000;
+  std::printf("\nmany-light room (1,000 emitters, bench/many_lights_scene.hpp), MIS direct lighting, 4 points, %llu samples each\n",
+              static_cast<unsigned long long>(n));
+  std::printf("  %-6s %-10s %-10s %-12s %-12s %s\n", "point", "selection", "mean(G)", "std_err", "var/sample", "s/sample");
+  double sum_ratio = 0;
+  for (size_t pt = 0; pt < 4; ++pt) {
+    double var[2] = {0, 0}, t[2] = {0, 0};
+    int k = 0;
+    for (const char* sel : {"power", "tree"}) {
+      auto job = compile_lighting_job(many_lights_spec(sel, n), JobLimits{});
+      JobRunner runner(job->kernel(), job->stop_rule(), JobCaps{});
+      run_local(runner, LocalRunOptions{});
+      const json res = lighting_result_json(job->result(runner));
+      const json& e = res["points"][pt]["estimators"]["mis"];
+      var[k] = e["variance"][1].get<double>();
+      t[k++] = e["seconds_per_sample"].get<double>();
+      std::printf("  %-6zu %-10s %-10.5g %-12.3g %-12.4g %.3g\n", pt, sel, e["mean"][1].get<double>(), e["std_error"][1].get<double>(),
+                  e["variance"][1].get<double>(), e["seconds_per_sample"].get<double>());
+    }
+    std::printf("  point %zu: variance per sample tree / power = %.3f; time to equal error (var x s/sample) tree / power = %.3f\n",
+                pt, var[1] / var[0], var[1] * t[1] / (var[0] * t[0]));
+    sum_ratio += var[1] / var[0];
+  }
+  std::printf("  mean variance ratio tree / power at equal samples: %.3f\n", sum_ratio / 4);
+}
+
 }  // namespace
 
-int main() {
+int main(int argc, char** argv) {
+  if (argc == 3 && std::strcmp(argv[1], "--many-lights-scene") == 0) {
+    std::ofstream(argv[2]) << many_lights_spec("auto", 4096).dump(1) << "\n";
+    std::printf("wrote %s\n", argv[2]);
+    return 0;
+  }
+  if (argc == 2 && std::strcmp(argv[1], "--many-lights") == 0) {
+    many_lights_line();
+    return 0;
+  }
   const uint64_t spp = 16;
   run_direct(1, 1);  // warm up (Embree device, page faults)
   const Timed one = run_direct(1, spp);
@@ -110,5 +166,6 @@ int main() {
                 e["std_error"][0].get<double>(), e["variance"][0].get<double>(), e["seconds_per_sample"].get<double>(),
                 e["efficiency"].is_null() ? 0.0 : e["efficiency"].get<double>());
   }
+  many_lights_line();
   return 0;
 }

@@ -25,7 +25,7 @@ struct CompiledScene {
     cs->scene = std::move(scene);
     cs->plan = std::move(plan);
     cs->accel = std::make_unique<Accel>(cs->scene);
-    cs->lights = std::make_unique<LightSet>(cs->scene);
+    cs->lights = std::make_unique<LightSet>(cs->scene, cs->plan.light_tree ? LightSelection::tree : LightSelection::power);
     cs->tracer = std::make_unique<PathTracer>(cs->scene, *cs->accel, *cs->lights, cs->plan);
     return cs;
   }

@@ -54,7 +54,62 @@ double light_power_radiance(const Rgb& radiance) {
   return std::max(luminance(radiance), 1e-3 * peak);
 }
 
-LightSet::LightSet(const Scene& scene) : scene_(scene), light_of_shape_(scene.shapes.size(), -1) {
+namespace {
+Vec3 vmin(const Vec3& a, const Vec3& b) { return {std::min(a.x, b.x), std::min(a.y, b.y), std::min(a.z, b.z)}; }
+Vec3 vmax(const Vec3& a, const Vec3& b) { return {std::max(a.x, b.x), std::max(a.y, b.y), std::max(a.z, b.z)}; }
+
+// The tree's bounds of an emitter entry (phi set by the caller): its box, its normal
+// (all directions for spheres) and the 90-degree emission spread of an area light.
+LightBounds entry_bounds(const Shape& s, uint32_t triangle, bool two_sided) {
+  LightBounds b;
+  b.two_sided = two_sided;
+  b.cos_e = 0.0;
+  switch (s.type) {
+    case ShapeType::sphere: {
+      const Vec3 r{s.radius, s.radius, s.radius};
+      b.lo = s.center - r;
+      b.hi = s.center + r;
+      b.cos_o = -1.0;
+      break;
+    }
+    case ShapeType::disk: {
+      const Vec3 r{s.radius, s.radius, s.radius};
+      b.lo = s.center - r;
+      b.hi = s.center + r;
+      b.w = s.normal;
+      break;
+    }
+    case ShapeType::quad: {
+      const Vec3 c[4] = {s.corner, s.corner + s.edge_u, s.corner + s.edge_v, s.corner + s.edge_u + s.edge_v};
+      b.lo = b.hi = c[0];
+      for (const Vec3& v : c) {
+        b.lo = vmin(b.lo, v);
+        b.hi = vmax(b.hi, v);
+      }
+      b.w = normalize(cross(s.edge_u, s.edge_v));
+      break;
+    }
+    case ShapeType::mesh: {
+      const auto& tri = s.triangles[triangle];
+      const Vec3 &a = s.vertices[tri[0]], &v1 = s.vertices[tri[1]], &v2 = s.vertices[tri[2]];
+      b.lo = vmin(a, vmin(v1, v2));
+      b.hi = vmax(a, vmax(v1, v2));
+      const Vec3 nn = cross(v1 - a, v2 - a);
+      const double len = length(nn);
+      if (len > 0) {
+        b.w = nn / len;
+      } else {
+        b.cos_o = -1.0;
+      }
+      break;
+    }
+  }
+  return b;
+}
+}  // namespace
+
+LightSet::LightSet(const Scene& scene, LightSelection selection)
+    : scene_(scene), light_of_shape_(scene.shapes.size(), -1) {
   sky_ = sky_emits(scene);
   std::vector<double> weights;
   for (uint32_t i = 0; i < scene.shapes.size(); ++i) {
@@ -85,14 +140,18 @@ LightSet::LightSet(const Scene& scene) : scene_(scene), light_of_shape_(scene.sh
     }
     const auto index = static_cast<uint32_t>(area_.size());
     const double power = kPi * l.area * light_power_radiance(m.emission) * (m.two_sided ? 2.0 : 1.0);
+    first_entry_.push_back(static_cast<uint32_t>(entries_.size()));
+    tri_entry_.emplace_back();
     if (s.type == ShapeType::mesh) {
+      tri_entry_.back().assign(tri_area.size(), -1);
       for (uint32_t t = 0; t < tri_area.size(); ++t) {
         if (!(tri_area[t] > 0)) continue;  // never sampled (zero weight)
-        entries_.push_back({index, t});
+        tri_entry_.back()[t] = static_cast<int32_t>(entries_.size());
+        entries_.push_back({index, t, tri_area[t]});
         weights.push_back(power * (tri_area[t] / l.area));
       }
     } else {
-      entries_.push_back({index, 0});
+      entries_.push_back({index, 0, l.area});
       weights.push_back(power);
     }
     light_of_shape_[i] = static_cast<int>(index);
@@ -103,7 +162,7 @@ LightSet::LightSet(const Scene& scene) : scene_(scene), light_of_shape_(scene.sh
     const SceneBounds b = scene_bounds(scene);
     const double half_diag = b.empty() ? 0.0 : 0.5 * length(b.hi - b.lo);
     if (half_diag > 0 && std::isfinite(half_diag)) r = half_diag;
-    entries_.push_back({static_cast<uint32_t>(area_.size()), 0});
+    entries_.push_back({static_cast<uint32_t>(area_.size()), 0, 0.0});
     const Rgb l = scene.environment ? scene.environment->mean_radiance() : *scene.sky;
     weights.push_back(4.0 * kPi * kPi * r * r * light_power_radiance(l));
   }
@@ -121,6 +180,34 @@ LightSet::LightSet(const Scene& scene) : scene_(scene), light_of_shape_(scene.sh
       }
     }
   }
+  if (selection == LightSelection::tree && emitter_entries() > 0) {
+    std::vector<LightBounds> leaves(emitter_entries());
+    for (size_t e = 0; e < leaves.size(); ++e) {
+      const AreaLight& l = area_[entries_[e].light];
+      const Shape& s = scene.shapes[l.shape];
+      leaves[e] = entry_bounds(s, entries_[e].triangle, scene.materials[s.material].two_sided);
+      leaves[e].phi = weights[e];
+    }
+    tree_.emplace(leaves);
+  }
+}
+
+int64_t LightSet::entry_of(uint32_t shape, uint32_t prim) const {
+  const int li = shape < light_of_shape_.size() ? light_of_shape_[shape] : -1;
+  if (li < 0) return -1;
+  const auto l = static_cast<size_t>(li);
+  if (scene_.shapes[shape].type != ShapeType::mesh) return first_entry_[l];
+  return prim < tri_entry_[l].size() ? tri_entry_[l][prim] : -1;
+}
+
+double LightSet::entry_pmf(const Vec3& x, size_t e) const {
+  if (!tree_) return pick_ ? pick_->pdf(e) : 0.0;
+  return (1.0 - sky_pick_) * tree_->pmf(x, static_cast<uint32_t>(e));
+}
+
+double LightSet::choice_pmf(const Vec3& x, uint32_t shape, uint32_t prim) const {
+  const int64_t e = entry_of(shape, prim);
+  return e < 0 ? 0.0 : entry_pmf(x, static_cast<size_t>(e));
 }
 
 double LightSet::pick_pmf(uint32_t shape) const {
@@ -131,7 +218,22 @@ double LightSet::pick_pmf(uint32_t shape) const {
 LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1, double u2) const {
   LightSample out;
   if (!pick_) return out;
-  const Entry& entry = entries_[pick_->sample(u0)];
+  size_t chosen = 0;
+  double tree_pick = 0;  // the tree's choice probability (tree selection)
+  if (tree_) {
+    if (sky_ && u0 < sky_pick_) {
+      chosen = entries_.size() - 1;  // the sky
+    } else {
+      const double u = sky_ ? std::min((u0 - sky_pick_) / (1.0 - sky_pick_), std::nextafter(1.0, 0.0)) : u0;
+      const std::optional<LightTree::Pick> pk = tree_->sample(x, u);
+      if (!pk) return out;  // an empty tree
+      chosen = pk->leaf;
+      tree_pick = (1.0 - sky_pick_) * pk->pmf;
+    }
+  } else {
+    chosen = pick_->sample(u0);
+  }
+  const Entry& entry = entries_[chosen];
   if (entry.light == area_.size()) {  // the sky
     const double select = sky_pick_;
     if (scene_.environment) {
@@ -155,7 +257,7 @@ LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1,
     return out;
   }
   const AreaLight& l = area_[entry.light];
-  const double select = l.pick;
+  const double select = tree_ ? tree_pick : l.pick;
   const Shape& s = scene_.shapes[l.shape];
   double pdf_solid = 0;
   Vec2 uv{};  // texture coordinates of the light point (meshes with uvs)
@@ -177,7 +279,7 @@ LightSample LightSet::sample(const Vec3& x, const Vec3& n, double u0, double u1,
     out.p = s.center + out.n * s.radius;
     out.wi = wi;
   } else {
-    double pdf_area = 1.0 / l.area;
+    double pdf_area = 1.0 / (tree_ ? entry.area : l.area);  // the tree picks a triangle, then a point on it
     switch (s.type) {
       case ShapeType::sphere: {
         out.n = sample_uniform_sphere({u1, u2});
@@ -232,13 +334,20 @@ double LightSet::pdf_hit(const Vec3& x, const Hit& hit) const {
   const int li = light_of_shape_[hit.shape];
   if (li < 0) return 0.0;
   const AreaLight& l = area_[static_cast<size_t>(li)];
-  const double select = l.pick;
+  double select = l.pick, area = l.area;
+  if (tree_) {
+    const int64_t e = entry_of(hit.shape, hit.prim);
+    if (e < 0) return 0.0;
+    select = entry_pmf(x, static_cast<size_t>(e));
+    area = entries_[static_cast<size_t>(e)].area;
+    if (!(select > 0)) return 0.0;
+  }
   const Shape& s = scene_.shapes[l.shape];
   if (s.type == ShapeType::sphere && outside_sphere(s, x)) {
     const double pdf = uniform_cone_pdf(cone_cos_max(s, x));
     return pdf > 0 && std::isfinite(pdf) ? pdf * select : 0.0;  // as sample(): no sample
   }
-  return area_to_solid_angle(1.0 / l.area, x, hit.p, hit.n) * select;
+  return area_to_solid_angle(1.0 / area, x, hit.p, hit.n) * select;
 }
 
 double LightSet::pdf_dir(const Vec3& x, const Vec3& wi, const Hit& hit) const {

@@ -9,6 +9,10 @@
 //     visible cap, so no sample is wasted on the far side); from inside: by area;
 //   - the sky: cosine-weighted around the receiver's normal; an environment map by its
 //     own importance sampler (environment_map.hpp: luminance x sin theta, all directions).
+// With LightSelection::tree the area-light entries are chosen by a light hierarchy
+// instead (light_tree.hpp: importance by power, distance and orientation at the shading
+// point); the sky keeps its power share, the tree takes the rest. Every pdf then
+// includes the tree's pmf at that point.
 // Point and directional lights are not sampled: every estimator adds them
 // deterministically (a hemisphere sample can never hit them).
 // Lights of zero area are dropped (they emit no power) and listed in `dropped`.
@@ -17,6 +21,7 @@
 #include <vector>
 
 #include "common/lighting/accel.hpp"
+#include "common/lighting/light_tree.hpp"
 #include "common/lighting/scene.hpp"
 #include "common/sampling/alias_table.hpp"
 
@@ -37,7 +42,14 @@ struct LightSample {
 
 class LightSet {
  public:
-  explicit LightSet(const Scene& scene);
+  explicit LightSet(const Scene& scene, LightSelection selection = LightSelection::power);
+
+  LightSelection selection() const { return tree_ ? LightSelection::tree : LightSelection::power; }
+  // Emitter entries (the alias table's or the tree's leaves; the sky not counted).
+  size_t emitter_entries() const { return entries_.size() - (sky_ ? 1 : 0); }
+  // The probability that sample(x, ...) chooses the light of `shape`, triangle `prim` for
+  // meshes (the point's choice probability as the pdfs include it).
+  double choice_pmf(const Vec3& x, uint32_t shape, uint32_t prim) const;
 
   size_t sampled_count() const { return area_.size() + (sky_ ? 1 : 0); }
   bool empty() const { return sampled_count() == 0; }
@@ -60,8 +72,9 @@ class LightSet {
   double pdf_dir(const Vec3& x, const Vec3& wi, const Hit& hit) const;
   double pdf_sky(const Vec3& n, const Vec3& wi) const;
 
-  // Probability that sample() picks the light of `shape` (0 if it is not a light) / the
-  // sky: what the pdfs above include as "the choice of light".
+  // Probability that power selection picks the light of `shape` (0 if it is not a
+  // light) / the sky (either selection): what the pdfs above include as "the choice of
+  // light" under power selection.
   double pick_pmf(uint32_t shape) const;
   double pick_pmf_sky() const { return sky_pick_; }
 
@@ -75,7 +88,12 @@ class LightSet {
   struct Entry {
     uint32_t light = 0;     // index into area_, or area_.size() for the sky
     uint32_t triangle = 0;  // meshes
+    double area = 0;        // of the entry (the triangle's for meshes)
   };
+  // The entry of a point on `shape` (triangle `prim`), -1 if none.
+  int64_t entry_of(uint32_t shape, uint32_t prim) const;
+  // The choice probability of entry e at x under the selection in use.
+  double entry_pmf(const Vec3& x, size_t e) const;
   const Scene& scene_;
   std::vector<AreaLight> area_;
   std::vector<int> light_of_shape_;
@@ -84,6 +102,9 @@ class LightSet {
   std::vector<Entry> entries_;
   std::optional<AliasTable> pick_;
   std::vector<std::string> dropped_;
+  std::vector<uint32_t> first_entry_;           // per area light
+  std::vector<std::vector<int32_t>> tri_entry_;  // per area light: entry of each triangle (meshes)
+  std::optional<LightTree> tree_;               // leaf i = entries_[i]
 };
 
 // The weights lights are chosen by (pbrt's Phi): an area light emits pi A L (x2 when

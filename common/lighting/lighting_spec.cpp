@@ -81,6 +81,9 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
   const uint64_t seed = root.integer_or("seed", 1, 0, std::numeric_limits<uint64_t>::max());
   StopRule stop_rule;
   const bool full = root.enumeration_or("plan", "auto", {"auto", "full"}) == "full";
+  // How next-event estimation chooses area lights: "auto" lets the planner decide
+  // (planner.hpp, light_tree), "power" / "tree" force one.
+  const std::string light_selection = root.enumeration_or("light_selection", "auto", {"auto", "power", "tree"});
   SpecReader scene_reader = root.object("scene");
   Scene scene = parse_scene(scene_reader, limits);
   const std::vector<Strategy> strategies = parse_estimators(root);
@@ -98,6 +101,9 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
   pq.image = type == "image";
   pq.max_depth = max_depth;
   pq.strategies = strategies;
+  if (light_selection != "auto") {
+    pq.light_selection = light_selection == "tree" ? LightSelection::tree : LightSelection::power;
+  }
 
   struct RawPoint {
     Vec3 p, n, wo;

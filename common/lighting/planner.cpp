@@ -84,6 +84,22 @@ Plan make_plan(const Scene& scene, const PlanQuery& q, bool full) {
     return scene.materials[s.material].emits();
   });
   add("emission", p.emission, emitters, emitters ? "emissive shapes are present" : "no shape emits light");
+
+  // light tree (not forced by "full": both selections are exact)
+  size_t entries = 0;
+  for (const Shape& s : scene.shapes) {
+    if (scene.materials[s.material].emits()) entries += s.type == ShapeType::mesh ? s.triangles.size() : 1;
+  }
+  if (q.light_selection) {
+    p.light_tree = *q.light_selection == LightSelection::tree;
+    p.effects.push_back({"light_tree", p.light_tree,
+                         fmt::format("\"light_selection\": \"{}\" ({} emitter entries)", p.light_tree ? "tree" : "power", entries)});
+  } else if (entries > kLightTreeMinEmitters) {
+    p.light_tree = true;
+    p.effects.push_back({"light_tree", true,
+                         fmt::format("{} emitter entries, more than {}: lights chosen by a light hierarchy (power, distance, orientation)",
+                                     entries, kLightTreeMinEmitters)});
+  }
   return p;
 }
 

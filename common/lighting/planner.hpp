@@ -16,11 +16,18 @@
 //             max_depth > 1), and the plan says so in the specular line.
 //   sky       off without a sky (misses return 0 without a lookup).
 //   emission  off when no shape emits (hits are not looked up for emitted radiance).
+//   light_tree on when the scene has more than kLightTreeMinEmitters emitter entries
+//             (light_tree.hpp; a mesh counts one per triangle) or the spec asks for it
+//             ("light_selection": "tree"); off otherwise or with "power". Listed in the
+//             plan only when on or asked for; "full" does not force it (both selections
+//             are exact, they differ only in variance).
 // "plan": "full" forces every effect on: the tests compare both.
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "common/lighting/bsdf.hpp"
+#include "common/lighting/light_tree.hpp"
 #include "common/lighting/scene.hpp"
 
 namespace tally {
@@ -38,6 +45,7 @@ struct Plan {
   bool specular = true;
   bool sky = true;
   bool emission = true;
+  bool light_tree = false;  // choose area lights by the light tree (light_set.hpp)
   std::vector<PlanEffect> effects;
 };
 
@@ -46,6 +54,7 @@ struct PlanQuery {
   int max_depth = 1;
   std::vector<Strategy> strategies;
   std::vector<uint32_t> point_materials;  // materials of the query points
+  std::optional<LightSelection> light_selection;  // the spec's "light_selection" unless "auto"
 };
 
 Plan make_plan(const Scene& scene, const PlanQuery& query, bool full);
