@@ -2,13 +2,29 @@
 
 #include <fmt/format.h>
 
+#include <chrono>
 #include <cmath>
+#include <mutex>
+#include <random>
 
 #include "common/log/log.hpp"
+#include "server/jobs/job_error.hpp"
 #include "common/protocol/job_json.hpp"
 #include "server/jobs/pass_views.hpp"
 
 namespace tally {
+
+double unix_now() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+std::string new_job_id() {
+  static std::mutex mu;
+  static std::mt19937_64 rng{std::random_device{}() ^
+                             static_cast<uint64_t>(std::chrono::steady_clock::now().time_since_epoch().count())};
+  std::lock_guard lock(mu);
+  return fmt::format("{:016x}", rng());
+}
 
 namespace {
 std::string spec_text_of(const nlohmann::json& spec) {
@@ -267,6 +283,62 @@ void Job::reopen_locked(JobRunner runner, bool park) {
   live_facts_.reset();
   version_++;
   publish_state_locked();
+}
+
+JobSnapshot Job::snapshot(const Executor& executor, bool with_runner) const {
+  // What the executor says about the job (cluster mode: why it waits, blocks pending /
+  // in flight), asked before taking the job's lock (executor locks are never nested in it).
+  ExecutorNote note;
+  if (auto why = executor.waiting_reason(id_)) note.waiting_reason = *why;
+  note.held_queued = executor.holds_queued(id_);
+  if (const ExecutorStats es = executor.stats(); es.blocks_by_job.count(id_)) {
+    const auto& b = es.blocks_by_job.at(id_);
+    note.has_blocks = true;
+    note.pending = b.pending;
+    note.in_flight = b.in_flight;
+    note.redelivered = b.redelivered;
+  }
+  std::lock_guard lock(mu_);
+  JobSnapshot s = snapshot_locked(with_runner);
+  if (preempted_ && status_ == JobStatus::queued) note.waiting_reason = "preempted";
+  // Started, but nothing can compute it yet (cluster: no live worker in its pool).
+  if (s.status == JobStatus::running && note.held_queued) s.status = JobStatus::queued;
+  s.executor = std::move(note);
+  return s;
+}
+
+bool Job::extend_locked(const StopRule& rule, std::unique_ptr<JobRunner> loaded,
+                        const std::function<void()>& check_room) {
+  bool from_disk = false;  // read back for this extend: dropped again if it is refused
+  if (!runner_ && loaded && is_terminal(status_)) {
+    runner_ = std::move(loaded);
+    from_disk = true;
+  }
+  if (!is_terminal(status_)) {
+    throw JobError(JobError::Kind::conflict,
+                   fmt::format("job {} is still {}; extend a finished job", id_, job_status_name(status_)));
+  }
+  const auto refuse = [&](std::string why) {
+    if (from_disk) runner_.reset();
+    throw JobError(JobError::Kind::conflict, std::move(why));
+  };
+  if (status_ == JobStatus::failed || !runner_ || !def_) {
+    refuse(fmt::format("job {} failed{}; a failed job cannot be extended", id_, error_.empty() ? "" : ": " + error_));
+  }
+  JobRunner trial = *runner_;  // leave the job untouched if the rule is refused
+  trial.extend(rule);
+  if (trial.finished()) {
+    refuse(fmt::format("the new rule is already met by job {} ({}); ask for more", id_,
+                       stop_reason_name(trial.stop_reason())));
+  }
+  try {
+    check_room();
+  } catch (const JobError&) {
+    if (from_disk) runner_.reset();
+    throw;
+  }
+  reopen_locked(std::move(trial), from_disk);
+  return from_disk;
 }
 
 void Job::cancel_queued_locked(double now) {

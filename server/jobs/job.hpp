@@ -6,6 +6,7 @@
 #include <atomic>
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -18,6 +19,8 @@
 #include "common/protocol/job_snapshot.hpp"
 #include "server/executor/executor.hpp"
 #include "server/jobs/event_log.hpp"
+#include "server/jobs/job_retention.hpp"
+#include "server/jobs/manager_stats.hpp"
 
 namespace tally {
 
@@ -41,6 +44,7 @@ struct JobEnding {
 };
 
 double unix_now();  // seconds since the epoch (system clock)
+std::string new_job_id();  // 16 random hex digits
 
 class Job : public std::enable_shared_from_this<Job> {
  public:
@@ -60,10 +64,17 @@ class Job : public std::enable_shared_from_this<Job> {
   EventLog& events() const { return events_; }
   // What a new or lagging watcher starts with (JobManager::watch_snapshot). Takes mu_.
   std::vector<Event> watch_snapshot() const;
+  // The job as it is now (JobManager::snapshot), with what `executor` says of it (asked
+  // before the job's lock is taken: executor locks are never nested in it). Takes mu_.
+  JobSnapshot snapshot(const Executor& executor, bool with_runner) const;
 
  private:
   friend class JobManager;
   friend class JobRecorder;
+  friend class Preemption;
+  friend class CachedAnswers;
+  friend std::vector<JobRetention::Finished> finished_jobs(const std::vector<std::shared_ptr<Job>>&);
+  friend void add_job_figures(ManagerStats&, const std::vector<std::shared_ptr<Job>>&, unsigned);
 
   // The picture routes read; call under mu_. `with_runner`: also a copy of the runner
   // (else one is made only when the views built at the pass boundary are missing).
@@ -96,6 +107,11 @@ class Job : public std::enable_shared_from_this<Job> {
   // A finished job waits again with `runner` (the old one's state, the new rule); with
   // `park`, on disk.
   void reopen_locked(JobRunner runner, bool park);
+  // A finished job reopened with `rule` (reopen_locked), its state in memory or `loaded`
+  // (read back from the store; then it stays parked, the result). JobError conflict,
+  // naming the job, if it is not finished, failed or the rule is already met; then
+  // `check_room` (JobError if there is no room to wait). The job is untouched if refused.
+  bool extend_locked(const StopRule& rule, std::unique_ptr<JobRunner> loaded, const std::function<void()>& check_room);
   // A queued job is cancelled at once.
   void cancel_queued_locked(double now);
   // A parked job's state read back (null: `error`): running can start, or it failed.

@@ -4,8 +4,6 @@
 
 #include <algorithm>
 #include <chrono>
-#include <cmath>
-#include <random>
 
 #include "common/engine/checkpoint.hpp"
 #include "common/log/log.hpp"
@@ -19,28 +17,9 @@ namespace tally {
 using nlohmann::json;
 
 namespace {
-// A finished job whose result is the one its spec computes (ResultCache): it stopped
-// for a reason the clock does not decide, under its spec's own rule (not extended).
-bool answers_its_spec(const JobDefinition* def, const RunFacts* f) {
-  if (!def || !f || !ResultCache::reusable(f->stop_reason)) return false;
-  const StopRule a = f->rule, b = def->stop_rule();
-  return a.max_samples == b.max_samples && a.time_budget_s == b.time_budget_s && a.abs_error == b.abs_error &&
-         a.rel_error == b.rel_error && a.confidence == b.confidence && a.min_samples == b.min_samples;
-}
-}  // namespace
 
-double unix_now() {
-  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-}
-
-namespace {
-
-std::string new_job_id() {
-  static std::mutex mu;
-  static std::mt19937_64 rng{std::random_device{}() ^
-                             static_cast<uint64_t>(std::chrono::steady_clock::now().time_since_epoch().count())};
-  std::lock_guard lock(mu);
-  return fmt::format("{:016x}", rng());
+double steady_seconds() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
 std::string dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
@@ -50,15 +29,16 @@ std::string dump(const json& j) { return j.dump(-1, ' ', false, json::error_hand
 JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compiler)
     : config_(std::move(config)), compiler_(std::move(compiler)),
       recorder_(store, compiler_, config_.limits, config_.event_buffer),
-      admission_(Admission::Limits{config_.max_running, config_.max_queued, config_.memory_budget}), store_(store),
-      finished_(store, config_.finished_cache_bytes),
+      admission_(Admission::Limits{config_.max_running, config_.max_queued, config_.memory_budget}),
+      preemption_(admission_, config_.preempt_min_run_s), store_(store), finished_(store, config_.finished_cache_bytes),
       retention_(JobRetention::Policy{config_.retain_max_age_s, config_.retain_max_jobs, config_.retain_max_bytes,
-                                      config_.retention_interval_s}) {
+                                      config_.retention_interval_s}),
+      answers_(store) {
   ExecutorCallbacks cb;
   cb.pass_done = [this](const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
                         double wall) { return on_pass_done(id, done, std::move(results), wall); };
-  cb.cancelled = [this](const std::string& id) { on_cancelled(id); };
-  cb.failed = [this](const std::string& id, const std::string& error) { on_failed(id, error); };
+  cb.cancelled = [this](const std::string& id) { on_stopped(id, std::nullopt); };
+  cb.failed = [this](const std::string& id, const std::string& error) { on_stopped(id, error); };
   executor_ = config_.make_executor
                   ? config_.make_executor(std::move(cb))
                   : std::make_unique<InProcessExecutor>(config_.workers, std::move(cb), config_.chunk_target_s);
@@ -83,25 +63,7 @@ std::optional<std::string> JobManager::not_ready_reason() const {
 // ---------------------------------------------------------------- snapshots
 
 JobSnapshot JobManager::snapshot(const Job& job, SnapshotOf of) const {
-  // What the executor says about the job (cluster mode: why it waits, blocks pending /
-  // in flight), asked before taking the job's lock (executor locks are never nested in it).
-  ExecutorNote note;
-  if (auto why = executor_->waiting_reason(job.id_)) note.waiting_reason = *why;
-  note.held_queued = executor_->holds_queued(job.id_);
-  if (const ExecutorStats es = executor_->stats(); es.blocks_by_job.count(job.id_)) {
-    const auto& b = es.blocks_by_job.at(job.id_);
-    note.has_blocks = true;
-    note.pending = b.pending;
-    note.in_flight = b.in_flight;
-    note.redelivered = b.redelivered;
-  }
-  std::lock_guard lock(job.mu_);
-  JobSnapshot s = job.snapshot_locked(of == SnapshotOf::state);
-  if (job.preempted_ && job.status_ == JobStatus::queued) note.waiting_reason = "preempted";
-  // Started, but nothing can compute it yet (cluster: no live worker in its pool).
-  if (s.status == JobStatus::running && note.held_queued) s.status = JobStatus::queued;
-  s.executor = std::move(note);
-  return s;
+  return job.snapshot(*executor_, of == SnapshotOf::state);
 }
 
 JobSnapshot JobManager::snapshot(const std::string& id, SnapshotOf of) const {
@@ -124,7 +86,6 @@ JobStatus JobManager::status(const Job& job) const {
 }
 
 // ---------------------------------------------------------------- lifecycle
-
 
 std::unique_ptr<JobDefinition> JobManager::compile(const json& spec, const JobLimits& limits) const {
   return compile_within_budget(compiler_, spec, limits, admission_);
@@ -153,13 +114,13 @@ std::shared_ptr<Job> JobManager::submit(const json& spec, int priority, const Su
   std::shared_ptr<const JobDefinition> def = compile(spec, limits);
   const std::string key = ResultCache::key_of(spec, def->seed());
   if (use_cache) {
-    if (const auto source = results_.find(key, who.owner, who.reads_all, limits.caps().max_samples)) {
-      if (auto job = answer_from(*source, spec, priority, who, def, limits, key)) {
-        results_.counted(true);
-        return job;
-      }
+    const auto snapshot_of = [this](const std::string& id) -> std::optional<JobSnapshot> {
+      const std::shared_ptr<Job> src = find(id);
+      return src ? std::optional<JobSnapshot>(snapshot(*src)) : std::nullopt;
+    };
+    if (auto answer = answers_.find(key, who, limits.caps().max_samples, snapshot_of)) {
+      return answer_from(std::move(*answer), spec, priority, who, std::move(def), limits, key);
     }
-    results_.counted(false);
   }
   const uint64_t need = Admission::memory_bytes(*def);
   std::shared_ptr<Job> job;
@@ -167,8 +128,7 @@ std::shared_ptr<Job> JobManager::submit(const json& spec, int priority, const Su
     std::lock_guard lock(mu_);
     if (shutting_down_) throw JobError(JobError::Kind::unavailable, "the server is shutting down");
     admission_.check_room(who);
-    job = std::make_shared<Job>(new_job_id(), next_seq_++, spec, clamp_priority(priority), unix_now(), epoch_,
-                                config_.event_buffer, who.owner);
+    job = new_job_locked(spec, priority, who);
     job->cache_key_ = key;
     job->caps_ = limits.caps();
     job->facts_ = std::make_shared<const RunFacts>(fresh_run_facts(def->stop_rule()));
@@ -192,43 +152,24 @@ std::shared_ptr<Job> JobManager::submit(const json& spec, int priority, const Su
   return job;
 }
 
-namespace {
-double steady_seconds() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+std::shared_ptr<Job> JobManager::new_job_locked(const json& spec, int priority, const Submitter& who) {
+  return std::make_shared<Job>(new_job_id(), next_seq_++, spec, clamp_priority(priority), unix_now(), epoch_,
+                               config_.event_buffer, who.owner);
 }
-}  // namespace
 
-std::shared_ptr<Job> JobManager::answer_from(const std::string& source, const json& spec, int priority,
+std::shared_ptr<Job> JobManager::answer_from(CachedAnswers::Answer answer, const json& spec, int priority,
                                              const Submitter& who, std::shared_ptr<const JobDefinition> def,
                                              const JobLimits& limits, const std::string& key) {
-  const std::shared_ptr<Job> src = find(source);
-  if (!src) return nullptr;
-  const JobSnapshot s = snapshot(*src);
-  if (s.status != JobStatus::succeeded || !s.final_result || !s.facts) return nullptr;
-  std::optional<std::string> checkpoint;
-  try {
-    checkpoint = store_.load_checkpoint(source);
-  } catch (const std::exception& e) {
-    log::job(log::Level::warn, source, "reading its stored state to answer a submit from it failed: {}", e.what());
-  }
-  if (!checkpoint) return nullptr;
   std::shared_ptr<Job> job;
   {
     std::lock_guard lock(mu_);
     if (shutting_down_) throw JobError(JobError::Kind::unavailable, "the server is shutting down");
-    job = std::make_shared<Job>(new_job_id(), next_seq_++, spec, clamp_priority(priority), unix_now(), epoch_,
-                                config_.event_buffer, who.owner);
+    job = new_job_locked(spec, priority, who);
   }
-  job->cache_key_ = key;
-  job->cached_from_ = source;
   const uint64_t need = Admission::memory_bytes(*def);
-  {
-    std::lock_guard jl(job->mu_);
-    job->answer_locked(std::move(def), limits.caps(),
-                       JobEnding{JobStatus::succeeded, "", job->created_at(), s.final_result, s.facts});
-  }
+  CachedAnswers::answer(*job, answer, key, std::move(def), limits.caps());
   // Acknowledged only once stored, with the source's state as its own.
-  if (!recorder_.persist_with(*job, std::move(*checkpoint))) {
+  if (!recorder_.persist_with(*job, std::move(answer.checkpoint))) {
     throw JobError(JobError::Kind::unavailable,
                    fmt::format("the job store is failing ({}); the job was not accepted, retry later",
                                recorder_.store_problem().value_or("unknown error")));
@@ -239,8 +180,9 @@ std::shared_ptr<Job> JobManager::answer_from(const std::string& source, const js
     order_.push_back(job);
     admission_.track(*job, need, who.max_running);
   }
-  results_.add(key, job->id(), job->owner(), s.facts->samples);
-  log::job(log::Level::info, job->id(), "answered from job {}'s stored result (the same spec and seed)", source);
+  answers_.answered(key, *job, answer.facts->samples);
+  log::job(log::Level::info, job->id(), "answered from job {}'s stored result (the same spec and seed)",
+           answer.source);
   return job;
 }
 
@@ -254,29 +196,14 @@ void JobManager::start_queued_locked() {
 }
 
 void JobManager::preempt_locked() {
-  if (config_.preempt_min_run_s < 0 || shutting_down_) return;
-  while (std::shared_ptr<Job> victim = admission_.preemption_victim(steady_seconds(), config_.preempt_min_run_s)) {
-    std::lock_guard jl(victim->mu_);
-    victim->preempt_requested_ = true;
-    log::job(log::Level::info, victim->id(), "pauses at its next pass boundary: a waiting job goes first");
-  }
+  if (!shutting_down_) preemption_.request_pauses(steady_seconds());
 }
 
 void JobManager::pause(const std::shared_ptr<Job>& job) {
   // Its state at this pass boundary is stored before it leaves memory.
   const bool stored = recorder_.persist(*job, true, false);
-  uint64_t samples = 0;
   std::lock_guard lock(mu_);
-  {
-    std::lock_guard jl(job->mu_);
-    samples = job->pause_locked(stored);
-  }
-  if (stored) admission_.release(*job);
-  admission_.stopped(*job);
-  admission_.enqueue(job);
-  ++preemptions_;
-  log::job(log::Level::info, job->id(), "paused at a pass boundary ({} samples{}); queued until it resumes", samples,
-           stored ? ", state stored and released" : ", state kept: the store failed");
+  preemption_.requeue(job, stored);
   start_queued_locked();
 }
 
@@ -286,15 +213,12 @@ void JobManager::start_locked(const std::shared_ptr<Job>& job) {
   {
     std::lock_guard jl(job->mu_);
     if (job->status_ != JobStatus::queued) return;
-    if (job->parked_ && !job->runner_ && job->def_) {
-      // Its state is on disk: read back on the recorder's loader thread, then it starts
-      // (resume_loaded). It holds its running slot and its memory from now.
-      if (job->loading_) return;
-      job->loading_ = true;
-      admission_.charge(*job);
-      admission_.started(job, steady_seconds());
-      recorder_.load_later([this, job] { resume_loaded(job); });
-      return;
+    switch (preemption_.start_locked(job, steady_seconds())) {
+      case Preemption::Start::not_parked: break;
+      case Preemption::Start::loading: return;
+      case Preemption::Start::load:  // read back on the recorder's loader thread, then it starts
+        recorder_.load_later([this, job] { resume_loaded(job); });
+        return;
     }
     pass = job->start_running_locked(epoch_, unix_now(), ej);
   }
@@ -326,25 +250,14 @@ void JobManager::resume_loaded(const std::shared_ptr<Job>& job) {
     error = e.what();
     log::job(log::Level::warn, job->id(), "reading its stored state back to go on failed: {}", error);
   }
-  bool failed = false;
+  Preemption::Resumed r;
   {
     std::lock_guard lock(mu_);
-    admission_.stopped(*job);  // start_locked counts it again
-    {
-      std::lock_guard jl(job->mu_);
-      if (job->status_ != JobStatus::queued || shutting_down_) {
-        // Cancelled meanwhile, or shutting down (its state stays on disk): not started.
-        job->loading_ = false;
-        if (job->status_ != JobStatus::queued) admission_.release(*job);
-        return;
-      }
-      failed = !job->resumed_locked(std::move(runner), error, unix_now());
-      if (failed) admission_.release(*job);
-    }
-    if (!failed) start_locked(job);
-    start_queued_locked();
+    r = preemption_.resumed(job, std::move(runner), error, unix_now(), shutting_down_);
+    if (r == Preemption::Resumed::start) start_locked(job);
+    if (r != Preemption::Resumed::dropped) start_queued_locked();
   }
-  if (failed) recorder_.persist(*job, false);
+  if (r == Preemption::Resumed::failed) recorder_.persist(*job, false);
 }
 
 void JobManager::release_state(Job& job) {
@@ -404,9 +317,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     recorder_.save_final_later(job, ending, [this, job, ending, shown](bool stored) {
       // Stored: its result may answer later submits of the same spec (from when it reads
       // as finished, just below).
-      if (stored && ending.status == JobStatus::succeeded && answers_its_spec(job->def_.get(), ending.facts.get())) {
-        results_.add(job->cache_key_, job->id(), job->owner(), ending.facts->samples);
-      }
+      if (stored) answers_.offer(*job, ending.status, ending.facts.get());
       {
         std::lock_guard lock(job->mu_);
         job->end_locked(ending, shown.get());  // its events, then state and end, under one lock
@@ -422,28 +333,18 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
   return c.next;
 }
 
-void JobManager::on_failed(const std::string& id, const std::string& error) {
+void JobManager::on_stopped(const std::string& id, const std::optional<std::string>& error) {
   const std::shared_ptr<Job> job = find(id);
   if (!job) return;
   {
     std::lock_guard lock(job->mu_);
     if (is_terminal(job->status_) || job->finishing_) return;
     // The partial pass was dropped; the runner is at its last pass boundary.
-    job->runner_->fail(error);
-    job->finish_locked(unix_now());
-  }
-  if (recorder_.persist(*job, true)) release_state(*job);
-  job_left_scheduler(*job);
-}
-
-void JobManager::on_cancelled(const std::string& id) {
-  const std::shared_ptr<Job> job = find(id);
-  if (!job) return;
-  {
-    std::lock_guard lock(job->mu_);
-    if (is_terminal(job->status_) || job->finishing_) return;
-    // The partial pass was dropped; the runner is at its last pass boundary.
-    job->runner_->cancel();
+    if (error) {
+      job->runner_->fail(*error);
+    } else {
+      job->runner_->cancel();
+    }
     job->finish_locked(unix_now());
   }
   if (recorder_.persist(*job, true)) release_state(*job);
@@ -513,42 +414,10 @@ std::shared_ptr<Job> JobManager::extend(const std::string& id, const StopRule& r
     std::lock_guard jl(job->mu_);
     // The job waits again: the same room as a submit (the server's queue, the owner's
     // max_queued) — asked after the job's own conflicts, which name it.
-    const auto check_room = [&] {
-      if (is_terminal(job->status_)) admission_.check_room(who);
-    };
-    bool from_disk = false;  // read back for this extend: dropped again if it is refused
-    if (!job->runner_ && loaded && is_terminal(job->status_)) {
-      job->runner_ = std::move(loaded);
-      from_disk = true;
-    }
-    if (!is_terminal(job->status_)) {
-      throw JobError(JobError::Kind::conflict,
-                     fmt::format("job {} is still {}; extend a finished job", id, job_status_name(job->status_)));
-    }
-    if (job->status_ == JobStatus::failed || !job->runner_ || !job->def_) {
-      if (from_disk) job->runner_.reset();
-      throw JobError(JobError::Kind::conflict,
-                     fmt::format("job {} failed{}; a failed job cannot be extended", id,
-                                 job->error_.empty() ? "" : ": " + job->error_));
-    }
-    JobRunner trial = *job->runner_;  // leave the job untouched if the rule is refused
-    trial.extend(rule);
-    if (trial.finished()) {
-      if (from_disk) job->runner_.reset();
-      throw JobError(JobError::Kind::conflict,
-                     fmt::format("the new rule is already met by job {} ({}); ask for more", id,
-                                 stop_reason_name(trial.stop_reason())));
-    }
-    try {
-      check_room();
-    } catch (const JobError&) {
-      if (from_disk) job->runner_.reset();
-      throw;
-    }
-    job->reopen_locked(std::move(trial), from_disk);
+    const bool from_disk = job->extend_locked(rule, std::move(loaded), [&] { admission_.check_room(who); });
     if (!from_disk) admission_.charge(*job);
   }
-  results_.erase(id);  // its result changes
+  answers_.erase(id);  // its result changes
   log::job(log::Level::info, id, "extended; queued again");
   recorder_.persist(*job, false);
   std::lock_guard lock(mu_);
@@ -570,24 +439,9 @@ void JobManager::recover() {
       order_.push_back(job);
       next_seq_ = std::max(next_seq_, job->seq() + 1);
       std::lock_guard jl(job->mu_);
-      const uint64_t bytes = job->def_ ? Admission::memory_bytes(*job->def_) : 0;
       if (job->def_) job->cache_key_ = ResultCache::key_of(job->spec(), job->def_->seed());
-      if (job->status_ == JobStatus::succeeded && answers_its_spec(job->def_.get(), job->facts_.get())) {
-        results_.add(job->cache_key_, job->id(), job->owner(), job->facts_->samples);
-      }
-      admission_.track(*job, bytes, UINT64_MAX);
-      if (job->runner_ && !is_terminal(job->status_) && !admission_.fits(bytes)) {
-        // Resumed beyond the memory budget: its state goes back to disk until it starts.
-        job->park_locked();
-      }
-      if (job->runner_) admission_.charge(*job);  // resumed from a checkpoint: its state is in memory
-      if (!is_terminal(job->status_)) {
-        job->status_ = JobStatus::queued;
-        admission_.enqueue(job);
-        ++resumed;
-        log::job(log::Level::info, job->id(), "resumes from its checkpoint ({} samples)",
-                 job->runner_ ? job->runner_->state().samples : 0);
-      }
+      answers_.offer(*job, job->status_, job->facts_.get());
+      if (preemption_.readmit_locked(job, UINT64_MAX)) ++resumed;
     }
     if (!rec.jobs.empty()) log::info("recovered {} jobs ({} resume), epoch {}", rec.jobs.size(), resumed, epoch_);
     start_queued_locked();
@@ -623,7 +477,7 @@ void JobManager::remove(const std::string& id) {
     ++jobs_removed_;
   }
   finished_.erase(id);
-  results_.erase(id);
+  answers_.erase(id);
   recorder_.removed(*job);
   job->events_.close();
   log::job(log::Level::info, id, "deleted");
@@ -631,13 +485,8 @@ void JobManager::remove(const std::string& id) {
 
 std::vector<std::string> JobManager::apply_retention() {
   if (!retention_.policy().any()) return {};
-  std::vector<JobRetention::Finished> done;
-  for (const auto& job : list()) {
-    std::lock_guard jl(job->mu_);
-    if (is_terminal(job->status_)) done.push_back({job->id(), job->finished_at_, job->seq(), job->stored_bytes_});
-  }
   std::vector<std::string> removed;
-  for (const JobRetention::Retire& r : retention_.select(std::move(done), unix_now())) {
+  for (const JobRetention::Retire& r : retention_.select(finished_jobs(list()), unix_now())) {
     try {
       remove(r.id);
       log::job(log::Level::info, r.id, "deleted by retention: {}", r.why);
@@ -691,10 +540,6 @@ bool JobManager::shutting_down() const {
 
 ManagerStats JobManager::stats() const {
   ManagerStats s;
-  for (JobStatus st : {JobStatus::queued, JobStatus::running, JobStatus::succeeded, JobStatus::failed,
-                       JobStatus::cancelled}) {
-    s.jobs_by_state[std::string(job_status_name(st))] = 0;
-  }
   std::vector<std::shared_ptr<Job>> jobs;
   {
     std::lock_guard lock(mu_);
@@ -702,20 +547,7 @@ ManagerStats JobManager::stats() const {
     s.queue_depth = admission_.queued();
   }
   const ExecutorStats es = executor_->stats();
-  // The scaling signal: the jobs' own forecasts (Job::forecast_locked), a running job on
-  // its share of the workers.
-  size_t running = 0;
-  for (const auto& j : jobs) {
-    std::lock_guard jl(j->mu_);
-    if (j->status_ == JobStatus::running) ++running;
-  }
-  const double share = running > 0 ? static_cast<double>(es.workers) / static_cast<double>(running) : 1.0;
-  for (const auto& j : jobs) {
-    std::lock_guard jl(j->mu_);
-    s.jobs_by_state[std::string(job_status_name(j->status_))]++;
-    if (j->status_ == JobStatus::running && j->runner_) s.samples_per_second += j->runner_->samples_per_second();
-    j->forecast_locked(share, s.predicted_cpu_seconds_running, s.predicted_cpu_seconds_queued);
-  }
+  add_job_figures(s, jobs, es.workers);
   s.samples_total = es.samples_done;
   s.workers = es.workers;
   s.busy_workers = es.busy_workers;
@@ -727,10 +559,10 @@ ManagerStats JobManager::stats() const {
     s.memory_budget = admission_.memory_budget();
     s.memory_used = admission_.memory_used();
     s.jobs_removed = jobs_removed_;
-    s.preemptions = preemptions_;
-    s.result_cache_hits = results_.hits();
-    s.result_cache_misses = results_.misses();
+    s.preemptions = preemption_.preemptions();
   }
+  s.result_cache_hits = answers_.hits();
+  s.result_cache_misses = answers_.misses();
   s.finished_cache_bytes = finished_.bytes();
   s.state_loads = finished_.loads();
   return s;

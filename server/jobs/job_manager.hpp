@@ -17,14 +17,16 @@
 #include "common/protocol/job_snapshot.hpp"
 #include "server/executor/executor.hpp"
 #include "server/jobs/admission.hpp"
+#include "server/jobs/cached_answers.hpp"
 #include "server/jobs/finished_state_cache.hpp"
 #include "server/jobs/job.hpp"
 #include "server/jobs/job_error.hpp"
 #include "server/jobs/job_recorder.hpp"
 #include "server/jobs/job_retention.hpp"
-#include "server/jobs/result_cache.hpp"
+#include "server/jobs/preemption.hpp"
 #include "server/jobs/spec_compile.hpp"
 #include "server/jobs/job_store.hpp"
+#include "server/jobs/manager_stats.hpp"
 
 namespace tally {
 
@@ -55,30 +57,6 @@ struct ManagerConfig {
   // Builds the executor (e.g. cluster mode's RedisExecutor); unset: the in-process
   // worker pool with `workers` threads.
   std::function<std::unique_ptr<Executor>(ExecutorCallbacks)> make_executor;
-};
-
-struct ManagerStats {
-  std::map<std::string, size_t> jobs_by_state;
-  size_t queue_depth = 0;
-  double samples_per_second = 0;  // sum over running jobs
-  uint64_t samples_total = 0;     // computed by the workers since start
-  unsigned workers = 0;
-  unsigned busy_workers = 0;
-  uint64_t store_failures = 0;  // failed saves since start
-  bool store_ok = true;         // the last save succeeded
-  std::map<std::string, double> cpu_seconds_by_owner;  // the executor's fair-share accounting
-  uint64_t memory_budget = 0;        // 0: none
-  uint64_t memory_used = 0;          // state of the jobs that hold it in memory
-  uint64_t finished_cache_bytes = 0; // decoded finished states kept for image routes
-  uint64_t state_loads = 0;          // finished jobs' states read back from the store
-  uint64_t jobs_removed = 0;         // by DELETE or retention since start
-  uint64_t preemptions = 0;          // jobs paused at a pass boundary for one that goes first
-  uint64_t result_cache_hits = 0;    // submits answered from a finished job's stored result
-  uint64_t result_cache_misses = 0;  // submits that looked and computed
-  // Predicted CPU-seconds of work left (the jobs' own forecasts): running jobs from their
-  // throughput and stop rule, queued ones from their pilot-free estimate (forecast_cpu_seconds).
-  double predicted_cpu_seconds_running = 0;
-  double predicted_cpu_seconds_queued = 0;
 };
 
 class JobManager {
@@ -160,23 +138,25 @@ class JobManager {
  private:
   PassWork on_pass_done(const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
                         double wall);
-  void on_failed(const std::string& id, const std::string& error);
-  void on_cancelled(const std::string& id);
+  // The executor dropped the job's partial pass: it ends failed (`error`) or cancelled.
+  void on_stopped(const std::string& id, const std::optional<std::string>& error);
   void start_queued_locked();
   void job_left_scheduler(const Job& job);
+  // Under mu_: a new job of `who` with the next id and sequence number.
+  std::shared_ptr<Job> new_job_locked(const nlohmann::json& spec, int priority, const Submitter& who);
   // Under mu_: starts the job Admission picked (allocates its state, plans its first
   // pass, hands it to the executor).
   void start_locked(const std::shared_ptr<Job>& job);
-  // A new job answered from `source`'s stored result, or null if that is gone.
-  std::shared_ptr<Job> answer_from(const std::string& source, const nlohmann::json& spec, int priority,
+  // A new job answered from a finished job's stored result (CachedAnswers::find), stored.
+  std::shared_ptr<Job> answer_from(CachedAnswers::Answer answer, const nlohmann::json& spec, int priority,
                                    const Submitter& who, std::shared_ptr<const JobDefinition> def,
                                    const JobLimits& limits, const std::string& key);
   // On the recorder's loader thread: a parked job's state is read back; it starts.
   void resume_loaded(const std::shared_ptr<Job>& job);
-  // Under mu_: asks the running job Admission picks to pause at its next pass boundary.
+  // Under mu_: asks the running jobs Admission picks to pause at their next pass boundary.
   void preempt_locked();
   // At a pass boundary (on_pass_done): stores the job's state, releases it and queues
-  // the job again (preempted).
+  // the job again (Preemption::requeue).
   void pause(const std::shared_ptr<Job>& job);
   // Once a finished job is stored with its final checkpoint: frees its state.
   void release_state(Job& job);
@@ -193,12 +173,12 @@ class JobManager {
   int64_t next_seq_ = 1;
   bool shutting_down_ = false;
   uint64_t jobs_removed_ = 0;
-  uint64_t preemptions_ = 0;
+  Preemption preemption_;                     // guarded by mu_ (drives admission_)
 
   JobStore& store_;
   FinishedStateCache finished_;  // its own lock
   JobRetention retention_;
-  ResultCache results_;  // its own lock
+  CachedAnswers answers_;  // its own lock
 
   std::unique_ptr<Executor> executor_;  // last: its workers call back into us
 };

@@ -8,6 +8,7 @@
 #include <mutex>
 
 #include "common/log/log.hpp"
+#include "server/jobs/job.hpp"
 
 namespace tally {
 
@@ -60,6 +61,15 @@ void JobRetention::start(std::function<void()> apply) {
 void JobRetention::stop() {
   thread_.request_stop();
   if (thread_.joinable()) thread_.join();
+}
+
+std::vector<JobRetention::Finished> finished_jobs(const std::vector<std::shared_ptr<Job>>& jobs) {
+  std::vector<JobRetention::Finished> done;
+  for (const auto& job : jobs) {
+    std::lock_guard jl(job->mu_);
+    if (is_terminal(job->status_)) done.push_back({job->id(), job->finished_at_, job->seq(), job->stored_bytes_});
+  }
+  return done;
 }
 
 }  // namespace tally

@@ -4,12 +4,15 @@
 // --retain-max-bytes), and the thread that applies them every interval.
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <stop_token>
 #include <string>
 #include <thread>
 #include <vector>
 
 namespace tally {
+
+class Job;
 
 class JobRetention {
  public:
@@ -48,5 +51,8 @@ class JobRetention {
   const Policy policy_;
   std::jthread thread_;
 };
+
+// The finished jobs among `jobs` (each read under its own lock), for select().
+std::vector<JobRetention::Finished> finished_jobs(const std::vector<std::shared_ptr<Job>>& jobs);
 
 }  // namespace tally

@@ -4,6 +4,7 @@ cmake_minimum_required(VERSION 3.20)
 # PASS_REGULAR_EXPRESSION alone would ignore the exit code: a check that only warned
 # would still pass.) Lines in REJECT (allowed includes) must not be named.
 #   cmake -DCHECK=<layering.cmake> -DROOT=<bad tree> "-DEXPECT=line|line" ["-DREJECT=text|text"]
+#         [-DMAX_LINES=n] (passed on)
 #         -P expect_failure.cmake
 foreach(v CHECK ROOT EXPECT)
   if(NOT ${v})
@@ -12,7 +13,11 @@ foreach(v CHECK ROOT EXPECT)
 endforeach()
 string(REPLACE "|" ";" EXPECT "${EXPECT}")
 string(REPLACE "|" ";" REJECT "${REJECT}")
-execute_process(COMMAND ${CMAKE_COMMAND} -DROOT=${ROOT} -P ${CHECK}
+set(max_lines "")
+if(MAX_LINES)
+  set(max_lines -DMAX_LINES=${MAX_LINES})
+endif()
+execute_process(COMMAND ${CMAKE_COMMAND} -DROOT=${ROOT} ${max_lines} -P ${CHECK}
   RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
 set(all "${out}${err}")
 if(rc EQUAL 0)

@@ -8,8 +8,10 @@ cmake_minimum_required(VERSION 3.20)
 #            includes the JSON views or the kinds' table (common/protocol), spec readers
 #            included;
 #   http     server/http is the transport: it includes only itself (and common/log);
-#   auth     server/auth includes nothing of server/api (it uses the http vocabulary).
-#   cmake -DROOT=<source dir> -P layering.cmake
+#   auth     server/auth includes nothing of server/api (it uses the http vocabulary);
+#   size     no file under server/jobs is longer than MAX_LINES (600: no god object,
+#            issue 26; each part of the job lifecycle in a file of its own).
+#   cmake -DROOT=<source dir> [-DMAX_LINES=600] -P layering.cmake
 if(NOT ROOT)
   message(FATAL_ERROR "pass -DROOT=<source dir>")
 endif()
@@ -74,6 +76,19 @@ check(http http_patterns none server/http/*.hpp server/http/*.cpp)
 set(auth_patterns "#include[ \t]*\"server/api/")
 check(auth auth_patterns none server/auth/*.hpp server/auth/*.cpp)
 
+if(NOT MAX_LINES)
+  set(MAX_LINES 600)
+endif()
+file(GLOB_RECURSE sized RELATIVE ${ROOT} ${ROOT}/server/jobs/*.hpp ${ROOT}/server/jobs/*.cpp)
+foreach(f IN LISTS sized)
+  file(READ ${ROOT}/${f} text)
+  string(REGEX MATCHALL "\n" newlines "${text}")
+  list(LENGTH newlines n)
+  if(n GREATER MAX_LINES)
+    string(APPEND bad "\n  [size] ${f}: ${n} lines (at most ${MAX_LINES})")
+  endif()
+endforeach()
+
 if(checked EQUAL 0)
   message(FATAL_ERROR "no sources under ${ROOT}")
 endif()
@@ -81,4 +96,5 @@ if(bad)
   message(FATAL_ERROR "layering broken:${bad}")
 endif()
 message(STATUS "${checked} files checked: the engine and job kinds speak no JSON, nothing below "
-  "common/protocol includes it, server/http includes only itself, server/auth nothing of server/api")
+  "common/protocol includes it, server/http includes only itself, server/auth nothing of server/api, "
+  "no file under server/jobs over ${MAX_LINES} lines")
