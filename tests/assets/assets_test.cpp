@@ -20,7 +20,7 @@
 #include <thread>
 
 #include "common/image/image_io.hpp"
-#include "gltf/gltf_writer.hpp"
+#include "lighting/gltf/gltf_writer.hpp"
 #include "server/auth/token.hpp"
 #include "server_process.hpp"
 

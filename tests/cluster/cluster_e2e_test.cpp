@@ -13,7 +13,7 @@
 #include <fstream>
 #include <thread>
 
-#include "../gltf/gltf_writer.hpp"
+#include "../lighting/gltf/gltf_writer.hpp"
 #include "cluster_process.hpp"
 #include "cluster_test_support.hpp"
 #include "common/engine/pass_loop.hpp"

@@ -10,7 +10,7 @@
 #include <fstream>
 
 #include "common/sampling/safe_math.hpp"
-#include "gltf/gltf_writer.hpp"
+#include "lighting/gltf/gltf_writer.hpp"
 #include "lighting/lighting_test_support.hpp"
 
 namespace tally {

@@ -16,7 +16,7 @@
 #include "common/lighting/light_set.hpp"
 #include "common/lighting/scene_json.hpp"
 #include "common/rng/counter_rng.hpp"
-#include "envlight/envlight_support.hpp"
+#include "lighting/envlight/envlight_support.hpp"
 #include "support/chi_square.hpp"
 #include "support/requested_image_module.hpp"
 

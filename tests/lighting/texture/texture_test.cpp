@@ -21,7 +21,7 @@
 #include "common/image/image_io.hpp"
 #include "common/lighting/scene_json.hpp"
 #include "common/lighting/texture.hpp"
-#include "gltf/gltf_writer.hpp"
+#include "lighting/gltf/gltf_writer.hpp"
 #include "lighting/lighting_test_support.hpp"
 #include "support/requested_image_module.hpp"
 

@@ -17,7 +17,7 @@
 
 #include "common/lighting/scene_json.hpp"
 #include "common/sampling/safe_math.hpp"
-#include "gltf/gltf_writer.hpp"
+#include "lighting/gltf/gltf_writer.hpp"
 #include "lighting/lighting_test_support.hpp"
 
 namespace tally {

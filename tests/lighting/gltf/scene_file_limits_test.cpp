@@ -10,7 +10,7 @@
 #include <string>
 
 #include "common/lighting/scene_json.hpp"
-#include "gltf/gltf_writer.hpp"
+#include "lighting/gltf/gltf_writer.hpp"
 #include "lighting/lighting_test_support.hpp"
 
 namespace tally {
