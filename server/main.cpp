@@ -353,7 +353,10 @@ int main(int argc, char** argv) {
     // job routes answer 503 until then.
     handler.set_ready(false);
     const uint16_t port = server.start();
-    manager.recover();
+    // Recovered jobs are held to their owner's max_running_jobs, as new ones are.
+    manager.recover([&access](const std::string& owner) {
+      return access ? access->max_running_jobs_of(owner) : UINT64_MAX;
+    });
     handler.set_ready(true);
     AssetRetention retention(assets, manager, asset_retention_days);
     if (!port_file.empty()) {  // written once ready

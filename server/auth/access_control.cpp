@@ -1,5 +1,7 @@
 #include "server/auth/access_control.hpp"
 
+#include <algorithm>
+
 #include "server/auth/token.hpp"
 
 namespace tally {
@@ -187,6 +189,15 @@ double AccessControl::take_login(const Principal& p) { return logins_.take_princ
 size_t AccessControl::session_count() const {
   std::lock_guard lock(mu_);
   return sessions_.size();
+}
+
+uint64_t AccessControl::max_running_jobs_of(std::string_view name) const {
+  std::lock_guard lock(mu_);
+  uint64_t most = Quotas::kUnlimited;
+  for (const Entry& e : entries_) {
+    if (e.entry.name == name) most = std::min(most, e.entry.quotas.max_running_jobs);
+  }
+  return most;
 }
 
 size_t AccessControl::principal_count() const {

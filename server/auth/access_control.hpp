@@ -56,6 +56,9 @@ class AccessControl {
   double take_login(const Principal& p);
 
   size_t principal_count() const;
+  // The running-jobs quota of the principal named `name` (the smallest, if several
+  // tokens share the name); unlimited if none is (e.g. revoked since).
+  uint64_t max_running_jobs_of(std::string_view name) const;
 
  private:
   struct Entry {

@@ -100,6 +100,12 @@ class Admission {
   // less than `min_run_s` ago, nor one already chosen (until it stops).
   std::shared_ptr<Job> preemption_victim(double now, double min_run_s);
 
+  // Whether the job's owner has as many jobs running as its quota allows.
+  bool owner_at_quota(const Job& job) const {
+    const Entry* e = entry(job);
+    return e && running_of(job.owner()) >= e->owner_max_running;
+  }
+
   size_t queued() const { return queue_.size(); }
   size_t running() const { return running_; }
   uint64_t memory_used() const { return memory_used_; }

@@ -63,7 +63,12 @@ std::optional<std::string> JobManager::not_ready_reason() const {
 // ---------------------------------------------------------------- snapshots
 
 JobSnapshot JobManager::snapshot(const Job& job, SnapshotOf of) const {
-  return job.snapshot(*executor_, of == SnapshotOf::state);
+  JobSnapshot s = job.snapshot(*executor_, of == SnapshotOf::state);
+  if (s.status == JobStatus::queued && s.executor.waiting_reason.empty()) {
+    std::lock_guard lock(mu_);
+    if (admission_.owner_at_quota(job)) s.executor.waiting_reason = "owner at max_running_jobs";
+  }
+  return s;
 }
 
 JobSnapshot JobManager::snapshot(const std::string& id, SnapshotOf of) const {
@@ -428,7 +433,7 @@ std::shared_ptr<Job> JobManager::extend(const std::string& id, const StopRule& r
 
 // ---------------------------------------------------------------- recovery, shutdown
 
-void JobManager::recover() {
+void JobManager::recover(const MaxRunningOf& max_running_of) {
   JobRecorder::Recovered rec = recorder_.recover();
   epoch_ = rec.epoch;
   size_t resumed = 0;
@@ -441,7 +446,8 @@ void JobManager::recover() {
       std::lock_guard jl(job->mu_);
       if (job->def_) job->cache_key_ = ResultCache::key_of(job->spec(), job->def_->seed());
       answers_.offer(*job, job->status_, job->facts_.get());
-      if (preemption_.readmit_locked(job, UINT64_MAX)) ++resumed;
+      const uint64_t max_running = max_running_of ? max_running_of(job->owner()) : UINT64_MAX;
+      if (preemption_.readmit_locked(job, max_running)) ++resumed;
     }
     if (!rec.jobs.empty()) log::info("recovered {} jobs ({} resume), epoch {}", rec.jobs.size(), resumed, epoch_);
     start_queued_locked();

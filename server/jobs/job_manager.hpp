@@ -65,8 +65,10 @@ class JobManager {
   ~JobManager();
 
   // Loads the store: finished jobs are served as stored, unfinished ones resume
-  // from their last checkpoint. Call once, before serving.
-  void recover();
+  // from their last checkpoint, each owner's held to its running-jobs quota
+  // (`max_running_of`; unset: unlimited) as new jobs are. Call once, before serving.
+  using MaxRunningOf = std::function<uint64_t(const std::string& owner)>;
+  void recover(const MaxRunningOf& max_running_of = {});
 
   // The spec compiled with `limits` (compile_within_budget): SpecError if it is invalid
   // or its state could never fit the memory budget.

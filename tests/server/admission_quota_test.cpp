@@ -72,3 +72,46 @@ TEST(AdmissionQuota, ExtendAndValidateAreRefusedAsSubmitIsAtMaxQueued) {
 
 }  // namespace
 }  // namespace tally::test
+
+namespace tally::test {
+namespace {
+
+// Issue 32: jobs recovered at a restart are held to their owner's max_running like new
+// ones. Three of alice's jobs run at shutdown (no quota then); after a restart where her
+// quota is 1, one runs and two read queued with the reason (before: all three ran).
+TEST(AdmissionQuota, RecoveredJobsAreHeldToTheirOwnersMaxRunning) {
+  auto store = make_memory_store();
+  ManagerConfig mc = test_manager_config(2);
+  mc.max_running = 4;
+  Submitter alice;
+  alice.owner = "alice";
+  std::vector<std::string> ids;
+  {
+    JobManager m(mc, *store, compile_fake_job);
+    m.recover();
+    for (uint64_t seed = 1; seed <= 3; ++seed) ids.push_back(m.submit(fake_spec(kForever, 1, seed), 0, alice)->id());
+    ASSERT_TRUE(wait_until([&] {
+      return std::all_of(ids.begin(), ids.end(), [&](const auto& id) { return m.snapshot(id).status == JobStatus::running; });
+    }));
+    m.shutdown();
+  }
+  JobManager m(mc, *store, compile_fake_job);
+  m.recover([](const std::string& owner) { return owner == "alice" ? uint64_t{1} : UINT64_MAX; });
+  const auto count = [&](JobStatus st) {
+    return std::count_if(ids.begin(), ids.end(), [&](const auto& id) { return m.snapshot(id).status == st; });
+  };
+  ASSERT_TRUE(wait_until([&] { return count(JobStatus::running) == 1; }));
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));  // nothing else starts meanwhile
+  EXPECT_EQ(count(JobStatus::running), 1);
+  EXPECT_EQ(count(JobStatus::queued), 2);
+  for (const auto& id : ids) {
+    const JobSnapshot s = m.snapshot(id);
+    if (s.status == JobStatus::queued) {
+      EXPECT_EQ(s.executor.waiting_reason, "owner at max_running_jobs") << id;
+    }
+  }
+  m.shutdown();
+}
+
+}  // namespace
+}  // namespace tally::test
