@@ -463,15 +463,22 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
         const json j = get_json(c, page);
         page = j.contains("next") && j["next"].is_string() ? j["next"].get<std::string>() : std::string();
         if (!header) {
-          fmt::print("{:<18} {:<10} {:<10} {:>10} {:>20} {:>12}\n", "ID", "STATE", "KIND", "SAMPLES", "MEAN", "STDERR");
+          fmt::print("{:<18} {:<10} {:<10} {:>10} {:>20} {:>12}  {}\n", "ID", "STATE", "KIND", "SAMPLES", "MEAN", "STDERR",
+                     "NOTE");
           header = true;
         }
         for (const auto& s : j.at("jobs")) {
           auto num = [&](const char* k) {
             return s.contains(k) && s[k].is_number() ? fmt::format("{:.10g}", s[k].get<double>()) : std::string("-");
           };
-          fmt::print("{:<18} {:<10} {:<10} {:>10} {:>20} {:>12}\n", s.value("id", ""), s.value("state", ""),
-                     s.value("kind", ""), format_count(s.value("samples", 0.0)), num("mean"), num("std_error"));
+          // Why a queued job waits (preempted, its owner's quota, its pool), or where a
+          // result came from (the result cache).
+          std::string note = s.value("waiting_reason", "");
+          if (note.empty() && s.contains("cached_from") && s["cached_from"].is_string()) {
+            note = "cached from " + s["cached_from"].get<std::string>();
+          }
+          fmt::print("{:<18} {:<10} {:<10} {:>10} {:>20} {:>12}  {}\n", s.value("id", ""), s.value("state", ""),
+                     s.value("kind", ""), format_count(s.value("samples", 0.0)), num("mean"), num("std_error"), note);
         }
         }
         return exit_code::ok;

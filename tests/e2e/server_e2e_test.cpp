@@ -475,6 +475,14 @@ TEST(ServerE2E, CliSubmitWatchGetListCancelExtend) {
   r = run_cli("list", url);
   EXPECT_EQ(r.code, 0);
   EXPECT_NE(r.out.find(id), std::string::npos);
+  // The same spec again is answered from the result cache: the list names the source.
+  r = run_cli("submit " + spec_file.string(), url);
+  ASSERT_EQ(r.code, 0) << r.out;
+  const std::string cached = submitted_id(r.out);
+  r = run_cli("list", url);
+  EXPECT_EQ(r.code, 0);
+  EXPECT_NE(r.out.find("cached from " + id), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find(cached), std::string::npos) << r.out;
   r = run_cli("cancel " + id, url);
   EXPECT_EQ(r.code, 4) << r.out;  // already finished: not sent (DELETE would delete it)
   EXPECT_EQ(run_cli("delete " + id + "x", url).code, 4);  // unknown job
