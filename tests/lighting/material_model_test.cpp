@@ -9,7 +9,7 @@
 #include <string>
 
 #include "common/lighting/texture.hpp"
-#include "gltf/gltf_writer.hpp"
+#include "lighting/gltf/gltf_writer.hpp"
 #include "lighting/lighting_test_support.hpp"
 
 namespace tally {
