@@ -131,7 +131,7 @@ std::string AccessControl::open_session(const Principal& p, double lifetime_s) {
   // Bounded, and fair: the room is made by the caller itself when it holds its share,
   // else by whoever holds the most sessions (the session of theirs closest to expiry).
   std::map<std::string_view, size_t> held;
-  for (const auto& [id, x] : sessions_) ++held[x.token_sha256];
+  for (const auto& [sid, x] : sessions_) ++held[x.token_sha256];
   std::string_view evict_from;
   if (held[s.token_sha256] >= kMaxSessionsPerPrincipal) {
     evict_from = s.token_sha256;
