@@ -17,6 +17,7 @@
 #include "common/integrate/vegas.hpp"
 #include "common/spec/pool_field.hpp"
 #include "common/spec/spec_reader.hpp"
+#include "common/spec/state_limit_error.hpp"
 #include "common/spec/stop_rule_json.hpp"
 #include "common/sampling/ball_simplex.hpp"
 
@@ -591,8 +592,8 @@ std::unique_ptr<IntegrationJob> compile_integration_job(const json& spec, const 
   const size_t m = in.f->components();
   const bool covariance = m > 1 && in.covariance.value_or(m <= kDefaultCovarianceComponents);
   if (covariance && job_state_bytes(m + m * (m - 1) / 2, 1) > limits.max_state_bytes) {
-    throw SpecError("/integrand/covariance",
-                    fmt::format("the covariance of {} components needs {} channels, {} bytes of job state; the "
+    throw StateLimitError("/integrand/covariance",
+                          fmt::format("the covariance of {} components needs {} channels, {} bytes of job state; the "
                                 "limit is {} bytes",
                                 m, m + m * (m - 1) / 2, job_state_bytes(m + m * (m - 1) / 2, 1),
                                 limits.max_state_bytes));

@@ -8,6 +8,7 @@
 
 #include "common/spec/pool_field.hpp"
 #include "common/spec/spec_reader.hpp"
+#include "common/spec/state_limit_error.hpp"
 #include "common/engine/job_state.hpp"
 #include "common/lighting/compiled_scene.hpp"
 #include "common/lighting/image_kernel.hpp"
@@ -121,7 +122,7 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
     if (pj.size() > kMaxPoints) throw SpecError(pp, fmt::format("too many points (limit {})", kMaxPoints));
     const uint64_t need = job_state_bytes(uint64_t{3} * strategies.size() * sampler.k() * pj.size(), 1);
     if (need > limits.max_state_bytes) {
-      throw SpecError(pp, fmt::format("{} points x {} estimators x 3 colours x {} replicates need {} bytes of job state; "
+      throw StateLimitError(pp, fmt::format("{} points x {} estimators x 3 colours x {} replicates need {} bytes of job state; "
                                       "the limit is {} bytes",
                                       pj.size(), strategies.size(), sampler.k(), need, limits.max_state_bytes));
     }
@@ -148,7 +149,7 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
     const uint64_t tiles = ((w + ts - 1) / ts) * ((h + ts - 1) / ts);
     const uint64_t need = job_state_bytes(3 * sampler.k() * w * h, tiles);
     if (need > limits.max_state_bytes) {
-      throw SpecError("/scene/camera/resolution",
+      throw StateLimitError("/scene/camera/resolution",
                       fmt::format("{}x{} pixels x 3 colours x {} replicates need {} bytes of job state; the limit is {} "
                                   "bytes",
                                   w, h, sampler.k(), need, limits.max_state_bytes));

@@ -4,26 +4,29 @@
 
 #include <algorithm>
 
-#include "common/spec/spec_reader.hpp"
+#include "common/spec/state_limit_error.hpp"
 
 namespace tally {
 
 std::unique_ptr<JobDefinition> compile_within_budget(const JobCompiler& compiler, const nlohmann::json& spec,
                                                      const JobLimits& limits, const Admission& admission) {
-  std::unique_ptr<JobDefinition> def = compiler(spec, limits);  // throws SpecError
-  const std::optional<std::string> why = admission.over_budget(Admission::memory_bytes(*def));
-  if (!why) return def;
-  // The kind's own state limit names the field: compile again with the state bytes
-  // the budget leaves beside the kernel's resident bytes (the scene).
+  // The kind's own state limit is held to the budget as well: a state that could never
+  // fit is refused by the spec reader, naming the field that makes it big.
   JobLimits fit = limits;
-  const uint64_t budget = admission.memory_budget(), resident = def->kernel()->resident_bytes();
-  fit.max_state_bytes = std::min<uint64_t>(limits.max_state_bytes, budget > resident ? budget - resident : 0);
+  const uint64_t budget = admission.memory_budget();
+  if (budget != 0) fit.max_state_bytes = std::min(limits.max_state_bytes, budget);
+  std::unique_ptr<JobDefinition> def;
   try {
-    compiler(spec, fit);
-  } catch (const SpecError& e) {
-    throw SpecError(e.pointer(), fmt::format("{}: {}", *why, e.detail()));
+    def = compiler(spec, fit);  // throws SpecError
+  } catch (const StateLimitError& e) {
+    if (fit.max_state_bytes == limits.max_state_bytes) throw;
+    throw SpecError(e.pointer(), fmt::format("{}, the server's memory budget (--memory-budget)", e.detail()));
   }
-  throw SpecError("", *why);
+  // The state fits the budget; with the scene beside it the job may still not.
+  if (const std::optional<std::string> why = admission.over_budget(Admission::memory_bytes(*def))) {
+    throw SpecError("", *why);
+  }
+  return def;
 }
 
 }  // namespace tally

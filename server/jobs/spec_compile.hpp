@@ -10,10 +10,10 @@
 
 namespace tally {
 
-// The spec's definition, compiled with `limits`. SpecError if the spec is invalid, or if
-// its state could never fit the memory budget (Admission::over_budget): then the error
-// names the field that makes it big, found by compiling again with the channels the
-// budget allows (a refusal only).
+// The spec's definition, compiled once with `limits`, its max_state_bytes held to the
+// memory budget. SpecError if the spec is invalid; if its state could never fit the
+// budget (the error names the field that makes it big and says the budget is the
+// limit); or if state and scene together are over it (Admission::over_budget).
 std::unique_ptr<JobDefinition> compile_within_budget(const JobCompiler& compiler, const nlohmann::json& spec,
                                                      const JobLimits& limits, const Admission& admission);
 

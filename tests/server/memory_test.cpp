@@ -13,6 +13,8 @@
 #include "common/protocol/job_kinds.hpp"
 #include "server/api/metrics.hpp"
 #include "server/host/host_facts.hpp"
+#include "common/spec/spec_reader.hpp"
+#include "server/jobs/spec_compile.hpp"
 #include "server_test_support.hpp"
 
 #if __has_include("common/image/image_io.hpp")
@@ -157,6 +159,30 @@ TEST(Memory, JobOverTheBudgetIs422NamingTheResolution) {
   const HttpResponse ok = h.call("POST", "/v1/jobs", image_spec(128, 128).dump());
   EXPECT_EQ(ok.status, 202) << ok.body;
   h.call("DELETE", "/v1/jobs/" + json::parse(ok.body).at("id").get<std::string>());
+}
+
+// The refusal above costs one compile, not two (issue 26): the spec reader holds the
+// state to the budget itself, and says so in its error.
+TEST(Memory, OverBudgetRefusalCompilesTheSpecOnce) {
+  int compiles = 0;
+  const JobCompiler counting = [&](const json& spec, const JobLimits& limits) {
+    ++compiles;
+    return compile_job(spec, limits);
+  };
+  Admission admission({.max_running = 1, .max_queued = 1, .memory_budget = 64ULL << 20});
+  try {
+    compile_within_budget(counting, image_spec(512, 512), JobLimits{}, admission);
+    ADD_FAILURE() << "a 512x512 image fits a 64 MiB budget";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.pointer(), "/scene/camera/resolution");
+    EXPECT_EQ(e.detail(),
+              "512x512 pixels x 3 colours x 8 replicates need 301993984 bytes of job state; the limit is 67108864 "
+              "bytes, the server's memory budget (--memory-budget)");
+  }
+  EXPECT_EQ(compiles, 1);
+  compiles = 0;
+  EXPECT_NE(compile_within_budget(counting, image_spec(128, 128), JobLimits{}, admission), nullptr);
+  EXPECT_EQ(compiles, 1);
 }
 
 // A lighting job's scene counts toward the budget beside its state (issue 27 N2): a
