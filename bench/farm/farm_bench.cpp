@@ -14,6 +14,7 @@
 
 #include "common/protocol/job_kinds.hpp"
 #include "server/jobs/job_manager.hpp"
+#include "tests/support/frame_scene.hpp"
 
 using nlohmann::json;
 using namespace tally;
@@ -33,21 +34,11 @@ bool wait_for(P pred, double seconds) {
   return pred();
 }
 
+// A long image job (tests/support/frame_scene.hpp) with its own seed.
 json image_spec(int w, int h, uint64_t seed) {
-  json spec = json::parse(R"({
-    "kind": "lighting",
-    "scene": {
-      "camera": {"position": [0, -4.5, 3.2], "look_at": [0, 0, 0.6], "up": [0, 0, 1], "fov_deg": 50},
-      "materials": {"white": {"type": "diffuse", "albedo": [0.8, 0.8, 0.8]},
-                    "lamp": {"type": "emissive", "radiance": [5, 5, 5], "two_sided": false}},
-      "shapes": [
-        {"type": "quad", "corner": [-3, -3, 0], "edge_u": [6, 0, 0], "edge_v": [0, 6, 0], "material": "white"},
-        {"type": "quad", "corner": [-0.5, -0.5, 2], "edge_u": [0, 1, 0], "edge_v": [1, 0, 0], "material": "lamp"}]
-    },
-    "query": {"type": "image"}, "estimators": ["mis"], "stop": {"max_samples": 100000000}
-  })");
+  json spec = scenes::frame_spec(w, h, 100000000);
+  spec["query"].erase("max_depth");  // the default path depth, as the figures in docs were measured
   spec["seed"] = seed;
-  spec["scene"]["camera"]["resolution"] = {w, h};
   return spec;
 }
 

@@ -16,6 +16,7 @@
 #include "common/spec/spec_reader.hpp"
 #include "server/jobs/spec_compile.hpp"
 #include "server_test_support.hpp"
+#include "tests/support/frame_scene.hpp"
 
 #if __has_include("common/image/image_io.hpp")
 #include "common/image/image_io.hpp"
@@ -27,30 +28,9 @@ namespace {
 
 using nlohmann::json;
 
-// The fake kind for scheduling, the real kinds for sizes that matter.
-std::unique_ptr<JobDefinition> compile_any(const json& spec, const JobLimits& limits) {
-  if (spec.is_object() && spec.value("kind", "") == "fake") return compile_fake_job(spec, limits);
-  return compile_job(spec, limits);
-}
 
-// A lighting image job of w × h pixels (3 channels each) that would run for long.
-json image_spec(int w, int h, uint64_t max_samples = 100000000) {
-  json spec = json::parse(R"({
-    "kind": "lighting", "seed": 7,
-    "scene": {
-      "camera": {"position": [0, -4.5, 3.2], "look_at": [0, 0, 0.6], "up": [0, 0, 1], "fov_deg": 50},
-      "materials": {"white": {"type": "diffuse", "albedo": [0.8, 0.8, 0.8]},
-                    "lamp": {"type": "emissive", "radiance": [5, 5, 5], "two_sided": false}},
-      "shapes": [
-        {"type": "quad", "corner": [-3, -3, 0], "edge_u": [6, 0, 0], "edge_v": [0, 6, 0], "material": "white"},
-        {"type": "quad", "corner": [-0.5, -0.5, 2], "edge_u": [0, 1, 0], "edge_v": [1, 0, 0], "material": "lamp"}]
-    },
-    "query": {"type": "image"}, "estimators": ["mis"]
-  })");
-  spec["scene"]["camera"]["resolution"] = {w, h};
-  spec["stop"] = {{"max_samples", max_samples}};
-  return spec;
-}
+// A lighting image job of w × h pixels that would run for long (tests/support/frame_scene.hpp).
+json image_spec(int w, int h, uint64_t max_samples = 100000000) { return scenes::frame_spec(w, h, max_samples); }
 
 // EXR bytes with OpenImageIO's capDate (the clock at encoding) zeroed: the rest is
 // the pixels and the job's metadata.

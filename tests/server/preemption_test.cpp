@@ -15,11 +15,6 @@ namespace {
 
 using nlohmann::json;
 
-std::unique_ptr<JobDefinition> compile_any(const json& spec, const JobLimits& limits) {
-  if (spec.is_object() && spec.value("kind", "") == "fake") return compile_fake_job(spec, limits);
-  return compile_job(spec, limits);
-}
-
 ManagerConfig one_slot(double min_run_s) {
   ManagerConfig mc = test_manager_config(1);
   mc.max_running = 1;

@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "common/protocol/job_kinds.hpp"
 #include "fake_job.hpp"
 #include "server/jobs/job_manager.hpp"
 #include "server/jobs/job_store.hpp"
@@ -22,6 +23,12 @@ inline bool wait_until(const std::function<bool()>& pred, double seconds = 20.0)
     std::this_thread::sleep_for(std::chrono::milliseconds(2));
   }
   return pred();
+}
+
+// The fake kind (fake_job.hpp) for scheduling, the real kinds for sizes that matter.
+inline std::unique_ptr<JobDefinition> compile_any(const nlohmann::json& spec, const JobLimits& limits) {
+  if (spec.is_object() && spec.value("kind", "") == "fake") return compile_fake_job(spec, limits);
+  return compile_job(spec, limits);
 }
 
 inline ManagerConfig test_manager_config(unsigned workers = 2) {
