@@ -12,6 +12,7 @@ import subprocess
 import tempfile
 import threading
 import time
+import unittest
 from typing import List, Optional
 
 SERVER_BIN = os.environ.get("TALLY_SERVER_BIN", "")
@@ -82,6 +83,20 @@ class Server:
                 self.proc.wait(timeout=10)
         self._log.close()
         shutil.rmtree(self.dir, ignore_errors=True)
+
+
+class ServerTestCase(unittest.TestCase):
+    """Tests against one real tally-server started for the class and stopped after it."""
+
+    server: Server
+
+    @classmethod
+    def setUpClass(cls) -> None:
+        cls.server = Server()
+
+    @classmethod
+    def tearDownClass(cls) -> None:
+        cls.server.stop()
 
 
 def _shutdown(*socks: socket.socket) -> None:

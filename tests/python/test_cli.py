@@ -20,7 +20,7 @@ import unittest
 from typing import Any, Dict, List, Tuple
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from tally_test_support import SERVER_BIN, SOURCE_DIR, Server, disk_spec, small_image_spec  # noqa: E402
+from tally_test_support import SERVER_BIN, SOURCE_DIR, ServerTestCase, disk_spec, small_image_spec  # noqa: E402
 
 CLI_BIN = os.environ.get("TALLY_CLI_BIN", "")
 
@@ -209,17 +209,7 @@ class AgainstScriptedServer(unittest.TestCase):
 
 
 @unittest.skipUnless(CLI_BIN, "TALLY_CLI_BIN is not set")
-class AgainstRealServer(unittest.TestCase):
-    server: Server
-
-    @classmethod
-    def setUpClass(cls) -> None:
-        cls.server = Server()
-
-    @classmethod
-    def tearDownClass(cls) -> None:
-        cls.server.stop()
-
+class AgainstRealServer(ServerTestCase):
     def test_validate_prints_the_prediction(self) -> None:
         r = run("validate", os.path.join(SOURCE_DIR, "examples", "unit_disk.json"), "--server", self.server.url)
         self.assertEqual(r.returncode, 0, r.stderr)

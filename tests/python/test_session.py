@@ -13,7 +13,7 @@ from typing import List
 from unittest import mock
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from tally_test_support import CuttingProxy, Server, disk_spec, header_value  # noqa: E402
+from tally_test_support import CuttingProxy, ServerTestCase, disk_spec, header_value  # noqa: E402
 
 from tally_client import AsyncClient, Client, Conflict, Event, JobFailed, JobResult  # noqa: E402
 
@@ -24,17 +24,7 @@ def failing_spec() -> dict:
             "domain": {"type": "box", "lower": [0], "upper": [1]}, "stop": {"max_samples": 10000}}
 
 
-class Session(unittest.TestCase):
-    server: Server
-
-    @classmethod
-    def setUpClass(cls) -> None:
-        cls.server = Server()
-
-    @classmethod
-    def tearDownClass(cls) -> None:
-        cls.server.stop()
-
+class Session(ServerTestCase):
     def test_environment_names_server_and_token(self) -> None:
         proxy = CuttingProxy(self.server.port, cut_streams=0)
         try:
