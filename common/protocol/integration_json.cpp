@@ -121,6 +121,23 @@ json integration_plan_json(const IntegrationPlan& p) {
           {"seed", p.seed}};
 }
 
+json components_summary_json(const ComponentsSummary& cs) {
+  json sj = {{"count", cs.count},
+             {"worst",
+              {{"index", cs.worst},
+               {"half_width", finite_or_null(cs.worst_half_width)},
+               {"rel_half_width", finite_or_null(cs.worst_rel_half_width)}}}};
+  if (cs.met) sj["met"] = *cs.met;
+  return sj;
+}
+
+json integration_progress_json(const IntegrationJob& job, const JobRunner& runner) {
+  if (job.plan().estimator.components.value_or(1) <= 1) return json::object();
+  const IntegrationResult r = job.result(runner);
+  if (!r.components_summary) return json::object();
+  return {{"components", components_summary_json(*r.components_summary)}};
+}
+
 json integration_result_json(const IntegrationResult& r) {
   json j;
   j["integrand"] = integrand_json(r.integrand);
@@ -139,16 +156,7 @@ json integration_result_json(const IntegrationResult& r) {
       }
     }
     j["components"] = comps;
-    if (r.components_summary) {
-      const ComponentsSummary& cs = *r.components_summary;
-      json sj = {{"count", cs.count},
-                 {"worst",
-                  {{"index", cs.worst},
-                   {"half_width", finite_or_null(cs.worst_half_width)},
-                   {"rel_half_width", finite_or_null(cs.worst_rel_half_width)}}}};
-      if (cs.met) sj["met"] = *cs.met;
-      j["components_summary"] = std::move(sj);
-    }
+    if (r.components_summary) j["components_summary"] = components_summary_json(*r.components_summary);
     if (!r.covariance_of_means.empty()) {
       json rows = json::array();
       for (const auto& row : r.covariance_of_means) rows.push_back(row);

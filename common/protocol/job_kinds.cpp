@@ -26,10 +26,14 @@ struct JobKind {
   // nullopt: `job` is not of this kind.
   std::optional<json> (*plan)(const JobDefinition& job);
   std::optional<json> (*result)(const JobDefinition& job, const JobRunner& runner);
+  std::optional<json> (*progress)(const JobDefinition& job, const JobRunner& runner);
 };
 
-// One entry from the kind's job class, its spec reader and its two views.
-template <class Job, auto Compile, auto PlanView, auto ResultView>
+// What a kind without progress fields adds to progress events.
+json no_progress(const JobDefinition&, const JobRunner&) { return json::object(); }
+
+// One entry from the kind's job class, its spec reader and its views.
+template <class Job, auto Compile, auto PlanView, auto ResultView, auto ProgressView = no_progress>
 constexpr JobKind kind(std::string_view name) {
   return {name,
           [](const json& spec, const JobLimits& limits) -> std::unique_ptr<JobDefinition> {
@@ -42,12 +46,17 @@ constexpr JobKind kind(std::string_view name) {
           [](const JobDefinition& job, const JobRunner& runner) -> std::optional<json> {
             if (const auto* j = dynamic_cast<const Job*>(&job)) return ResultView(j->result(runner));
             return std::nullopt;
+          },
+          [](const JobDefinition& job, const JobRunner& runner) -> std::optional<json> {
+            if (const auto* j = dynamic_cast<const Job*>(&job)) return ProgressView(*j, runner);
+            return std::nullopt;
           }};
 }
 
 // The job kinds. A new kind: one line here.
 constexpr JobKind kKinds[] = {
-    kind<IntegrationJob, compile_integration_job, integration_plan_json, integration_result_json>("integrate"),
+    kind<IntegrationJob, compile_integration_job, integration_plan_json, integration_result_json,
+         integration_progress_json>("integrate"),
     kind<LightingJob, compile_lighting_job, lighting_plan_json, lighting_result_json>("lighting"),
 };
 
@@ -76,6 +85,13 @@ std::unique_ptr<JobDefinition> compile_job(const json& spec, const JobLimits& li
     if (k.name == name) return k.compile(spec, limits);
   }
   throw SpecError("/kind", fmt::format("must be one of {}; got \"{}\"", names_list(false), name));
+}
+
+json kind_progress_json(const JobDefinition& job, const JobRunner& runner) {
+  for (const JobKind& k : kKinds) {
+    if (auto j = k.progress(job, runner)) return std::move(*j);
+  }
+  return json::object();
 }
 
 json plan_json(const JobDefinition& job) {

@@ -21,5 +21,8 @@ std::unique_ptr<JobDefinition> compile_job(const nlohmann::json& spec, const Job
 // and an empty result.
 nlohmann::json plan_json(const JobDefinition& job);
 nlohmann::json kind_result_json(const JobDefinition& job, const JobRunner& runner);
+// What the kind adds to each progress event (e.g. a vector integrand's components
+// summary); an empty object when nothing.
+nlohmann::json kind_progress_json(const JobDefinition& job, const JobRunner& runner);
 
 }  // namespace tally

@@ -426,7 +426,7 @@ JobEnding Job::publish_pass(const std::vector<Block>& blocks, const PassCommit& 
       std::lock_guard lock(mu_);
       runner_->cancel();  // takes effect at this boundary
     }
-    views = finish_views(def, r, c.cancel_now ? progress_data(r) : pv.progress);
+    views = finish_views(def, r, c.cancel_now ? progress_data(def, r) : pv.progress);
   }
   JobEnding ending;
   std::lock_guard lock(mu_);

@@ -3,6 +3,7 @@
 #include <set>
 
 #include "common/protocol/job_json.hpp"
+#include "common/protocol/job_kinds.hpp"
 
 namespace tally {
 
@@ -27,13 +28,15 @@ std::vector<std::string> tile_events(const ImageSource* img, const std::vector<B
 
 }  // namespace
 
-std::shared_ptr<const std::string> progress_data(const JobRunner& r) {
-  return std::make_shared<const std::string>(dump(progress_event_json(r)));
+std::shared_ptr<const std::string> progress_data(const JobDefinition* def, const JobRunner& r) {
+  json j = progress_event_json(r);
+  if (def) j.update(kind_progress_json(*def, r));  // e.g. a vector integrand's components
+  return std::make_shared<const std::string>(dump(j));
 }
 
 PassViews pass_events(const JobDefinition* def, const JobRunner& r, const std::vector<Block>& blocks) {
   PassViews v;
-  v.progress = progress_data(r);
+  v.progress = progress_data(def, r);
   v.tiles = tile_events(def ? def->image() : nullptr, blocks, r.state().passes);
   return v;
 }

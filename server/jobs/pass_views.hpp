@@ -28,8 +28,9 @@ PassViews running_views(const JobDefinition* def, const JobRunner& r, const std:
 // The views of the pass that ended it (its progress event, tile events, final result, facts).
 PassViews pass_events(const JobDefinition* def, const JobRunner& r, const std::vector<Block>& blocks);
 FinishViews finish_views(const JobDefinition* def, const JobRunner& r, std::shared_ptr<const std::string> progress);
-// The progress event's data for the runner as it is now.
-std::shared_ptr<const std::string> progress_data(const JobRunner& r);
+// The progress event's data for the runner as it is now, with what the job's kind adds
+// (kind_progress_json) when `def` is given.
+std::shared_ptr<const std::string> progress_data(const JobDefinition* def, const JobRunner& r);
 
 // The runner's next pass for an executor, with the one after it when that can be
 // planned already (JobRunner::plan_ahead). Empty when the job is finished.
