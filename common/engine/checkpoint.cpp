@@ -17,7 +17,8 @@ constexpr char kMagic[8] = {'T', 'A', 'L', 'L', 'Y', 'C', 'K', '1'};
 // Version 2 adds JobState::kernel_state; version 1 checkpoints still read (empty).
 // Version 3 stores the counters with their names (kernels declare their own); versions
 // 1 and 2 stored a fixed list of counters, named below.
-constexpr uint32_t kVersion = 3;
+// Version 4 adds JobState::results_version; earlier versions read as 0 (unknown).
+constexpr uint32_t kVersion = 4;
 
 // The counters of versions 1 and 2, in their order (the engine's enum of that time).
 constexpr std::string_view kLegacyCounterNames[] = {
@@ -63,6 +64,7 @@ std::string encode_checkpoint(const JobState& s) {
     w.f64(p.std_error);
   }
   w.bytes(s.kernel_state);
+  w.u64(s.results_version);
   const uint64_t h = fnv1a64(w.str());
   w.u64(h);
   return w.take();
@@ -118,6 +120,14 @@ JobState decode_checkpoint(std::string_view bytes) {
     p.std_error = r.f64();
   }
   if (version >= 2) s.kernel_state = r.bytes();
+  s.results_version = 0;
+  if (version >= 4) {
+    const uint64_t v = r.u64();
+    // A newer build's version is kept as it is (a downgraded server reads its jobs and
+    // only their cache use differs); one beyond 32 bits is corruption.
+    if (v > UINT32_MAX) throw CheckpointError(fmt::format("checkpoint results version {} is out of range", v));
+    s.results_version = static_cast<uint32_t>(v);
+  }
   if (!r.done()) {
     throw CheckpointError(fmt::format("checkpoint has {} bytes after its last field", body.size() - sizeof kMagic - r.pos()));
   }

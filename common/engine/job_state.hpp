@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "common/engine/counters.hpp"
+#include "common/engine/results_version.hpp"
 #include "common/engine/sample_stats.hpp"
 #include "common/stats/tail_index.hpp"
 #include "common/stats/tally.hpp"
@@ -39,6 +40,9 @@ struct JobState {
   // Bytes owned by the kernel (Kernel::fold_pass), e.g. the VEGAS grid and its
   // iterations: checkpointed with the rest, so an adaptive job resumes bit-identically.
   std::string kernel_state;
+  // The engine generation that computed it (results_version.hpp); a state read from an
+  // older checkpoint keeps the version it was written with (0: before it was recorded).
+  uint32_t results_version = kResultsVersion;
 
   static constexpr size_t kMaxTrace = 512;
 };

@@ -93,6 +93,7 @@ RunFacts run_facts_light(const JobRunner& r) {
   f.passes = s.passes;
   if (!s.channels.empty() && s.channels[0].n > 0) f.headline = r.headline();
   f.stop_reason = r.stop_reason();
+  f.results_version = s.results_version;
   return f;
 }
 }  // namespace
@@ -126,7 +127,8 @@ json run_facts_json(const RunFacts& f) {
             {"stop_reason", std::string(stop_reason_name(f.stop_reason))},
             {"target_met", f.target_met},
             {"compute_seconds", f.compute_seconds},
-            {"progress_event", f.progress_event}};
+            {"progress_event", f.progress_event},
+            {"results_version", f.results_version}};
   if (f.headline) {
     // Non-finite values are stored as null and read back as NaN (the views print null).
     const auto num = [](double x) { return std::isfinite(x) ? json(x) : json(nullptr); };
@@ -153,6 +155,8 @@ RunFacts parse_run_facts(const json& j, const StopRule& rule) {
   f.target_met = j.at("target_met").get<bool>();
   f.compute_seconds = j.at("compute_seconds").get<double>();
   f.progress_event = j.at("progress_event").get<std::string>();
+  // Facts stored before the results version was recorded read as 0 (unknown).
+  f.results_version = j.value("results_version", uint32_t{0});
   if (j.contains("headline")) {
     const auto num = [](const json& x) {
       return x.is_null() ? std::numeric_limits<double>::quiet_NaN() : x.get<double>();

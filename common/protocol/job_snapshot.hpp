@@ -43,6 +43,9 @@ struct RunFacts {
   StopRule rule;
   double compute_seconds = 0;
   std::string progress_event;  // data of the job's last `progress` event, "" before its first pass
+  // The engine generation that computed the state (JobState::results_version); 0 for
+  // facts stored before it was recorded.
+  uint32_t results_version = 0;
 };
 
 struct JobSnapshot {

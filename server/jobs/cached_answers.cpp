@@ -1,11 +1,15 @@
 #include "server/jobs/cached_answers.hpp"
 
+#include "common/engine/results_version.hpp"
 #include "common/log/log.hpp"
 
 namespace tally {
 
 bool CachedAnswers::answers_its_spec(const JobDefinition* def, const RunFacts* f) {
   if (!def || !f || !ResultCache::reusable(f->stop_reason)) return false;
+  // Computed by another generation of the engine (or one not recorded): its bits are not
+  // the ones this build would compute for the same spec and seed.
+  if (f->results_version != kResultsVersion) return false;
   const StopRule a = f->rule, b = def->stop_rule();
   return a.max_samples == b.max_samples && a.time_budget_s == b.time_budget_s && a.abs_error == b.abs_error &&
          a.rel_error == b.rel_error && a.confidence == b.confidence && a.min_samples == b.min_samples;

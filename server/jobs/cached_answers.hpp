@@ -25,7 +25,8 @@ class CachedAnswers {
   explicit CachedAnswers(JobStore& store) : store_(store) {}
 
   // Whether a job that ended with `facts` computed what its spec asks: it stopped for a
-  // reason the clock does not decide, under its spec's own rule (not extended).
+  // reason the clock does not decide, under its spec's own rule (not extended), and
+  // this build's engine would compute the same bits (kResultsVersion).
   static bool answers_its_spec(const JobDefinition* def, const RunFacts* facts);
   // A finished job, stored as `status` with `facts`: a source for later submits of its
   // key from now, if it answers its spec.

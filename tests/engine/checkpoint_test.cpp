@@ -66,6 +66,11 @@ TEST(Checkpoint, RoundTripIsBitExact) {
   EXPECT_EQ(r.compute_seconds, s.compute_seconds);
   EXPECT_EQ(r.trace, s.trace);
   EXPECT_EQ(r.kernel_state, s.kernel_state);
+  EXPECT_EQ(r.results_version, kResultsVersion);
+  // A state carries the version that computed it, not the reader's.
+  JobState older = s;
+  older.results_version = kResultsVersion + 7;
+  EXPECT_EQ(decode_checkpoint(encode_checkpoint(older)).results_version, kResultsVersion + 7);
 }
 
 std::string read_v2_fixture() {
@@ -126,12 +131,16 @@ TEST(Checkpoint, VersionTwoStillReads) {
   EXPECT_EQ(r.compute_seconds, 1.25);
   EXPECT_EQ(r.trace, s.trace);
   EXPECT_EQ(r.kernel_state, s.kernel_state);
-  // Re-encoded, it is a version-3 checkpoint that reads back the same.
-  const std::string v3 = encode_checkpoint(r);
-  EXPECT_EQ(v3[8], 3);
-  const JobState again = decode_checkpoint(v3);
+  // Written before results were versioned: its version is unknown (0), so the result
+  // cache never answers a submit from it.
+  EXPECT_EQ(r.results_version, 0u);
+  // Re-encoded, it is a version-4 checkpoint that reads back the same, version 0 kept.
+  const std::string v4 = encode_checkpoint(r);
+  EXPECT_EQ(v4[8], 4);
+  const JobState again = decode_checkpoint(v4);
   EXPECT_EQ(again.counter_names, r.counter_names);
   EXPECT_EQ(again.counters, r.counters);
+  EXPECT_EQ(again.results_version, 0u);
 }
 
 // Version 1 (before JobState::kernel_state) still reads, with no kernel state: the
@@ -146,7 +155,8 @@ TEST(Checkpoint, VersionOneStillReads) {
   EXPECT_EQ(r.trace, sample_state().trace);
   EXPECT_EQ(named(r, "shadow_rays"), 5u);
   EXPECT_TRUE(r.kernel_state.empty());
-  body[8] = 4;
+  EXPECT_EQ(r.results_version, 0u);
+  body[8] = 5;
   EXPECT_THROW(decode_checkpoint(with_checksum(body)), CheckpointError);  // unknown version
 }
 

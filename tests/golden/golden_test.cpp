@@ -7,7 +7,11 @@
 // Only fields that depend on the clock or on the random job id are masked (see
 // kVolatile); every document is first checked to be nlohmann's canonical dump, so
 // comparing the masked canonical text is comparing the bytes.
-// TALLY_UPDATE_GOLDEN=1 rewrites the files instead of comparing.
+// TALLY_UPDATE_GOLDEN=1 rewrites the files instead of comparing; it refuses to write new
+// result bits (channel 0's tally, the image bytes) under the results version the file
+// was written with: a change that alters what a spec and seed compute must bump
+// kResultsVersion (common/engine/results_version.hpp), or the result cache would
+// answer submits with the older bits.
 #include <gtest/gtest.h>
 
 #include <fmt/format.h>
@@ -21,6 +25,7 @@
 #include <thread>
 
 #include "common/engine/pass_loop.hpp"
+#include "common/engine/results_version.hpp"
 #include "common/protocol/job_kinds.hpp"
 #include "common/protocol/job_json.hpp"
 #include "server/jobs/job_manager.hpp"
@@ -187,6 +192,7 @@ json run_example(const std::string& name) {
   EXPECT_TRUE(wait_until(
       [&] { return json::parse(s.call("GET", "/v1/jobs/" + id).body).at("state") != "running"; }, 120));
   json out;
+  out["results_version"] = kResultsVersion;
   out["post"] = masked(post.body, id, "\n");
   const HttpResponse status = s.call("GET", "/v1/jobs/" + id);
   EXPECT_EQ(status.status, 200);
@@ -226,11 +232,28 @@ json run_example(const std::string& name) {
 
 class Golden : public ::testing::TestWithParam<std::string> {};
 
+// What a golden output says was computed: channel 0's bits and, for images, the bytes.
+json result_bits(const json& out) {
+  json r = {{"bits", json::parse(out.at("status").get<std::string>()).at("bits")}};
+  for (const char* key : {"png", "exr"}) {
+    if (out.contains(key)) r[key] = out.at(key);
+  }
+  return r;
+}
+
 TEST_P(Golden, OutputsAreByteIdentical) {
   const std::string name = GetParam();
   const json got = run_example(name);
   const std::string path = std::string(TALLY_SOURCE_DIR) + "/tests/golden/data/" + name + ".json";
   if (std::getenv("TALLY_UPDATE_GOLDEN")) {
+    if (std::ifstream(path).good()) {
+      const json old = json::parse(read_file(path));
+      if (old.value("results_version", 0u) == kResultsVersion && result_bits(old) != result_bits(got)) {
+        FAIL() << name << ": the results changed under results version " << kResultsVersion
+               << ". Bump kResultsVersion in common/engine/results_version.hpp, then regenerate.\nwas "
+               << result_bits(old).dump() << "\nnow " << result_bits(got).dump();
+      }
+    }
     std::ofstream(path, std::ios::binary) << got.dump(1) << "\n";
     GTEST_SKIP() << "wrote " << path;
   }

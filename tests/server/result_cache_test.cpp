@@ -9,6 +9,9 @@
 
 #include <cstring>
 
+#include "common/engine/checkpoint.hpp"
+#include "common/engine/results_version.hpp"
+
 #include "server_test_support.hpp"
 
 namespace tally::test {
@@ -188,6 +191,103 @@ TEST(ResultCache, ExtendOfACachedJobGoesOnFromTheStoredState) {
   // the cached job (extended too) neither. A new submit computes.
   const HttpResponse again = h.call("POST", "/v1/jobs", spec.dump());
   EXPECT_FALSE(h.status(json::parse(again.body).at("id")).contains("cached_from"));
+}
+
+
+// A finished job computed by another generation of the engine (after an upgrade that
+// changed the bits of a spec and seed) answers no submit: its stored facts and state
+// carry the results version they were computed with, and recovery keeps only jobs of
+// this build's version as sources. Before the fix the key was the spec and seed alone,
+// and `make demo` served a glTF render from before the default BRDF changed.
+TEST(ResultCache, JobsOfAnotherResultsVersionAnswerNoSubmit) {
+  auto store = make_memory_store();
+  const ManagerConfig mc = test_manager_config(1);
+  const json spec = fake_spec(20000, 0, 11), other = fake_spec(20000, 0, 12);
+  std::string old_id, current_id;
+  {
+    JobManager m(mc, *store, compile_fake_job);
+    m.recover();
+    old_id = m.submit(spec, 0, {})->id();
+    current_id = m.submit(other, 0, {})->id();
+    for (const auto& id : {old_id, current_id}) {
+      ASSERT_TRUE(wait_until([&] { return m.snapshot(id).status == JobStatus::succeeded; }));
+    }
+    const auto facts = m.snapshot(old_id).facts;
+    ASSERT_TRUE(facts);
+    EXPECT_EQ(facts->results_version, kResultsVersion);
+    m.shutdown();
+  }
+  // Rewrite the first job as an older build stored it: facts without a results
+  // version, a state of version 0.
+  for (StoredJob row : store->load_all()) {
+    if (row.id != old_id) continue;
+    json facts = json::parse(row.facts);
+    ASSERT_EQ(facts.at("results_version"), kResultsVersion);
+    facts.erase("results_version");
+    row.facts = facts.dump();
+    JobState state = decode_checkpoint(store->load_checkpoint(old_id).value());
+    state.results_version = 0;
+    row.checkpoint = encode_checkpoint(state);
+    store->save(row);
+  }
+  JobManager m(mc, *store, compile_fake_job);
+  m.recover();
+  EXPECT_EQ(m.snapshot(old_id).status, JobStatus::succeeded) << "still readable";
+  EXPECT_EQ(m.snapshot(old_id).facts->results_version, 0u);
+  // The job of this version answers; the older one does not, and the job computed in
+  // its place answers the next submit.
+  EXPECT_EQ(m.snapshot(m.submit(other, 0, {})->id()).cached_from, current_id);
+  const uint64_t before = m.stats().samples_total;
+  const auto fresh = m.submit(spec, 0, {});
+  EXPECT_EQ(m.snapshot(fresh->id()).cached_from, "");
+  ASSERT_TRUE(wait_until([&] { return m.snapshot(fresh->id()).status == JobStatus::succeeded; }));
+  EXPECT_EQ(m.stats().samples_total, before + 20000) << "computed, not answered";
+  EXPECT_EQ(m.snapshot(m.submit(spec, 0, {})->id()).cached_from, fresh->id());
+  m.shutdown();
+}
+
+// A job interrupted by a restart resumes from its checkpoint; if that state was
+// computed by another version, the finished job keeps that version (its bits are a mix)
+// and answers no submit.
+TEST(ResultCache, JobResumedFromAnotherVersionsStateAnswersNoSubmit) {
+  auto store = make_memory_store();
+  const ManagerConfig mc = test_manager_config(1);
+  const json spec = fake_spec(40000, 0, 13), half = fake_spec(20000, 0, 13);
+  std::string id, half_id;
+  {
+    JobManager m(mc, *store, compile_fake_job);
+    m.recover();
+    id = m.submit(spec, 0, {})->id();
+    half_id = m.submit(half, 0, {})->id();
+    for (const auto& j : {id, half_id}) {
+      ASSERT_TRUE(wait_until([&] { return m.snapshot(j).status == JobStatus::succeeded; }));
+    }
+    m.shutdown();
+  }
+  // Stored as an older build left it when killed half-way: running, with a state of
+  // version 0 at 20,000 of its 40,000 samples (the same kernel's state at that point).
+  JobState state = decode_checkpoint(store->load_checkpoint(half_id).value());
+  ASSERT_EQ(state.results_version, kResultsVersion);
+  ASSERT_EQ(state.samples, 20000u);
+  state.results_version = 0;
+  for (StoredJob row : store->load_all()) {
+    if (row.id == half_id) store->remove(half_id);
+    if (row.id != id) continue;
+    row.state = "running";
+    row.result.clear();
+    row.facts.clear();
+    row.finished_at = 0;
+    row.checkpoint = encode_checkpoint(state);
+    store->save(row);
+  }
+  JobManager m(mc, *store, compile_fake_job);
+  m.recover();
+  ASSERT_TRUE(wait_until([&] { return m.snapshot(id).status == JobStatus::succeeded; }));
+  ASSERT_TRUE(m.snapshot(id).facts);
+  EXPECT_EQ(m.snapshot(id).facts->samples, 40000u) << "it ran the second half";
+  EXPECT_EQ(m.snapshot(id).facts->results_version, 0u);
+  EXPECT_EQ(m.snapshot(m.submit(spec, 0, {})->id()).cached_from, "");
+  m.shutdown();
 }
 
 }  // namespace
