@@ -93,7 +93,8 @@ bool RequestHandler::streams_body(const HttpRequest& head) const {
   return m.route && m.route->pattern == "/v1/assets/{name}";
 }
 
-BodyStream RequestHandler::open_body_stream(HttpRequest head) {
+BodyStream RequestHandler::open_body_stream(HttpRequest http) {
+  ApiRequest head(std::move(http));
   BodyStream out;
   out.response = guarded(head, [&](const RouteMatch& m) {
     out.sink = asset_sink(head, m.params);
@@ -104,7 +105,7 @@ BodyStream RequestHandler::open_body_stream(HttpRequest head) {
   return out;
 }
 
-std::unique_ptr<BodySink> RequestHandler::asset_sink(const HttpRequest& req, const PathParams& params) {
+std::unique_ptr<BodySink> RequestHandler::asset_sink(const ApiRequest& req, const PathParams& params) {
   if (!config_.assets) throw HttpError(404, "this server has no asset store");
   const std::string hex = hex_of_name(params.at("name"));
   const Principal& p = *req.principal;
@@ -116,13 +117,13 @@ std::unique_ptr<BodySink> RequestHandler::asset_sink(const HttpRequest& req, con
   }
 }
 
-HttpResponse RequestHandler::put_asset(const HttpRequest& req, const PathParams& params) {
+HttpResponse RequestHandler::put_asset(const ApiRequest& req, const PathParams& params) {
   std::unique_ptr<BodySink> sink = asset_sink(req, params);
   if (auto early = sink->write(req.body)) return *early;
   return sink->finish();
 }
 
-HttpResponse RequestHandler::head_asset(const HttpRequest& req, const PathParams& params) {
+HttpResponse RequestHandler::head_asset(const ApiRequest& req, const PathParams& params) {
   if (!config_.assets) throw HttpError(404, "this server has no asset store");
   const std::string hex = hex_of_name(params.at("name"));
   const Principal& p = *req.principal;
@@ -140,7 +141,7 @@ std::function<bool(std::string_view)> RequestHandler::asset_reader_of(const Prin
   };
 }
 
-void RequestHandler::check_assets(const HttpRequest& req, const nlohmann::json& spec) const {
+void RequestHandler::check_assets(const ApiRequest& req, const nlohmann::json& spec) const {
   const std::vector<AssetRef> refs = asset_refs(spec);
   if (refs.empty()) return;
   const Principal& p = *req.principal;

@@ -21,7 +21,7 @@ const ImageSource& image_of(const JobSnapshot& s) {
 
 }  // namespace
 
-HttpResponse RequestHandler::job_tile(const HttpRequest& req, const PathParams& p) {
+HttpResponse RequestHandler::job_tile(const ApiRequest& req, const PathParams& p) {
   const JobSnapshot s = visible_snapshot(req, p.at("id"), JobManager::SnapshotOf::state);
   const auto n = parse_u64(p.at("n"));
   const ImageSource& img = image_of(s);
@@ -40,7 +40,7 @@ HttpResponse RequestHandler::job_tile(const HttpRequest& req, const PathParams& 
                              {"samples", t.samples}});
 }
 
-HttpResponse RequestHandler::job_image(const HttpRequest& req, const PathParams& p, bool exr) {
+HttpResponse RequestHandler::job_image(const ApiRequest& req, const PathParams& p, bool exr) {
   const JobSnapshot s = visible_snapshot(req, p.at("id"), JobManager::SnapshotOf::state);
   const ImageSource& img = image_of(s);
   if ((exr && !config_.images.exr) || (!exr && !config_.images.png)) {

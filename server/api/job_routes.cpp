@@ -40,7 +40,7 @@ std::string StatusCache::body(const JobSnapshot& job, const std::function<std::s
   return body;
 }
 
-std::shared_ptr<Job> RequestHandler::visible_job(const HttpRequest& req, const std::string& id) const {
+std::shared_ptr<Job> RequestHandler::visible_job(const ApiRequest& req, const std::string& id) const {
   auto job = manager_.find(id);
   if (!job || !req.principal || !req.principal->may_see(job->owner())) {
     throw HttpError(404, fmt::format("no job with id \"{}\"", id));
@@ -48,12 +48,12 @@ std::shared_ptr<Job> RequestHandler::visible_job(const HttpRequest& req, const s
   return job;
 }
 
-JobSnapshot RequestHandler::visible_snapshot(const HttpRequest& req, const std::string& id,
+JobSnapshot RequestHandler::visible_snapshot(const ApiRequest& req, const std::string& id,
                                              JobManager::SnapshotOf of) const {
   return manager_.snapshot(*visible_job(req, id), of);
 }
 
-Submitter RequestHandler::submitter(const HttpRequest& req) const {
+Submitter RequestHandler::submitter(const ApiRequest& req) const {
   Submitter s;
   const Principal& p = *req.principal;
   s.owner = p.name;
@@ -70,7 +70,7 @@ Submitter RequestHandler::submitter(const HttpRequest& req) const {
   return s;
 }
 
-void RequestHandler::check_pool(const HttpRequest& req, const json& spec) const {
+void RequestHandler::check_pool(const ApiRequest& req, const json& spec) const {
   const Principal& p = *req.principal;
   if (p.pools.empty()) return;
   const std::string pool = spec_pool(spec);
@@ -87,7 +87,7 @@ void RequestHandler::check_pool(const HttpRequest& req, const json& spec) const 
   }
 }
 
-HttpResponse RequestHandler::post_job(const HttpRequest& req, const PathParams&) {
+HttpResponse RequestHandler::post_job(const ApiRequest& req, const PathParams&) {
   const int priority = parse_priority(req);
   const json spec = parse_json_body(req);
   check_assets(req, spec);
@@ -110,7 +110,7 @@ HttpResponse RequestHandler::post_job(const HttpRequest& req, const PathParams&)
   return r;
 }
 
-HttpResponse RequestHandler::list_jobs(const HttpRequest& req, const PathParams&) {
+HttpResponse RequestHandler::list_jobs(const ApiRequest& req, const PathParams&) {
   std::optional<JobStatus> filter;
   if (req.has_query_param("state")) {
     filter = parse_job_status(req.query_param("state"));
@@ -163,7 +163,7 @@ HttpResponse RequestHandler::list_jobs(const HttpRequest& req, const PathParams&
   return r;
 }
 
-HttpResponse RequestHandler::get_job(const HttpRequest& req, const PathParams& p) {
+HttpResponse RequestHandler::get_job(const ApiRequest& req, const PathParams& p) {
   const JobSnapshot s = visible_snapshot(req, p.at("id"));
   HttpResponse r;
   r.set_header("Content-Type", "application/json");
@@ -177,7 +177,7 @@ HttpResponse RequestHandler::get_job(const HttpRequest& req, const PathParams& p
   return r;
 }
 
-HttpResponse RequestHandler::delete_job(const HttpRequest& req, const PathParams& p) {
+HttpResponse RequestHandler::delete_job(const ApiRequest& req, const PathParams& p) {
   const std::string id = visible_job(req, p.at("id"))->id();
   if (is_terminal(manager_.snapshot(id).status)) {
     // A finished job is deleted with its stored state: 204, then 404.
@@ -192,7 +192,7 @@ HttpResponse RequestHandler::delete_job(const HttpRequest& req, const PathParams
   return json_response(s.status == JobStatus::cancelled ? 200 : 202, summary_json(s));
 }
 
-HttpResponse RequestHandler::extend_job(const HttpRequest& req, const PathParams& p) {
+HttpResponse RequestHandler::extend_job(const ApiRequest& req, const PathParams& p) {
   const JobSnapshot before = visible_snapshot(req, p.at("id"));
   const json body = parse_json_body(req);
   // The job keeps its confidence and min_samples; the body sets the new targets.
@@ -203,7 +203,7 @@ HttpResponse RequestHandler::extend_job(const HttpRequest& req, const PathParams
   return json_response(202, summary_json(manager_.snapshot(before.id)));
 }
 
-HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathParams&) {
+HttpResponse RequestHandler::validate_job(const ApiRequest& req, const PathParams&) {
   const json spec = parse_json_body(req);
   check_assets(req, spec);
   check_pool(req, spec);
@@ -255,7 +255,7 @@ HttpResponse RequestHandler::validate_job(const HttpRequest& req, const PathPara
   return json_response(200, out);
 }
 
-HttpResponse RequestHandler::job_events(const HttpRequest& req, const PathParams& p) {
+HttpResponse RequestHandler::job_events(const ApiRequest& req, const PathParams& p) {
   auto job = visible_job(req, p.at("id"));
   const std::string_view accept = req.header("accept");
   const StreamFormat fmt = accept.find("application/x-ndjson") != std::string_view::npos ? StreamFormat::ndjson

@@ -25,16 +25,16 @@ RequestHandler::RequestHandler(JobManager& manager, Metrics& metrics, HandlerCon
 
 void RequestHandler::add_routes() {
   using namespace std::placeholders;
-  auto bind = [this](HttpResponse (RequestHandler::*fn)(const HttpRequest&, const PathParams&)) {
-    return [this, fn](const HttpRequest& r, const PathParams& p) { return (this->*fn)(r, p); };
+  auto bind = [this](HttpResponse (RequestHandler::*fn)(const ApiRequest&, const PathParams&)) {
+    return [this, fn](const ApiRequest& r, const PathParams& p) { return (this->*fn)(r, p); };
   };
-  router_.add("GET", "/livez", [](const HttpRequest&, const PathParams&) {
+  router_.add("GET", "/livez", [](const ApiRequest&, const PathParams&) {
     HttpResponse r;
     r.set_header("Content-Type", "text/plain; charset=utf-8");
     r.body = "ok\n";
     return r;
   });
-  router_.add("GET", "/readyz", [this](const HttpRequest&, const PathParams&) {
+  router_.add("GET", "/readyz", [this](const ApiRequest&, const PathParams&) {
     if (!ready_ || manager_.shutting_down()) throw HttpError(503, "the server is not ready (starting or shutting down)");
     if (auto why = manager_.not_ready_reason()) throw HttpError(503, "the server is not ready: " + *why);
     if (auto why = manager_.executor_not_ready()) throw HttpError(503, "the server is not ready: " + *why);
@@ -44,7 +44,7 @@ void RequestHandler::add_routes() {
     if (auto warning = manager_.ready_warning()) r.body += "warning: " + *warning + "\n";
     return r;
   });
-  router_.add("GET", "/metrics", [this](const HttpRequest&, const PathParams&) {
+  router_.add("GET", "/metrics", [this](const ApiRequest&, const PathParams&) {
     HttpResponse r;
     r.set_header("Content-Type", "text/plain; version=0.0.4; charset=utf-8");
     r.body = metrics_.render(manager_.stats());
@@ -56,7 +56,7 @@ void RequestHandler::add_routes() {
     if (config_.extra_metrics) r.body += config_.extra_metrics();
     return r;
   });
-  router_.add("GET", "/v1/workers", [this](const HttpRequest&, const PathParams&) {
+  router_.add("GET", "/v1/workers", [this](const ApiRequest&, const PathParams&) {
     HttpResponse r;
     r.set_header("Content-Type", "application/json");
     const json j = config_.workers ? config_.workers() : json{{"executor", "in_process"}, {"workers", json::array()}};
@@ -64,7 +64,7 @@ void RequestHandler::add_routes() {
     r.body.push_back('\n');
     return r;
   });
-  router_.add("GET", "/v1/openapi.json", [](const HttpRequest&, const PathParams&) {
+  router_.add("GET", "/v1/openapi.json", [](const ApiRequest&, const PathParams&) {
     HttpResponse r;
     r.set_header("Content-Type", "application/json");
     r.body = openapi_document();
@@ -81,9 +81,9 @@ void RequestHandler::add_routes() {
   // May read a finished job's state from the store: off the I/O threads.
   router_.add("GET", "/v1/jobs/{id}/tiles/{n}", bind(&RequestHandler::job_tile), Lane::blocking);
   router_.add("GET", "/v1/jobs/{id}/image.exr",
-              [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, true); }, Lane::blocking);
+              [this](const ApiRequest& r, const PathParams& p) { return job_image(r, p, true); }, Lane::blocking);
   router_.add("GET", "/v1/jobs/{id}/image.png",
-              [this](const HttpRequest& r, const PathParams& p) { return job_image(r, p, false); }, Lane::blocking);
+              [this](const ApiRequest& r, const PathParams& p) { return job_image(r, p, false); }, Lane::blocking);
   router_.add("POST", "/v1/session", bind(&RequestHandler::login));
   router_.add("GET", "/v1/session", bind(&RequestHandler::whoami));
   router_.add("DELETE", "/v1/session", bind(&RequestHandler::logout));
@@ -98,13 +98,14 @@ Lane RequestHandler::lane(const HttpRequest& request) const {
   return m.route ? m.route->lane : Lane::io;
 }
 
-HttpResponse RequestHandler::handle(HttpRequest request) {
+HttpResponse RequestHandler::handle(HttpRequest http) {
+  ApiRequest request(std::move(http));
   HttpResponse res = guarded(request, [&request](const RouteMatch& m) { return m.route->handler(request, m.params); });
   if (request.method == "HEAD") res.body.clear();  // a HEAD answer has no body, whatever went wrong
   return res;
 }
 
-HttpResponse RequestHandler::guarded(HttpRequest& request, const std::function<HttpResponse(const RouteMatch&)>& run) {
+HttpResponse RequestHandler::guarded(ApiRequest& request, const std::function<HttpResponse(const RouteMatch&)>& run) {
   const auto t0 = std::chrono::steady_clock::now();
   const RouteMatch m = router_.match(request.method, request.path());
   HttpResponse res;
@@ -160,7 +161,7 @@ HttpResponse RequestHandler::guarded(HttpRequest& request, const std::function<H
   return res;
 }
 
-json RequestHandler::parse_json_body(const HttpRequest& request) const {
+json RequestHandler::parse_json_body(const ApiRequest& request) const {
   const std::string_view ct = request.header("content-type");
   if (ct.empty() || !is_json_media_type(ct)) {
     throw HttpError(415, fmt::format("the request body must be application/json, got \"{}\"", ct));
@@ -194,7 +195,7 @@ void refuse_login_if(double wait, const std::string& whose) {
 
 }  // namespace
 
-HttpResponse RequestHandler::login(const HttpRequest& req, const PathParams&) {
+HttpResponse RequestHandler::login(const ApiRequest& req, const PathParams&) {
   const json body = parse_json_body(req);
   SpecReader rd(body, "");
   const std::string token = rd.string("token", 512);
@@ -220,7 +221,7 @@ HttpResponse RequestHandler::login(const HttpRequest& req, const PathParams&) {
   return r;
 }
 
-HttpResponse RequestHandler::whoami(const HttpRequest& req, const PathParams&) {
+HttpResponse RequestHandler::whoami(const ApiRequest& req, const PathParams&) {
   const Principal& p = *req.principal;
   return json_response(200, {{"name", p.name},
                              {"role", std::string(role_name(p.role))},
@@ -228,7 +229,7 @@ HttpResponse RequestHandler::whoami(const HttpRequest& req, const PathParams&) {
                              {"via_cookie", p.via_cookie}});
 }
 
-HttpResponse RequestHandler::logout(const HttpRequest& req, const PathParams&) {
+HttpResponse RequestHandler::logout(const ApiRequest& req, const PathParams&) {
   if (config_.access.access) {
     const std::string sid = cookie_value(req, kSessionCookie);
     if (!sid.empty()) config_.access.access->close_session(sid);  // its event streams end

@@ -83,42 +83,42 @@ class RequestHandler final : public HttpHandler {
 
  private:
   void add_routes();
-  nlohmann::json parse_json_body(const HttpRequest& request) const;
+  nlohmann::json parse_json_body(const ApiRequest& request) const;
   // Routing, the authorize step and the one mapping of failures to problem responses;
   // `run` is called with the matched route once the caller is authorized.
-  HttpResponse guarded(HttpRequest& request, const std::function<HttpResponse(const RouteMatch&)>& run);
+  HttpResponse guarded(ApiRequest& request, const std::function<HttpResponse(const RouteMatch&)>& run);
   // 422 naming the first "sha256:" reference of `spec` the caller cannot use (not
   // stored, or stored only by another tenant: indistinguishable).
-  void check_assets(const HttpRequest& request, const nlohmann::json& spec) const;
+  void check_assets(const ApiRequest& request, const nlohmann::json& spec) const;
   // JobLimits::may_read_asset for `p`: the stored assets it uploaded (every one for an
   // admin), so a "sha256:" name inside a glTF or OBJ is checked as one in the spec.
   std::function<bool(std::string_view)> asset_reader_of(const Principal& p) const;
   // A principal restricted to worker pools (auth file "pools") names one of them in
   // the spec's "pool": else 403 naming /pool.
-  void check_pool(const HttpRequest& request, const nlohmann::json& spec) const;
+  void check_pool(const ApiRequest& request, const nlohmann::json& spec) const;
   // The one lookup of every job route: the job if the caller may see it, else 404
   // (another tenant's job is indistinguishable from a missing one).
-  std::shared_ptr<Job> visible_job(const HttpRequest& request, const std::string& id) const;
-  JobSnapshot visible_snapshot(const HttpRequest& request, const std::string& id,
+  std::shared_ptr<Job> visible_job(const ApiRequest& request, const std::string& id) const;
+  JobSnapshot visible_snapshot(const ApiRequest& request, const std::string& id,
                                JobManager::SnapshotOf of = JobManager::SnapshotOf::views) const;
   // The server's limits tightened by the caller's quotas.
-  Submitter submitter(const HttpRequest& request) const;
+  Submitter submitter(const ApiRequest& request) const;
 
-  HttpResponse post_job(const HttpRequest&, const PathParams&);
-  HttpResponse list_jobs(const HttpRequest&, const PathParams&);
-  HttpResponse get_job(const HttpRequest&, const PathParams&);
-  HttpResponse delete_job(const HttpRequest&, const PathParams&);
-  HttpResponse extend_job(const HttpRequest&, const PathParams&);
-  HttpResponse validate_job(const HttpRequest&, const PathParams&);
-  HttpResponse job_events(const HttpRequest&, const PathParams&);
-  HttpResponse job_tile(const HttpRequest&, const PathParams&);
-  HttpResponse job_image(const HttpRequest&, const PathParams&, bool exr);
-  HttpResponse login(const HttpRequest&, const PathParams&);
-  HttpResponse whoami(const HttpRequest&, const PathParams&);
-  HttpResponse logout(const HttpRequest&, const PathParams&);
-  HttpResponse put_asset(const HttpRequest&, const PathParams&);
-  HttpResponse head_asset(const HttpRequest&, const PathParams&);
-  std::unique_ptr<BodySink> asset_sink(const HttpRequest&, const PathParams&);
+  HttpResponse post_job(const ApiRequest&, const PathParams&);
+  HttpResponse list_jobs(const ApiRequest&, const PathParams&);
+  HttpResponse get_job(const ApiRequest&, const PathParams&);
+  HttpResponse delete_job(const ApiRequest&, const PathParams&);
+  HttpResponse extend_job(const ApiRequest&, const PathParams&);
+  HttpResponse validate_job(const ApiRequest&, const PathParams&);
+  HttpResponse job_events(const ApiRequest&, const PathParams&);
+  HttpResponse job_tile(const ApiRequest&, const PathParams&);
+  HttpResponse job_image(const ApiRequest&, const PathParams&, bool exr);
+  HttpResponse login(const ApiRequest&, const PathParams&);
+  HttpResponse whoami(const ApiRequest&, const PathParams&);
+  HttpResponse logout(const ApiRequest&, const PathParams&);
+  HttpResponse put_asset(const ApiRequest&, const PathParams&);
+  HttpResponse head_asset(const ApiRequest&, const PathParams&);
+  std::unique_ptr<BodySink> asset_sink(const ApiRequest&, const PathParams&);
 
   JobManager& manager_;
   Metrics& metrics_;

@@ -9,12 +9,13 @@
 #include <string_view>
 #include <vector>
 
+#include "server/api/api_request.hpp"
 #include "server/http/http_types.hpp"
 
 namespace tally {
 
 using PathParams = std::map<std::string, std::string, std::less<>>;
-using RouteHandler = std::function<HttpResponse(const HttpRequest&, const PathParams&)>;
+using RouteHandler = std::function<HttpResponse(const ApiRequest&, const PathParams&)>;
 
 struct Route {
   std::string method;

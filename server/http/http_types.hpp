@@ -12,7 +12,6 @@
 namespace tally {
 
 class EventStream;
-struct Principal;
 
 // Where a request runs. `io`: on the I/O thread (must be quick); `blocking`: the
 // small pool for compiles, submits and image encodes; `slow`: the validate pilots'
@@ -29,8 +28,6 @@ struct HttpRequest {
   // The client's IP address (no port), set by the listener; empty without a socket.
   // What per-address limits count (behind a reverse proxy: the proxy's address).
   std::string peer_address;
-  // The caller, set by the request handler's authorize step before any route runs.
-  std::shared_ptr<const Principal> principal;
 
   std::string_view header(std::string_view lower_name) const;
   std::string_view path() const;

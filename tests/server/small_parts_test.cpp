@@ -29,8 +29,8 @@ TEST(JsonDepth, CountsOutsideStringsOnly) {
 TEST(Router, LiteralsWinAndParamsDecode) {
   Router r;
   int hit = 0;
-  r.add("GET", "/v1/jobs/{id}", [&](const HttpRequest&, const PathParams&) { hit = 1; return HttpResponse{}; });
-  r.add("POST", "/v1/jobs/validate", [&](const HttpRequest&, const PathParams&) { hit = 2; return HttpResponse{}; });
+  r.add("GET", "/v1/jobs/{id}", [&](const ApiRequest&, const PathParams&) { hit = 1; return HttpResponse{}; });
+  r.add("POST", "/v1/jobs/validate", [&](const ApiRequest&, const PathParams&) { hit = 2; return HttpResponse{}; });
   auto m = r.match("GET", "/v1/jobs/a%20b");
   ASSERT_TRUE(m.route);
   EXPECT_EQ(m.params.at("id"), "a b");

@@ -7,7 +7,8 @@ cmake_minimum_required(VERSION 3.20)
 #   views    nothing under common/engine, common/integrate, common/lighting or common/spec
 #            includes the JSON views or the kinds' table (common/protocol), spec readers
 #            included;
-#   http     server/http is the transport: it includes only itself (and common/log);
+#   http     server/http is the transport: it includes only itself (and common/log),
+#            and names no application type (the caller, jobs: http-names);
 #   auth     server/auth includes nothing of server/api (it uses the http vocabulary);
 #   size     no file under server/jobs is longer than MAX_LINES (600: no god object,
 #            issue 26; each part of the job lifecycle in a file of its own).
@@ -72,6 +73,8 @@ check(views views_patterns none ${engine_and_kinds} common/spec/*.hpp common/spe
 
 set(http_patterns "#include[ \t]*\"(server/([^h]|h[^t]|ht[^t]|htt[^p]|http[^/])|common/([^l]|l[^o]|lo[^g]|log[^/])|client/)")
 check(http http_patterns none server/http/*.hpp server/http/*.cpp)
+set(http_name_patterns "(^|[^A-Za-z_])(Principal|Submitter|JobManager|JobSnapshot|Job)([^A-Za-z_]|$)")
+check(http-names http_name_patterns none server/http/*.hpp server/http/*.cpp)
 
 set(auth_patterns "#include[ \t]*\"server/api/")
 check(auth auth_patterns none server/auth/*.hpp server/auth/*.cpp)
@@ -96,5 +99,5 @@ if(bad)
   message(FATAL_ERROR "layering broken:${bad}")
 endif()
 message(STATUS "${checked} files checked: the engine and job kinds speak no JSON, nothing below "
-  "common/protocol includes it, server/http includes only itself, server/auth nothing of server/api, "
+  "common/protocol includes it, server/http includes only itself and names no application type, server/auth nothing of server/api, "
   "no file under server/jobs over ${MAX_LINES} lines")

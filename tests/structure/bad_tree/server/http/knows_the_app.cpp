@@ -3,3 +3,4 @@
 #include "server/jobs/job_manager.hpp"
 #include "server/http/http_types.hpp"
 #include "common/log/log.hpp"
+struct Principal;
