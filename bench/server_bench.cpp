@@ -28,6 +28,8 @@
 #include <thread>
 #include <vector>
 
+#include "tests/support/loopback_socket.hpp"
+
 namespace beast = boost::beast;
 namespace http = beast::http;
 namespace net = boost::asio;
@@ -69,27 +71,17 @@ void accept_loop(tcp::acceptor& a) {
   });
 }
 
-// ---- tiny blocking HTTP helpers over POSIX sockets.
-int connect_to(uint16_t port) {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_port = htons(port);
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  if (::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) {
-    ::close(fd);
-    return -1;
-  }
-  return fd;
-}
+// ---- tiny blocking HTTP helpers over POSIX sockets (tests/support/loopback_socket.hpp).
+using tally::test::connect_loopback;
+using tally::test::send_all;
 
 std::string exchange(uint16_t port, const std::string& method, const std::string& target, const std::string& body = {}) {
-  const int fd = connect_to(port);
+  const int fd = connect_loopback(port);
   if (fd < 0) return {};
   std::string req = method + " " + target + " HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n";
   if (!body.empty()) req += "Content-Type: application/json\r\nContent-Length: " + std::to_string(body.size()) + "\r\n";
   req += "\r\n" + body;
-  (void)!::write(fd, req.data(), req.size());
+  (void)send_all(fd, req);
   std::string out;
   char b[65536];
   for (ssize_t n; (n = ::read(fd, b, sizeof b)) > 0;) out.append(b, static_cast<size_t>(n));
@@ -213,11 +205,11 @@ int main(int argc, char** argv) {
     std::vector<std::thread> readers;
     std::atomic<size_t> bytes{0};
     for (int i = 0; i < 100; ++i) {
-      const int fd = connect_to(port);
+      const int fd = connect_loopback(port);
       if (fd < 0) continue;
       const std::string req =
           "GET /v1/jobs/" + long_id + "/events HTTP/1.1\r\nHost: x\r\nAccept: text/event-stream\r\n\r\n";
-      (void)!::write(fd, req.data(), req.size());
+      (void)send_all(fd, req);
       fds.push_back(fd);
     }
     for (int fd : fds) {

@@ -21,6 +21,7 @@
 
 #include "common/image/image_io.hpp"
 #include "lighting/gltf/gltf_writer.hpp"
+#include "support/loopback_socket.hpp"
 #include "server/auth/token.hpp"
 #include "server_process.hpp"
 
@@ -28,6 +29,8 @@ namespace tally::e2e {
 namespace {
 
 namespace fs = std::filesystem;
+using test::connect_loopback;
+using test::send_all;
 using nlohmann::json;
 
 // The SHA-256 of the bytes in lowercase hex (the one-shot digest of server/auth; the
@@ -165,33 +168,6 @@ TEST(Assets, OverSizeIs413AndNothingIsKeptDeclaredOrChunked) {
   // Exactly at the limit is fine.
   const std::string ok(1000, 'y');
   EXPECT_EQ(put(c, sha256_hex(ok), ok).status, 201);
-}
-
-// A connected socket to `port` on loopback whose reads time out after `timeout_s`.
-int connect_loopback(uint16_t port, double timeout_s) {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  if (fd < 0) return -1;
-  timeval tv{};
-  tv.tv_sec = static_cast<time_t>(timeout_s);
-  ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_port = htons(port);
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  if (::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) {
-    ::close(fd);
-    return -1;
-  }
-  return fd;
-}
-
-bool send_all(int fd, std::string_view bytes) {
-  while (!bytes.empty()) {
-    const ssize_t n = ::send(fd, bytes.data(), bytes.size(), MSG_NOSIGNAL);
-    if (n <= 0) return false;
-    bytes.remove_prefix(static_cast<size_t>(n));
-  }
-  return true;
 }
 
 TEST(Assets, InterruptedUploadKeepsNothing) {

@@ -111,7 +111,7 @@ struct Principals {
   AuthFile file(bool with_alice = true) const {
     AuthFile f;
     auto add = [&](std::string name, Role role, const std::string& token, Quotas q = {}) {
-      f.principals.push_back(PrincipalEntry{std::move(name), role, token_sha256_hex(token), q});
+      f.principals.push_back(PrincipalEntry{std::move(name), role, token_sha256_hex(token), q, {}});
     };
     add("root", Role::admin, admin);
     if (with_alice) add("alice", Role::user, alice, alice_quotas);
@@ -346,7 +346,7 @@ TEST(Revocation, ReloadAddsAtOnceRevokesAtTheNextRequestAndEndsStreams) {
   ASSERT_TRUE(bobs_stream.stream);
   AuthFile f = p.file(/*with_alice=*/false);
   const std::string carol = generate_token();
-  f.principals.push_back(PrincipalEntry{"carol", Role::user, token_sha256_hex(carol), {}});
+  f.principals.push_back(PrincipalEntry{"carol", Role::user, token_sha256_hex(carol), {}, {}});
   const ReloadResult rr = a.access.reload(f);
   EXPECT_EQ(rr.revoked, 1u);
   EXPECT_EQ(rr.added, 1u);

@@ -19,7 +19,7 @@ TEST(AdmissionQuota, ExtendAndValidateAreRefusedAsSubmitIsAtMaxQueued) {
   Quotas q;
   q.max_running_jobs = 1;
   q.max_queued_jobs = 2;
-  f.principals.push_back(PrincipalEntry{"alice", Role::user, token_sha256_hex(alice), q});
+  f.principals.push_back(PrincipalEntry{"alice", Role::user, token_sha256_hex(alice), q, {}});
   AccessControl access(f);
   HandlerConfig hc;
   hc.access.access = &access;

@@ -194,6 +194,22 @@ TEST(ResultCache, ExtendOfACachedJobGoesOnFromTheStoredState) {
 }
 
 
+// Runs `specs` to succeeded in a manager on `store` that then stops (as at a restart);
+// their ids in order.
+std::vector<std::string> run_and_stop(JobStore& store, const std::vector<json>& specs) {
+  JobManager m(test_manager_config(1), store, compile_fake_job);
+  m.recover();
+  std::vector<std::string> ids;
+  for (const json& spec : specs) ids.push_back(m.submit(spec, 0, {})->id());
+  for (const auto& id : ids) {
+    if (!wait_until([&] { return m.snapshot(id).status == JobStatus::succeeded; })) {
+      throw std::runtime_error("did not succeed: " + id);
+    }
+  }
+  m.shutdown();
+  return ids;
+}
+
 // A finished job computed by another generation of the engine (after an upgrade that
 // changed the bits of a spec and seed) answers no submit: its stored facts and state
 // carry the results version they were computed with, and recovery keeps only jobs of
@@ -203,20 +219,8 @@ TEST(ResultCache, JobsOfAnotherResultsVersionAnswerNoSubmit) {
   auto store = make_memory_store();
   const ManagerConfig mc = test_manager_config(1);
   const json spec = fake_spec(20000, 0, 11), other = fake_spec(20000, 0, 12);
-  std::string old_id, current_id;
-  {
-    JobManager m(mc, *store, compile_fake_job);
-    m.recover();
-    old_id = m.submit(spec, 0, {})->id();
-    current_id = m.submit(other, 0, {})->id();
-    for (const auto& id : {old_id, current_id}) {
-      ASSERT_TRUE(wait_until([&] { return m.snapshot(id).status == JobStatus::succeeded; }));
-    }
-    const auto facts = m.snapshot(old_id).facts;
-    ASSERT_TRUE(facts);
-    EXPECT_EQ(facts->results_version, kResultsVersion);
-    m.shutdown();
-  }
+  const std::vector<std::string> ids = run_and_stop(*store, {spec, other});
+  const std::string old_id = ids[0], current_id = ids[1];
   // Rewrite the first job as an older build stored it: facts without a results
   // version, a state of version 0.
   for (StoredJob row : store->load_all()) {
@@ -253,17 +257,8 @@ TEST(ResultCache, JobResumedFromAnotherVersionsStateAnswersNoSubmit) {
   auto store = make_memory_store();
   const ManagerConfig mc = test_manager_config(1);
   const json spec = fake_spec(40000, 0, 13), half = fake_spec(20000, 0, 13);
-  std::string id, half_id;
-  {
-    JobManager m(mc, *store, compile_fake_job);
-    m.recover();
-    id = m.submit(spec, 0, {})->id();
-    half_id = m.submit(half, 0, {})->id();
-    for (const auto& j : {id, half_id}) {
-      ASSERT_TRUE(wait_until([&] { return m.snapshot(j).status == JobStatus::succeeded; }));
-    }
-    m.shutdown();
-  }
+  const std::vector<std::string> ids = run_and_stop(*store, {spec, half});
+  const std::string id = ids[0], half_id = ids[1];
   // Stored as an older build left it when killed half-way: running, with a state of
   // version 0 at 20,000 of its 40,000 samples (the same kernel's state at that point).
   JobState state = decode_checkpoint(store->load_checkpoint(half_id).value());
