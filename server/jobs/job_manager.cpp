@@ -230,8 +230,22 @@ void JobManager::start_locked(const std::shared_ptr<Job>& job) {
   if (!pass) return;
   admission_.charge(*job);
   if (pass->empty()) {
-    // Nothing to run (restored already complete): store the final state.
-    recorder_.persist(*job, true);
+    // Nothing to run (restored already complete, e.g. killed after its last pass): it
+    // ended at start. Store it off this lock, on the recorder's loader thread; once
+    // stored it is a finished job like any other: it may answer submits of its spec,
+    // and its state leaves memory (the charge above is released).
+    recorder_.load_later([this, job] {
+      if (!recorder_.persist(*job, true)) return;  // retried until stored; it stays in memory
+      JobStatus status;
+      std::shared_ptr<const RunFacts> facts;
+      {
+        std::lock_guard jl(job->mu_);
+        status = job->status_;
+        facts = job->facts_;
+      }
+      answers_.offer(*job, status, facts.get());
+      release_state(*job);
+    });
     return;
   }
   log::job(log::Level::debug, job->id(), "running");

@@ -285,5 +285,27 @@ TEST(ResultCache, JobResumedFromAnotherVersionsStateAnswersNoSubmit) {
   m.shutdown();
 }
 
+// A job stored as running whose state already meets its rule (killed after its last
+// pass, before its final save) finishes at start without a pass: once stored it answers
+// later submits and its state leaves memory, as any finished job's.
+TEST(ResultCache, JobRestoredAlreadyCompleteAnswersAndLeavesMemory) {
+  auto store = make_memory_store();
+  const json spec = fake_spec(20000, 0, 14);
+  const std::string id = run_and_stop(*store, {spec})[0];
+  for (StoredJob row : store->load_all()) {
+    row.state = "running";
+    row.result.clear();
+    row.facts.clear();
+    row.finished_at = 0;
+    store->save(row);  // the checkpoint is kept: the whole state, 20,000 samples
+  }
+  JobManager m(test_manager_config(1), *store, compile_fake_job);
+  m.recover();
+  ASSERT_TRUE(wait_until([&] { return m.snapshot(id).status == JobStatus::succeeded; }));
+  EXPECT_TRUE(wait_until([&] { return m.stats().memory_used == 0; }, 5)) << m.stats().memory_used << " bytes held";
+  EXPECT_EQ(m.snapshot(m.submit(spec, 0, {})->id()).cached_from, id);
+  m.shutdown();
+}
+
 }  // namespace
 }  // namespace tally::test
