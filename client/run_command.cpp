@@ -21,7 +21,7 @@
 #include "common/protocol/job_kinds.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "common/protocol/status_json.hpp"
-#include "server/jobs/memory_budget.hpp"
+#include "server/host/memory_budget.hpp"
 
 namespace tally {
 
@@ -100,7 +100,7 @@ int run(const RunOptions& o) {
   try {
     JobLimits limits;
     // One job in this process: its state may take half the machine's memory, as
-    // tally-server's default (server/jobs/memory_budget.hpp).
+    // tally-server's default (server/host/memory_budget.hpp).
     if (const uint64_t m = default_memory_budget()) limits.max_state_bytes = m;
     if (!o.asset_dir.empty()) {
       limits.asset_dir = o.asset_dir;

@@ -22,7 +22,7 @@ struct JobLimits {
   // Bytes of one job's state in memory (job_state_bytes, common/engine/job_state.hpp):
   // an image's pixels or a point query's points over it are refused naming the field.
   // This is the engine's fallback; tally-server, tally-worker and `tally run` replace it
-  // with half of the machine's memory (server/jobs/memory_budget.hpp), so that 4K
+  // with half of the machine's memory (server/host/memory_budget.hpp), so that 4K
   // frames fit on an ordinary workstation.
   uint64_t max_state_bytes = uint64_t{4} << 30;
   uint64_t max_samples = 100'000'000'000ULL;

@@ -1,6 +1,6 @@
 #include "server/api/metrics.hpp"
 
-#include "server/api/prometheus.hpp"
+#include "server/http/prometheus.hpp"
 #include "server/host/host_facts.hpp"
 
 #include <fmt/format.h>

@@ -9,7 +9,7 @@
 #include "common/spec/json_depth.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "server/http/problem.hpp"
-#include "server/api/prometheus.hpp"
+#include "server/http/prometheus.hpp"
 #include "server/api/route_support.hpp"
 #include "server/api/static_files.hpp"
 #include "server/auth/token.hpp"

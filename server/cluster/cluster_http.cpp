@@ -5,7 +5,7 @@
 #include <chrono>
 #include <ctime>
 
-#include "server/api/prometheus.hpp"
+#include "server/http/prometheus.hpp"
 
 namespace tally::cluster {
 

@@ -13,7 +13,7 @@
 #include "common/spec/pool_field.hpp"
 #include "server/cluster/result_key.hpp"
 #include "server/cluster/worker.hpp"
-#include "server/job_limit_flags.hpp"
+#include "server/cli/job_limit_flags.hpp"
 
 namespace tally::cluster {
 

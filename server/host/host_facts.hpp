@@ -1,7 +1,7 @@
 #pragma once
 // What the host grants this process, read in one place by one rule: resident memory
 // (GET /metrics), the machine's memory and the cgroup memory limit (the default
-// memory budget, server/jobs/memory_budget.cpp), the cgroup CPU quota (the default
+// memory budget, server/host/memory_budget.cpp), the cgroup CPU quota (the default
 // worker count, server/executor/cpu_quota.cpp).
 //
 // The cgroup rule, the same for every controller: the process's own cgroup (from

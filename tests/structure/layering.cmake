@@ -10,6 +10,10 @@ cmake_minimum_required(VERSION 3.20)
 #   http     server/http is the transport: it includes only itself (and common/log),
 #            and names no application type (the caller, jobs: http-names);
 #   auth     server/auth includes nothing of server/api (it uses the http vocabulary);
+#   cluster  server/cluster (an Executor, and tally-worker) includes nothing of server/api,
+#            jobs, auth or assets: it sits beside the in-process executor, below the routes;
+#   cli      server/cli (flags the two binaries share) includes nothing of server/ but
+#            server/host;
 #   size     no file under server/jobs is longer than MAX_LINES (600: no god object,
 #            issue 26; each part of the job lifecycle in a file of its own).
 #   cmake -DROOT=<source dir> [-DMAX_LINES=600] -P layering.cmake
@@ -79,6 +83,12 @@ check(http-names http_name_patterns none server/http/*.hpp server/http/*.cpp)
 set(auth_patterns "#include[ \t]*\"server/api/")
 check(auth auth_patterns none server/auth/*.hpp server/auth/*.cpp)
 
+set(cluster_patterns "#include[ \t]*\"server/(api|jobs|auth|assets)/")
+check(cluster cluster_patterns none server/cluster/*.hpp server/cluster/*.cpp)
+
+set(cli_patterns "#include[ \t]*\"server/([^hc]|h[^o]|ho[^s]|hos[^t]|host[^/]|c[^l]|cl[^i]|cli[^/])")
+check(cli cli_patterns none server/cli/*.hpp server/cli/*.cpp)
+
 if(NOT MAX_LINES)
   set(MAX_LINES 600)
 endif()
@@ -100,4 +110,5 @@ if(bad)
 endif()
 message(STATUS "${checked} files checked: the engine and job kinds speak no JSON, nothing below "
   "common/protocol includes it, server/http includes only itself and names no application type, server/auth nothing of server/api, "
+  "server/cluster nothing of api, jobs, auth or assets, server/cli only server/host, "
   "no file under server/jobs over ${MAX_LINES} lines")

@@ -3,7 +3,7 @@
 // tally-worker: a worker re-validates every spec it reads with its own limits, so the
 // two must offer the same flags (give workers at least the server's values).
 // --max-state-bytes defaults to the machine's default memory budget (half its memory or
-// cgroup limit, server/jobs/memory_budget.hpp), so a worker on the same kind of machine
+// cgroup limit, server/host/memory_budget.hpp), so a worker on the same kind of machine
 // admits what the server admits.
 #include <CLI/CLI.hpp>
 
@@ -11,7 +11,7 @@
 #include <string>
 
 #include "common/engine/limits.hpp"
-#include "server/jobs/memory_budget.hpp"
+#include "server/host/memory_budget.hpp"
 
 namespace tally {
 

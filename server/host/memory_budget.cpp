@@ -1,4 +1,4 @@
-#include "server/jobs/memory_budget.hpp"
+#include "server/host/memory_budget.hpp"
 
 #include <algorithm>
 #include <cctype>
