@@ -4,7 +4,9 @@
 
 namespace tally {
 
-StopRule parse_stop_rule(SpecReader& stop, const JobLimits& limits, const StopRule* keep) {
+namespace {
+
+StopRule read_rule(SpecReader& stop, const JobLimits& limits, const StopRule* keep, uint64_t min_samples_floor) {
   StopRule r;
   r.max_samples = stop.integer_or("max_samples", 0, 1, limits.max_samples);
   r.time_budget_s = stop.number_or("time_budget_s", 0.0, 1e-3, limits.max_seconds);
@@ -15,7 +17,7 @@ StopRule parse_stop_rule(SpecReader& stop, const JobLimits& limits, const StopRu
     r.min_samples = keep->min_samples;
   } else {
     r.confidence = stop.number_or("confidence", 0.95, 0.5, 0.999999);
-    r.min_samples = stop.integer_or("min_samples", 1000, 2, limits.max_samples);
+    r.min_samples = stop.integer_or("min_samples", 1000, min_samples_floor, limits.max_samples);
   }
   stop.finish();
   if (r.max_samples == 0 && r.time_budget_s == 0.0 && !r.has_error_target()) {
@@ -24,6 +26,14 @@ StopRule parse_stop_rule(SpecReader& stop, const JobLimits& limits, const StopRu
   }
   return r;
 }
+
+}  // namespace
+
+StopRule parse_stop_rule(SpecReader& stop, const JobLimits& limits, const StopRule* keep) {
+  return read_rule(stop, limits, keep, 2);
+}
+
+StopRule parse_stored_stop_rule(SpecReader& stop, const JobLimits& limits) { return read_rule(stop, limits, nullptr, 1); }
 
 nlohmann::json stop_rule_to_json(const StopRule& r) {
   nlohmann::json j;

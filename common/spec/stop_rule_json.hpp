@@ -15,6 +15,10 @@
 namespace tally {
 
 StopRule parse_stop_rule(SpecReader& stop, const JobLimits& limits, const StopRule* keep = nullptr);
+// A rule as stop_rule_to_json stored it (the job store's stop_rule column). The same
+// reader, except that min_samples may be 1: a deterministic estimator's rule is
+// "one pass decides" (min_samples 1), which a spec may not ask for (at least 2).
+StopRule parse_stored_stop_rule(SpecReader& stop, const JobLimits& limits);
 nlohmann::json stop_rule_to_json(const StopRule& rule);
 
 }  // namespace tally

@@ -273,7 +273,7 @@ JobRecorder::Recovered JobRecorder::recover() {
         const json rj = json::parse(row.stop_rule);
         if (rj.is_object() && !rj.empty()) {
           SpecReader rd(rj, "/stop");
-          rule = parse_stop_rule(rd, limits_);
+          rule = parse_stored_stop_rule(rd, limits_);
         }
       } catch (const std::exception& e) {
         log::job(log::Level::warn, row.id,

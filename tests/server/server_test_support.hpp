@@ -39,9 +39,10 @@ inline ManagerConfig test_manager_config(unsigned workers = 2) {
 }
 
 struct Harness {
+  // `compile`: the fake kind only, or compile_any for the real kinds too.
   explicit Harness(ManagerConfig mc = test_manager_config(), std::unique_ptr<JobStore> s = make_memory_store(),
-                   HandlerConfig hc = {})
-      : store(std::move(s)), manager(std::make_unique<JobManager>(mc, *store, compile_fake_job)) {
+                   HandlerConfig hc = {}, JobCompiler compile = compile_fake_job)
+      : store(std::move(s)), manager(std::make_unique<JobManager>(mc, *store, std::move(compile))) {
     manager->recover();
     hc.pilot_seconds = 0.05;
     handler = std::make_unique<RequestHandler>(*manager, metrics, hc);
