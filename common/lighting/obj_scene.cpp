@@ -208,6 +208,39 @@ ObjCensus scan_obj(std::string_view text, const std::string& file, const std::st
   return c;
 }
 
+// An OBJ's .mtl libraries hold at most as many materials as a scene may (4096), in at
+// most 2^18 lines that are neither blank nor comments (a real library has ~10 a material).
+constexpr size_t kMaxMtlMaterials = 4096;
+constexpr size_t kMaxMtlLines = size_t{1} << 18;
+
+// One pass over an .mtl library before tinyobjloader sees it, counting into `materials`
+// and `lines` (all the OBJ's libraries together). tinyobjloader makes a material_t of
+// ~1.9 KB for each `newmtl` line however short ("newmtl a": 9 bytes, a 200-fold growth),
+// and keeps each unknown keyword line in a map node of the current material.
+void scan_mtl(std::string_view text, const std::string& file, const std::string& pointer, size_t& materials,
+              size_t& lines) {
+  size_t line_no = 0, pos = 0;
+  while (pos < text.size()) {
+    size_t end = text.find('\n', pos);
+    if (end == std::string_view::npos) end = text.size();
+    const std::string_view line = text.substr(pos, end - pos);
+    pos = end + 1;
+    ++line_no;
+    const size_t b = line.find_first_not_of(" \t\r");
+    if (b == std::string_view::npos || line[b] == '#') continue;
+    auto fail = [&](const std::string& what) {
+      return SpecError(pointer, fmt::format(".mtl \"{}\" line {}: {}", file, line_no, what));
+    };
+    if (++lines > kMaxMtlLines) throw fail(fmt::format("more than {} lines in the OBJ's .mtl libraries", kMaxMtlLines));
+    const std::string_view rest = line.substr(b);
+    if (rest.substr(0, 6) == "newmtl" && (rest.size() == 6 || rest[6] == ' ' || rest[6] == '\t')) {
+      if (++materials > kMaxMtlMaterials) {
+        throw fail(fmt::format("more than {} materials in the OBJ's .mtl libraries", kMaxMtlMaterials));
+      }
+    }
+  }
+}
+
 // The vertices `tris` use, ascending, and `tris` renumbered into them.
 std::vector<uint32_t> compact(std::vector<std::array<uint32_t, 3>>& tris) {
   std::vector<uint32_t> used;
@@ -236,7 +269,16 @@ std::vector<Shape> load_obj(const std::string& relative, const std::string& poin
   const std::string dir = slash == std::string::npos ? std::string() : relative.substr(0, slash + 1);
   std::string mtl_text;
   if (!material) {
-    for (const std::string& lib : census.mtllibs) mtl_text += read(dir + lib, pointer) + "\n";
+    // Each library once, however often `mtllib` lines name it (naming one 1 MB library
+    // 10,000 times on one line made a 10 GB text).
+    std::set<std::string> read_already;
+    size_t materials = 0, lines = 0;
+    for (const std::string& lib : census.mtllibs) {
+      if (!read_already.insert(lib).second) continue;
+      const std::string text = read(dir + lib, pointer);
+      scan_mtl(text, lib, pointer, materials, lines);
+      mtl_text += text + "\n";
+    }
   }
   tinyobj::ObjReader reader;
   if (!reader.ParseFromString(text, mtl_text, config)) {

@@ -6,9 +6,11 @@
 
 #include <chrono>
 #include <filesystem>
+#include <map>
 #include <fstream>
 #include <string>
 
+#include "common/lighting/obj_scene.hpp"
 #include "common/lighting/scene_json.hpp"
 #include "lighting/gltf/gltf_writer.hpp"
 #include "lighting/lighting_test_support.hpp"
@@ -203,6 +205,54 @@ TEST(ObjLimits, PolygonCornersAreBounded) {
   EXPECT_TRUE(contains(err, "OBJ \"big.obj\" line 100001: a face of 100000 corners, more than the limit of 256 (max_polygon_vertices)"))
       << err;
   EXPECT_LT(s, 5.0);
+}
+
+// .mtl libraries were read unchecked: each `newmtl` line, however short, becomes a
+// ~1.9 KB tinyobjloader material (a 1 GB library of "newmtl a" lines, ~200 GB), and a
+// library named N times by `mtllib` was read and parsed N times (one line naming a 1 MB
+// library 10,000 times: a 10 GB text). Now each library is read once, and the
+// libraries' materials (4096, as a scene holds) and lines (2^18) are counted first.
+TEST(ObjLimits, MtlLibrariesAreReadOnceAndTheirMaterialsAndLinesAreBounded) {
+  Dir d("tally_limits_mtl");
+  auto library = [](int materials, int extra_lines = 0) {
+    std::string s;
+    for (int i = 0; i < materials; ++i) s += "newmtl m" + std::to_string(i) + "\nKd 0.5 0.5 0.5\n";
+    for (int i = 0; i < extra_lines; ++i) s += "x" + std::to_string(i) + " 1\n";  // unknown keywords
+    return s;
+  };
+  const std::string tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m0\nf 1 2 3\n";
+  std::map<std::string, std::string> files = {
+      {"twice.obj", "mtllib ok.mtl ok.mtl\nmtllib ok.mtl\n" + tri}, {"ok.mtl", library(4096)},
+      {"many.obj", "mtllib many.mtl\n" + tri},                      {"many.mtl", library(4097)},
+      {"split.obj", "mtllib a.mtl b.mtl\n" + tri},                 {"a.mtl", library(2048)},
+      {"b.mtl", library(2049)},                                     {"long.obj", "mtllib long.mtl\n" + tri},
+      {"long.mtl", library(1, (1 << 18) - 2)},                      {"longer.obj", "mtllib longer.mtl\n" + tri},
+      {"longer.mtl", library(1, (1 << 18) - 1)}};
+  std::map<std::string, int> reads;
+  const AssetReader read = [&](const std::string& name, const std::string&) {
+    ++reads[name];
+    return files.at(name);
+  };
+  auto load = [&](const std::string& obj) -> std::string {
+    Scene scene;
+    try {
+      const std::vector<Shape> shapes = load_obj(obj, "/scene/shapes/0/obj", read, d.limits(), std::nullopt, scene);
+      EXPECT_EQ(shapes.size(), 1u) << obj;
+    } catch (const SpecError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  EXPECT_EQ(load("twice.obj"), "");
+  EXPECT_EQ(reads["ok.mtl"], 1) << "named three times, read once";
+  EXPECT_EQ(load("many.obj"),
+            "/scene/shapes/0/obj: .mtl \"many.mtl\" line 8193: more than 4096 materials in the OBJ's .mtl libraries");
+  // The count is over all the OBJ's libraries together.
+  EXPECT_EQ(load("split.obj"),
+            "/scene/shapes/0/obj: .mtl \"b.mtl\" line 4097: more than 4096 materials in the OBJ's .mtl libraries");
+  EXPECT_EQ(load("long.obj"), "");  // newmtl, Kd and 2^18 - 2 more: 2^18 lines
+  EXPECT_EQ(load("longer.obj"),
+            "/scene/shapes/0/obj: .mtl \"longer.mtl\" line 262145: more than 262144 lines in the OBJ's .mtl libraries");
 }
 
 // N14, OBJ: "nan" and an index past 2^64 were accepted.
