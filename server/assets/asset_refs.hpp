@@ -23,7 +23,9 @@ std::vector<AssetRef> asset_refs(const nlohmann::json& spec);
 
 // The hashes a stored scene file names inside itself: every "sha256:<64 lowercase hex>"
 // in its bytes (a glTF's buffer and image URIs, a .glb's JSON chunk, an OBJ's mtllib,
-// an .mtl's texture maps), read in parts, so any file size is fine. A superset of what
+// an .mtl's texture maps), and every JSON string of a glTF (.gltf or a .glb's JSON chunk)
+// that is one once unescaped and URI-decoded as the glTF loader does ("sha256\u003a…",
+// "sha256%3A…"); read in parts, so any file size is fine. A superset of what
 // the scene readers resolve (a binary buffer that happens to hold such text names more);
 // retention keeps what they name. Throws std::runtime_error if the file cannot be read.
 std::vector<std::string> asset_refs_in_file(const std::filesystem::path& file);

@@ -308,14 +308,25 @@ struct NestedLamps {
     doc["buffers"] = json::array({{{"byteLength", bin.size()}, {"uri", "sha256:" + sha256_hex(bin)}}});
     gltf = doc.dump();
     obj = "mtllib sha256:" + sha256_hex(mtl) + "\nusemtl glow\n" + lamp_obj(1);
+    // The lamp 0.1 lower, its own buffer named with a percent-encoded colon, which the
+    // glTF loader decodes ("sha256%3A<hex>"; the text "sha256:<hex>" is nowhere in it).
+    test::GltfWriter low;
+    const int m = low.material({{"emissiveFactor", {1.0, 0.9, 0.8}},
+                                {"pbrMetallicRoughness", {{"baseColorFactor", {0, 0, 0, 1}}, {"metallicFactor", 0.0}}}});
+    low.node({{"mesh", low.mesh({-0.5f, -0.5f, 1.4f, -0.5f, 0.5f, 1.4f, 0.5f, 0.5f, 1.4f, 0.5f, -0.5f, 1.4f}, {0, 1, 2, 0, 2, 3}, m)}});
+    escaped_bin = low.bin;
+    json esc = low.doc;
+    esc["buffers"] = json::array({{{"byteLength", escaped_bin.size()}, {"uri", "sha256%3A" + sha256_hex(escaped_bin)}}});
+    escaped_gltf = esc.dump();
   }
   json gltf_spec() const { return glb_image_spec("sha256:" + sha256_hex(gltf)); }
+  json escaped_gltf_spec() const { return glb_image_spec("sha256:" + sha256_hex(escaped_gltf)); }
   json obj_spec() const {
     json spec = obj_image_spec("sha256:" + sha256_hex(obj));
     spec["scene"]["shapes"][1].erase("material");  // the OBJ's own materials
     return spec;
   }
-  std::string bin, gltf, mtl = "newmtl glow\nKd 0 0 0\nKe 4 4 4\n", obj;
+  std::string bin, gltf, mtl = "newmtl glow\nKd 0 0 0\nKe 4 4 4\n", obj, escaped_bin, escaped_gltf;
 };
 
 // Waits (at most 20 s) until the server's log holds `text` `times` times (the log is
@@ -417,19 +428,22 @@ TEST(Assets, RestartKeepsAssetsAndRetentionRemovesOnlyUnreferenced) {
 // Issue 27 N6: retention counted only the hashes in job specs. With retention 0, a
 // restart removed the .bin named inside a stored job's glTF (and the .mtl named inside
 // its OBJ), and the job's spec no longer compiled ("File not found"). Now what the
-// named scene files name is kept too; only the asset nothing names goes.
+// named scene files name is kept too, also a glTF's name written as its loader decodes
+// it ("sha256%3A<hex>", which a scan for the text "sha256:" missed); only the asset
+// nothing names goes.
 TEST(Assets, RetentionKeepsWhatAJobsSceneFilesNameInside) {
   TempDir tmp;
   const NestedLamps n;
   const std::string unused = lamp_obj(2), hn = sha256_hex(unused);
+  const std::vector<const std::string*> named = {&n.bin, &n.gltf, &n.mtl, &n.obj, &n.escaped_bin, &n.escaped_gltf};
   {
     ServerProcess server(tmp.path / "data");
     HttpClient c = server.client();
-    for (const std::string* body : {&n.bin, &n.gltf, &n.mtl, &n.obj, &unused}) {
-      ASSERT_EQ(put(c, sha256_hex(*body), *body).status, 201);
-    }
+    for (const std::string* body : named) ASSERT_EQ(put(c, sha256_hex(*body), *body).status, 201);
+    ASSERT_EQ(put(c, hn, unused).status, 201);
     wait_state(c, submit(c, n.gltf_spec()), "succeeded");
     wait_state(c, submit(c, n.obj_spec()), "succeeded");
+    wait_state(c, submit(c, n.escaped_gltf_spec()), "succeeded");
     EXPECT_EQ(server.terminate(), 0);
   }
   ServerProcess server(tmp.path / "data", {"--asset-retention-days", "0"});
@@ -438,12 +452,12 @@ TEST(Assets, RetentionKeepsWhatAJobsSceneFilesNameInside) {
   EXPECT_TRUE(wait_for_log(server, "named by jobs)", 2)) << server.log();
   EXPECT_NE(server.log().find("asset retention: 1 removed"), std::string::npos) << server.log();
   EXPECT_NE(server.log().find("removed sha256:" + hn), std::string::npos) << server.log();
-  for (const std::string* body : {&n.bin, &n.gltf, &n.mtl, &n.obj}) {
+  for (const std::string* body : named) {
     EXPECT_EQ(c.request("HEAD", asset_url(sha256_hex(*body))).status, 200) << *body;
   }
   EXPECT_EQ(c.request("HEAD", asset_url(hn)).status, 404);
   // The stored jobs' scenes still compile: submitted again, they run and are lit.
-  for (const json& spec : {n.gltf_spec(), n.obj_spec()}) {
+  for (const json& spec : {n.gltf_spec(), n.obj_spec(), n.escaped_gltf_spec()}) {
     const std::string again = submit(c, spec);
     wait_state(c, again, "succeeded");
     EXPECT_GT(tile_red_sum(c, again), kMinTileLight);
