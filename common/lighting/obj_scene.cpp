@@ -99,6 +99,21 @@ int32_t mtl_texture(const tinyobj::material_t& t, const std::string& dir, const 
   return static_cast<int32_t>(scene.textures.size() - 1);
 }
 
+// The lines of a text in order, numbered from 1 (the pre-scans' error messages name them).
+struct Lines {
+  std::string_view text;
+  size_t pos = 0, number = 0;
+  bool next(std::string_view& line) {
+    if (pos >= text.size()) return false;
+    size_t end = text.find('\n', pos);
+    if (end == std::string_view::npos) end = text.size();
+    line = text.substr(pos, end - pos);
+    pos = end + 1;
+    ++number;
+    return true;
+  }
+};
+
 // What the pre-scan found: the counts tinyobjloader will allocate for, all checked.
 struct ObjCensus {
   size_t vertices = 0, texcoords = 0, normals = 0, triangles = 0;
@@ -115,9 +130,9 @@ ObjCensus scan_obj(std::string_view text, const std::string& file, const std::st
                    size_t triangles_so_far) {
   ObjCensus c;
   std::set<std::string_view> materials;
-  size_t line_no = 0, pos = 0;
+  Lines lines{text};
   auto fail = [&](const std::string& what) {
-    return SpecError(pointer, fmt::format("OBJ \"{}\" line {}: {}", file, line_no, what));
+    return SpecError(pointer, fmt::format("OBJ \"{}\" line {}: {}", file, lines.number, what));
   };
   auto tokens_of = [](std::string_view line) {
     std::vector<std::string_view> out;
@@ -151,12 +166,7 @@ ObjCensus scan_obj(std::string_view text, const std::string& file, const std::st
       throw fail(fmt::format("{} index \"{}\" names none of the {} given so far", what, s, have));
     }
   };
-  while (pos < text.size()) {
-    size_t end = text.find('\n', pos);
-    if (end == std::string_view::npos) end = text.size();
-    const std::string_view line = text.substr(pos, end - pos);
-    pos = end + 1;
-    ++line_no;
+  for (std::string_view line; lines.next(line);) {
     if (line.find_first_not_of(" \t\r") == std::string_view::npos) continue;
     const std::vector<std::string_view> t = tokens_of(line);
     const std::string_view kind = t[0];
@@ -218,20 +228,15 @@ constexpr size_t kMaxMtlLines = size_t{1} << 18;
 // ~1.9 KB for each `newmtl` line however short ("newmtl a": 9 bytes, a 200-fold growth),
 // and keeps each unknown keyword line in a map node of the current material.
 void scan_mtl(std::string_view text, const std::string& file, const std::string& pointer, size_t& materials,
-              size_t& lines) {
-  size_t line_no = 0, pos = 0;
-  while (pos < text.size()) {
-    size_t end = text.find('\n', pos);
-    if (end == std::string_view::npos) end = text.size();
-    const std::string_view line = text.substr(pos, end - pos);
-    pos = end + 1;
-    ++line_no;
+              size_t& counted) {
+  Lines lines{text};
+  for (std::string_view line; lines.next(line);) {
     const size_t b = line.find_first_not_of(" \t\r");
     if (b == std::string_view::npos || line[b] == '#') continue;
     auto fail = [&](const std::string& what) {
-      return SpecError(pointer, fmt::format(".mtl \"{}\" line {}: {}", file, line_no, what));
+      return SpecError(pointer, fmt::format(".mtl \"{}\" line {}: {}", file, lines.number, what));
     };
-    if (++lines > kMaxMtlLines) throw fail(fmt::format("more than {} lines in the OBJ's .mtl libraries", kMaxMtlLines));
+    if (++counted > kMaxMtlLines) throw fail(fmt::format("more than {} lines in the OBJ's .mtl libraries", kMaxMtlLines));
     const std::string_view rest = line.substr(b);
     if (rest.substr(0, 6) == "newmtl" && (rest.size() == 6 || rest[6] == ' ' || rest[6] == '\t')) {
       if (++materials > kMaxMtlMaterials) {
@@ -275,9 +280,9 @@ std::vector<Shape> load_obj(const std::string& relative, const std::string& poin
     size_t materials = 0, lines = 0;
     for (const std::string& lib : census.mtllibs) {
       if (!read_already.insert(lib).second) continue;
-      const std::string text = read(dir + lib, pointer);
-      scan_mtl(text, lib, pointer, materials, lines);
-      mtl_text += text + "\n";
+      const std::string library = read(dir + lib, pointer);
+      scan_mtl(library, lib, pointer, materials, lines);
+      mtl_text += library + "\n";
     }
   }
   tinyobj::ObjReader reader;
