@@ -299,25 +299,22 @@ json glb_image_spec(const std::string& file) {
 // "mtllib sha256:<mtl>" (an emissive .mtl material).
 struct NestedLamps {
   NestedLamps() {
-    test::GltfWriter w;
-    const int lamp = w.material({{"emissiveFactor", {1.0, 0.9, 0.8}},
-                                 {"pbrMetallicRoughness", {{"baseColorFactor", {0, 0, 0, 1}}, {"metallicFactor", 0.0}}}});
-    w.node({{"mesh", w.mesh({-0.5f, -0.5f, 1.5f, -0.5f, 0.5f, 1.5f, 0.5f, 0.5f, 1.5f, 0.5f, -0.5f, 1.5f}, {0, 1, 2, 0, 2, 3}, lamp)}});
-    bin = w.bin;
-    json doc = w.doc;
-    doc["buffers"] = json::array({{{"byteLength", bin.size()}, {"uri", "sha256:" + sha256_hex(bin)}}});
-    gltf = doc.dump();
+    // The lamp at height z as a .gltf whose one buffer is the stored .bin named `prefix` + its hash.
+    auto lamp_gltf = [](float z, const std::string& prefix, std::string& bin_out) {
+      test::GltfWriter w;
+      const int lamp = w.material({{"emissiveFactor", {1.0, 0.9, 0.8}},
+                                   {"pbrMetallicRoughness", {{"baseColorFactor", {0, 0, 0, 1}}, {"metallicFactor", 0.0}}}});
+      w.node({{"mesh", w.mesh({-0.5f, -0.5f, z, -0.5f, 0.5f, z, 0.5f, 0.5f, z, 0.5f, -0.5f, z}, {0, 1, 2, 0, 2, 3}, lamp)}});
+      bin_out = w.bin;
+      json doc = w.doc;
+      doc["buffers"] = json::array({{{"byteLength", bin_out.size()}, {"uri", prefix + sha256_hex(bin_out)}}});
+      return doc.dump();
+    };
+    gltf = lamp_gltf(1.5f, "sha256:", bin);
     obj = "mtllib sha256:" + sha256_hex(mtl) + "\nusemtl glow\n" + lamp_obj(1);
     // The lamp 0.1 lower, its own buffer named with a percent-encoded colon, which the
     // glTF loader decodes ("sha256%3A<hex>"; the text "sha256:<hex>" is nowhere in it).
-    test::GltfWriter low;
-    const int m = low.material({{"emissiveFactor", {1.0, 0.9, 0.8}},
-                                {"pbrMetallicRoughness", {{"baseColorFactor", {0, 0, 0, 1}}, {"metallicFactor", 0.0}}}});
-    low.node({{"mesh", low.mesh({-0.5f, -0.5f, 1.4f, -0.5f, 0.5f, 1.4f, 0.5f, 0.5f, 1.4f, 0.5f, -0.5f, 1.4f}, {0, 1, 2, 0, 2, 3}, m)}});
-    escaped_bin = low.bin;
-    json esc = low.doc;
-    esc["buffers"] = json::array({{{"byteLength", escaped_bin.size()}, {"uri", "sha256%3A" + sha256_hex(escaped_bin)}}});
-    escaped_gltf = esc.dump();
+    escaped_gltf = lamp_gltf(1.4f, "sha256%3A", escaped_bin);
   }
   json gltf_spec() const { return glb_image_spec("sha256:" + sha256_hex(gltf)); }
   json escaped_gltf_spec() const { return glb_image_spec("sha256:" + sha256_hex(escaped_gltf)); }
