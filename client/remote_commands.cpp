@@ -517,6 +517,24 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
                     fmt::print("{} deleted\n", id);
                     return exit_code::ok;
                   });
+  // priority
+  {
+    auto priority = std::make_shared<int>(0);
+    add_job_command(
+        app, exit_code, "priority", "Change a queued or running job's priority (-5..5)",
+        [=](CLI::App* cmd) {
+          cmd->add_option("priority", *priority, "the new priority, -5 (last) .. 5 (first)")
+              ->required()
+              ->check(CLI::Range(-5, 5));
+        },
+        [=](HttpClient& c, const std::string& id) {
+          const ClientResponse r = request(c, "PATCH", "/v1/jobs/" + id, json{{"priority", *priority}}.dump(),
+                                           {{"Content-Type", "application/json"}});
+          if (r.status != 200) fail_response(r);
+          fmt::print("{} priority {}\n", id, *priority);
+          return exit_code::ok;
+        });
+  }
   // extend
   {
     auto max_samples = std::make_shared<uint64_t>(0);

@@ -1,5 +1,6 @@
 #pragma once
-// The server commands of the `tally` CLI: submit, watch, get, list, cancel, extend.
+// The server commands of the `tally` CLI: submit, watch, get, list, cancel, delete,
+// priority, extend.
 // `--server URL` or TALLY_SERVER (default http://127.0.0.1:8080). Exit codes are in
 // client/exit_codes.hpp and docs/api.md.
 #include <CLI/CLI.hpp>

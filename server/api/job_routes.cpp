@@ -1,4 +1,4 @@
-// The job routes: POST/GET /v1/jobs, GET/DELETE /v1/jobs/{id}, extend, validate,
+// The job routes: POST/GET /v1/jobs, GET/PATCH/DELETE /v1/jobs/{id}, extend, validate,
 // events. Each reads a JobSnapshot from the manager (never a job's lock) and
 // renders it with the protocol layer's views (common/protocol/job_json.hpp).
 #include <fmt/format.h>
@@ -8,6 +8,7 @@
 #include "common/protocol/job_json.hpp"
 #include "common/protocol/job_kinds.hpp"
 #include "common/spec/pool_field.hpp"
+#include "common/spec/priority_field.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "common/spec/stop_rule_json.hpp"
 #include "server/api/job_event_stream.hpp"
@@ -190,6 +191,12 @@ HttpResponse RequestHandler::delete_job(const ApiRequest& req, const PathParams&
   const JobSnapshot s = manager_.snapshot(*job);
   // 200 when the job is already cancelled, 202 when it stops at the next chunk boundary.
   return json_response(s.status == JobStatus::cancelled ? 200 : 202, summary_json(s));
+}
+
+HttpResponse RequestHandler::patch_job(const ApiRequest& req, const PathParams& p) {
+  const std::string id = visible_job(req, p.at("id"))->id();
+  manager_.set_priority(id, read_priority_change(parse_json_body(req)));
+  return json_response(200, summary_json(manager_.snapshot(id)));
 }
 
 HttpResponse RequestHandler::extend_job(const ApiRequest& req, const PathParams& p) {

@@ -77,6 +77,8 @@ void RequestHandler::add_routes() {
   // Deleting a finished job, and extending one, touch its stored state: off the I/O threads.
   router_.add("DELETE", "/v1/jobs/{id}", bind(&RequestHandler::delete_job), Lane::blocking);
   router_.add("POST", "/v1/jobs/{id}/extend", bind(&RequestHandler::extend_job), Lane::blocking);
+  // A priority change is stored before it is acknowledged: off the I/O threads.
+  router_.add("PATCH", "/v1/jobs/{id}", bind(&RequestHandler::patch_job), Lane::blocking);
   router_.add("GET", "/v1/jobs/{id}/events", bind(&RequestHandler::job_events));
   // May read a finished job's state from the store: off the I/O threads.
   router_.add("GET", "/v1/jobs/{id}/tiles/{n}", bind(&RequestHandler::job_tile), Lane::blocking);

@@ -108,6 +108,7 @@ class RequestHandler final : public HttpHandler {
   HttpResponse list_jobs(const ApiRequest&, const PathParams&);
   HttpResponse get_job(const ApiRequest&, const PathParams&);
   HttpResponse delete_job(const ApiRequest&, const PathParams&);
+  HttpResponse patch_job(const ApiRequest&, const PathParams&);
   HttpResponse extend_job(const ApiRequest&, const PathParams&);
   HttpResponse validate_job(const ApiRequest&, const PathParams&);
   HttpResponse job_events(const ApiRequest&, const PathParams&);

@@ -8,6 +8,7 @@
 #include <string>
 #include <string_view>
 
+#include "common/spec/priority_field.hpp"
 #include "server/http/problem.hpp"
 #include "server/http/http_types.hpp"
 
@@ -46,8 +47,9 @@ inline int parse_priority(const HttpRequest& req) {
   const std::string p = req.query_param("priority");
   int v = 0;
   auto [ptr, ec] = std::from_chars(p.data(), p.data() + p.size(), v);
-  if (ec != std::errc() || ptr != p.data() + p.size() || v < -5 || v > 5) {
-    throw HttpError(400, fmt::format("query parameter priority must be an integer in [-5, 5], got \"{}\"", p));
+  if (ec != std::errc() || ptr != p.data() + p.size() || v < kMinPriority || v > kMaxPriority) {
+    throw HttpError(400, fmt::format("query parameter priority must be an integer in [{}, {}], got \"{}\"",
+                                     kMinPriority, kMaxPriority, p));
   }
   return v;
 }

@@ -98,6 +98,10 @@ class Executor {
   // Stops handing out the job's blocks. Returns false if the job is not in the executor.
   // The `cancelled` callback runs once no block is in flight (maybe on this thread).
   virtual bool cancel(const std::string& id) = 0;
+  // The job's priority changed (PATCH /v1/jobs/{id}): its CPU share from its next chunk.
+  // Executors that do not weigh jobs (cluster mode: workers take the blocks in order)
+  // ignore it; the queue and preemption, above this seam, follow the job's priority.
+  virtual void set_priority(const std::string& /*id*/, int /*priority*/) {}
   // Finishes or abandons what is in flight, drops partial passes, joins threads. No
   // callback runs after stop() returns.
   virtual void stop() = 0;

@@ -126,6 +126,17 @@ bool InProcessExecutor::cancel(const std::string& id) {
   return true;
 }
 
+void InProcessExecutor::set_priority(const std::string& id, int priority) {
+  std::lock_guard lock(mu_);
+  if (auto it = active_.find(id); it != active_.end()) it->second->weight = priority_weight(priority);
+}
+
+double InProcessExecutor::weight_of(const std::string& id) const {
+  std::lock_guard lock(mu_);
+  const auto it = active_.find(id);
+  return it == active_.end() ? 0.0 : it->second->weight;
+}
+
 InProcessExecutor::Active* InProcessExecutor::pick_locked() {
   Active* best = nullptr;
   double best_owner = 0.0;

@@ -35,6 +35,10 @@ class InProcessExecutor final : public Executor {
 
   void add(ExecutorJob job, PassWork first_pass) override;
   bool cancel(const std::string& id) override;
+  // The job's weight from its next chunk; its virtual time so far stays charged.
+  void set_priority(const std::string& id, int priority) override;
+  // The weight the job's chunks are charged with now (0 if it is not here): tests.
+  double weight_of(const std::string& id) const;
   // Finishes the chunks in flight, drops partial passes, joins the workers.
   void stop() override;
   ExecutorStats stats() const override;

@@ -42,7 +42,7 @@ JobSnapshot Job::snapshot_locked(bool with_runner) const {
   JobSnapshot s;
   s.id = id_;
   s.seq = seq_;
-  s.priority = priority_;
+  s.priority = priority();
   s.owner = owner_;
   s.cached_from = cached_from_;
   s.spec = spec_;
@@ -236,7 +236,7 @@ std::optional<PassWork> Job::start_running_locked(uint64_t epoch, double now, Ex
   ej.kernel = def_->kernel();
   ej.spec_json = spec_text_;
   ej.epoch = epoch;
-  ej.priority = priority_;
+  ej.priority = priority();
   ej.owner = owner_;
   return pass;
 }

@@ -56,7 +56,9 @@ class Job : public std::enable_shared_from_this<Job> {
   const nlohmann::json& spec() const { return *spec_; }
   // The spec as JSON text, written once (the store and remote workers read it).
   const std::string& spec_text() const { return spec_text_; }
-  int priority() const { return priority_; }
+  // Changed only by JobManager::set_priority, under the manager's lock and the job's:
+  // Admission reads it under the former, snapshots and saves under the latter.
+  int priority() const { return priority_.load(std::memory_order_relaxed); }
   // The principal that submitted it ("" without access control).
   const std::string& owner() const { return owner_; }
   double created_at() const { return created_at_; }
@@ -141,7 +143,7 @@ class Job : public std::enable_shared_from_this<Job> {
   const int64_t seq_;
   const std::shared_ptr<const nlohmann::json> spec_;
   const std::string spec_text_;
-  const int priority_;
+  std::atomic<int> priority_;
   const double created_at_;
   const std::string owner_;
   mutable EventLog events_;

@@ -110,6 +110,13 @@ class JobManager {
   // The job waits again: JobError queue_full / quota as a submit of `who` would get.
   std::shared_ptr<Job> extend(const std::string& id, const StopRule& rule, const Submitter& who = {});
 
+  // A queued or running job's priority from now on (-5..5, clamped): its place in the
+  // queue (Admission orders by it at every start), which running job preemption pauses,
+  // and its CPU share from its next chunk (Executor::set_priority). Acknowledged once
+  // stored; if the store fails the old priority is put back (JobError unavailable).
+  // JobError: not_found; conflict when the job has finished (or its result is being stored).
+  std::shared_ptr<Job> set_priority(const std::string& id, int priority);
+
   // Deletes a finished job from memory and the store. JobError: not_found, conflict
   // (still queued or running: cancel it first).
   void remove(const std::string& id);

@@ -29,7 +29,7 @@ JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint, const Job
   s.id = job.id_;
   s.seq = job.seq_;
   s.spec = job.spec_text_;
-  s.priority = job.priority_;
+  s.priority = job.priority();
   s.owner = job.owner_;
   const JobStatus status = ending ? ending->status : job.status_;
   const auto& final_result = ending ? ending->final_result : job.final_result_;

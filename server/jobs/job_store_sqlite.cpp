@@ -75,7 +75,7 @@ class SqliteJobStore final : public JobStore {
     SQLite::Statement st(db_,
                          "INSERT INTO jobs (id, seq, spec, priority, state, stop_rule, error, result,"
                          " checkpoint, created_at, started_at, finished_at, owner, facts) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?)"
-                         " ON CONFLICT(id) DO UPDATE SET state=excluded.state, stop_rule=excluded.stop_rule,"
+                         " ON CONFLICT(id) DO UPDATE SET priority=excluded.priority, state=excluded.state, stop_rule=excluded.stop_rule,"
                          " error=excluded.error, result=excluded.result, facts=excluded.facts,"
                          " checkpoint=COALESCE(excluded.checkpoint, jobs.checkpoint),"
                          " started_at=excluded.started_at, finished_at=excluded.finished_at,"

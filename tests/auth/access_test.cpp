@@ -191,7 +191,7 @@ TEST(Tenancy, OthersJobsAre404OnEveryRouteAndMissingFromTheList) {
   const std::string id = a.submit_as(p.alice, fake_spec(kForever, 1, 1, true));  // an image job
   ASSERT_TRUE(wait_until([&] { return a.state(p.alice, id) == "running"; }));
   const std::vector<std::pair<std::string, std::string>> job_routes = {
-      {"GET", "/v1/jobs/" + id},           {"DELETE", "/v1/jobs/" + id},
+      {"GET", "/v1/jobs/" + id},           {"DELETE", "/v1/jobs/" + id}, {"PATCH", "/v1/jobs/" + id},
       {"POST", "/v1/jobs/" + id + "/extend"}, {"GET", "/v1/jobs/" + id + "/events"},
       {"GET", "/v1/jobs/" + id + "/tiles/0"}, {"GET", "/v1/jobs/" + id + "/image.exr"},
       {"GET", "/v1/jobs/" + id + "/image.png"}};
@@ -215,6 +215,13 @@ TEST(Tenancy, OthersJobsAre404OnEveryRouteAndMissingFromTheList) {
   EXPECT_EQ(a.as(p.alice, "GET", "/v1/jobs/" + id + "/tiles/0").status, 200);
   const json st = json::parse(a.as(p.admin, "GET", "/v1/jobs/" + id).body);
   EXPECT_EQ(st.at("owner"), "alice");
+  // Its owner and an admin may change its priority (200 with the summary).
+  const HttpResponse by_alice = a.as(p.alice, "PATCH", "/v1/jobs/" + id, R"({"priority": 2})");
+  EXPECT_EQ(by_alice.status, 200) << by_alice.body;
+  EXPECT_EQ(json::parse(by_alice.body).at("priority"), 2);
+  const HttpResponse by_admin = a.as(p.admin, "PATCH", "/v1/jobs/" + id, R"({"priority": -1})");
+  EXPECT_EQ(by_admin.status, 200) << by_admin.body;
+  EXPECT_EQ(json::parse(a.as(p.alice, "GET", "/v1/jobs/" + id).body).at("priority"), -1);
   // The admin may act on anyone's job (200: cancelled at once, 202: at the next chunk boundary).
   const int cancelled = a.as(p.admin, "DELETE", "/v1/jobs/" + id).status;
   EXPECT_TRUE(cancelled == 200 || cancelled == 202) << cancelled;
@@ -232,6 +239,7 @@ TEST(Tenancy, ReaderIsReadOnlyOnItsOwnJobs) {
   EXPECT_EQ(a.as(p.rita, "GET", "/v1/jobs/" + id + "/tiles/0").status, 200);
   EXPECT_EQ(json::parse(a.as(p.rita, "GET", "/v1/jobs").body).at("jobs").size(), 1u);
   for (const auto& [m, t] : std::vector<std::pair<std::string, std::string>>{{"DELETE", "/v1/jobs/" + id},
+                                                                           {"PATCH", "/v1/jobs/" + id},
                                                                            {"POST", "/v1/jobs/" + id + "/extend"},
                                                                            {"POST", "/v1/jobs"},
                                                                            {"POST", "/v1/jobs/validate"}}) {

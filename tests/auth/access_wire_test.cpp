@@ -160,6 +160,9 @@ TEST_P(WireTable, EveryRouteTimesEveryCaller) {
       {"POST", "/v1/jobs/validate", {401, 401, 401, 200, 403, 200, 200}},
       {"GET", "/v1/jobs/{id}", {401, 401, 401, 404, 200, 200, 200}},
       {"DELETE", "/v1/jobs/{id}", {401, 401, 401, 404, 403, 202, 202}},
+      // alice's job has finished: her and the admin's priority change is a 409 (a running
+      // job's 200 for both: access_test.cpp, Tenancy).
+      {"PATCH", "/v1/jobs/{id}", {401, 401, 401, 404, 403, 409, 409}},
       {"POST", "/v1/jobs/{id}/extend", {401, 401, 401, 404, 403, 409, 409}},
       {"GET", "/v1/jobs/{id}/events", {401, 401, 401, 404, 200, 200, 200}},
       {"GET", "/v1/jobs/{id}/tiles/{n}", {401, 401, 401, 404, 200, 200, 200}},
@@ -218,6 +221,7 @@ TEST_P(WireTable, EveryRouteTimesEveryCaller) {
       std::string body;
       if (rc.pattern == "/v1/jobs" || rc.pattern == "/v1/jobs/validate") body = disk_spec(1000).dump();
       if (rc.pattern == "/v1/jobs/{id}/extend") body = R"({"max_samples": 10})";
+      if (rc.method == "PATCH") body = R"({"priority": 1})";
       if (rc.pattern == "/v1/assets/{name}") body = asset_body;
       if (rc.pattern == "/v1/session" && rc.method == "POST") {
         body = json{{"token", caller == kMalformed ? std::string("not a token") : token}}.dump();

@@ -257,6 +257,34 @@ class AgainstRealServer(ServerTestCase):
         finally:
             shutil.rmtree(d, ignore_errors=True)
 
+    def test_priority_changes_a_running_job_and_refuses_a_finished_one(self) -> None:
+        d = tempfile.mkdtemp(prefix="tally_cli_")
+        try:
+            path = os.path.join(d, "long.json")
+            with open(path, "w", encoding="utf-8") as f:
+                json.dump(disk_spec(10**11), f)
+            r = run("submit", path, "--no-predict", "--server", self.server.url)
+            self.assertEqual(r.returncode, 0, r.stderr)
+            job = r.stdout.strip()
+            r = run("priority", job, "4", "--server", self.server.url)
+            self.assertEqual(r.returncode, 0, r.stderr)
+            self.assertEqual(r.stdout, f"{job} priority 4\n")
+            r = run("get", job, "--json", "--server", self.server.url)
+            self.assertEqual(json.loads(r.stdout)["priority"], 4)
+            r = run("priority", job, "6", "--server", self.server.url)  # refused before any request
+            self.assertEqual(r.returncode, USAGE, r.stderr)
+            self.assertEqual(run("cancel", job, "--server", self.server.url).returncode, 0)
+            for _ in range(100):
+                if json.loads(run("get", job, "--json", "--server", self.server.url).stdout)["state"] == "cancelled":
+                    break
+                time.sleep(0.1)
+            r = run("priority", job, "1", "--server", self.server.url)
+            self.assertEqual(r.returncode, USAGE, r.stderr)  # 409: a 4xx is a usage error (docs/api.md)
+            self.assertIn("409", r.stderr)
+            self.assertIn("has already finished (cancelled)", r.stderr)
+        finally:
+            shutil.rmtree(d, ignore_errors=True)
+
 
 @unittest.skipUnless(SERVER_BIN, "TALLY_SERVER_BIN is not set")
 class BindError(unittest.TestCase):

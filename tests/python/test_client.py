@@ -111,6 +111,23 @@ class ClientMethods(unittest.TestCase):
         with self.assertRaises(ValueError):
             self.client.extend(job)
 
+    def test_set_priority(self) -> None:
+        job = self.client.submit(disk_spec(50_000_000_000, seed=12))
+        out = self.client.set_priority(job, -3)
+        self.assertEqual(out["id"], job)
+        self.assertEqual(out["priority"], -3)
+        self.assertEqual(self.client.status(job)["priority"], -3)
+        with self.assertRaises(InvalidSpec) as bad:
+            self.client.set_priority(job, 7)
+        self.assertEqual(bad.exception.status, 422)
+        self.assertEqual(bad.exception.pointer, "/priority")
+        self.client.cancel(job)
+        with self.assertRaises(JobFailed):
+            self.client.wait(job, timeout=60)
+        with self.assertRaises(Conflict):
+            self.client.set_priority(job, 1)
+        self.client.delete(job)
+
     def test_events_of_a_finished_job(self) -> None:
         job = self.client.submit(disk_spec(50_000, seed=6))
         self.client.wait(job, timeout=60)

@@ -66,6 +66,29 @@ TEST(Scheduler, ShortJobBehindALongOneFinishesPromptly) {
   EXPECT_LT(shared_s, 6 * alone_s + 1.0) << "shared " << shared_s << " s, alone " << alone_s << " s";
 }
 
+// Samples `high` and `low` make while `low` does 20 full passes more (see below), as
+// high : low. Deletes both.
+double share_ratio(Harness& h, const std::string& low, const std::string& high) {
+  auto samples = [&](const std::string& id) { return h.call_json("GET", "/v1/jobs/" + id).value("samples", 0.0); };
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));  // past the small first passes
+  const double l0 = samples(low), h0 = samples(high);
+  constexpr double kWindow = 20.0 * 65536;
+  double l1 = l0, h1 = h0;
+  const auto t0 = std::chrono::steady_clock::now();
+  while (l1 - l0 < kWindow && std::chrono::steady_clock::now() - t0 < std::chrono::seconds(60)) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    l1 = samples(low);
+    h1 = samples(high);
+  }
+  h.call("DELETE", "/v1/jobs/" + low);
+  h.call("DELETE", "/v1/jobs/" + high);
+  EXPECT_GE(l1 - l0, kWindow) << "the low-priority job did not get 20 passes in 60 s";
+  const double ratio = (h1 - h0) / (l1 - l0);
+  std::printf("priority 5 : 0 samples: %.0f : %.0f = %.3f (weights 11 : 6 = %.3f)\n", h1 - h0, l1 - l0, ratio,
+              11.0 / 6.0);
+  return ratio;
+}
+
 // Priority p weighs p + 6 (in_process_executor.cpp priority_weight): with one worker,
 // priority 5 against 0 gets 11 : 6 of the compute time, so of the samples of two jobs of
 // equal cost per sample. Samples count in whole passes (at most 65,536 here), so the
@@ -80,24 +103,18 @@ TEST(Scheduler, PriorityGetsALargerShare) {
   HttpResponse r = h.call("POST", "/v1/jobs?priority=5", fake_spec(kForever, 100).dump());
   ASSERT_EQ(r.status, 202);
   const std::string high = json::parse(r.body).at("id");
-  auto samples = [&](const std::string& id) { return h.call_json("GET", "/v1/jobs/" + id).value("samples", 0.0); };
-  std::this_thread::sleep_for(std::chrono::milliseconds(500));  // past the small first passes
-  const double l0 = samples(low), h0 = samples(high);
-  constexpr double kWindow = 20.0 * 65536;
-  double l1 = l0, h1 = h0;
-  const auto t0 = std::chrono::steady_clock::now();
-  while (l1 - l0 < kWindow && std::chrono::steady_clock::now() - t0 < std::chrono::seconds(60)) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    l1 = samples(low);
-    h1 = samples(high);
-  }
-  h.call("DELETE", "/v1/jobs/" + low);
-  h.call("DELETE", "/v1/jobs/" + high);
-  ASSERT_GE(l1 - l0, kWindow) << "the low-priority job did not get 20 passes in 60 s";
-  const double ratio = (h1 - h0) / (l1 - l0);
-  std::printf("priority 5 : 0 samples: %.0f : %.0f = %.3f (weights 11 : 6 = %.3f)\n", h1 - h0, l1 - l0, ratio,
-              11.0 / 6.0);
-  EXPECT_NEAR(ratio, 11.0 / 6.0, 0.25 * 11.0 / 6.0) << (h1 - h0) << " vs " << (l1 - l0);
+  EXPECT_NEAR(share_ratio(h, low, high), 11.0 / 6.0, 0.25 * 11.0 / 6.0);
+}
+
+// The same share when the priority is raised after submit (PATCH /v1/jobs/{id}): both
+// start at 0 (6 : 6), one is raised to 5 while both run; the window starts after it.
+TEST(Scheduler, PriorityChangedWhileRunningGetsTheNewShare) {
+  Harness h(test_manager_config(1));
+  const std::string low = h.submit(fake_spec(kForever, 100));
+  const std::string high = h.submit(fake_spec(kForever, 100, 2));
+  ASSERT_TRUE(wait_until([&] { return h.state(low) == "running" && h.state(high) == "running"; }));
+  ASSERT_EQ(h.call("PATCH", "/v1/jobs/" + high, R"({"priority": 5})").status, 200);
+  EXPECT_NEAR(share_ratio(h, low, high), 11.0 / 6.0, 0.25 * 11.0 / 6.0);
 }
 
 TEST(Scheduler, CancelStopsAtAChunkBoundary) {

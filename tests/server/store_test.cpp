@@ -74,6 +74,26 @@ TEST(JobStore, SqliteRoundTripKeepsCheckpointOnStateOnlySaves) {
   EXPECT_DOUBLE_EQ(rows[0].finished_at, 2.5);
 }
 
+// PATCH /v1/jobs/{id} changes a job's priority after its row exists: a later save stores
+// the new value (the upsert kept the first one).
+TEST(JobStore, SqliteSaveUpdatesThePriority) {
+  TempDir dir;
+  auto store = open_sqlite_store(dir.path.string());
+  StoredJob j;
+  j.id = "abc";
+  j.seq = 1;
+  j.spec = "{}";
+  j.priority = 0;
+  j.state = "queued";
+  j.stop_rule = "{}";
+  store->save(j);
+  j.priority = -3;
+  store->save(j);
+  const auto rows = store->load_all();
+  ASSERT_EQ(rows.size(), 1u);
+  EXPECT_EQ(rows[0].priority, -3);
+}
+
 // A data dir SQLite cannot write (read-only, or tally.db not a file) failed with
 // "unable to open database file" and no path. (As root a chmod does not stop us, so
 // the database path is made a directory.)

@@ -65,6 +65,9 @@ class AsyncClient:
         return await asyncio.to_thread(self.client.extend, job_id, max_samples=max_samples, abs_error=abs_error,
                                        rel_error=rel_error, time_budget_s=time_budget_s)
 
+    async def set_priority(self, job_id: str, priority: int) -> JsonObject:
+        return await asyncio.to_thread(self.client.set_priority, job_id, priority)
+
     async def wait(self, job_id: str, timeout: Optional[float] = None, *, raise_on_failure: bool = True,
                    reconnect_timeout: float = 60.0) -> JobResult:
         return await asyncio.to_thread(self.client.wait, job_id, timeout, raise_on_failure=raise_on_failure,

@@ -200,6 +200,13 @@ class Client:
             raise ValueError("extend needs at least one of max_samples, abs_error, rel_error, time_budget_s")
         return self._json("POST", f"/v1/jobs/{_segment(job_id)}/extend", body=body)
 
+    def set_priority(self, job_id: str, priority: int) -> JsonObject:
+        """Changes a queued or running job's priority (-5..5, ``PATCH /v1/jobs/{id}``): its
+        place in the queue and its share of the workers from now on. Returns the job's
+        summary. A finished job is :class:`Conflict` (409); a value out of range the
+        server's 422 naming ``/priority``."""
+        return self._json("PATCH", f"/v1/jobs/{_segment(job_id)}", body={"priority": priority})
+
     def wait(self, job_id: str, timeout: Optional[float] = None, *, raise_on_failure: bool = True,
              reconnect_timeout: float = 60.0) -> JobResult:
         """Follows the job's event stream until it ends; returns the final status document
