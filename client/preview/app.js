@@ -10,6 +10,9 @@
 //   GET /v1/jobs/ID/tiles/N pixels of a tile named by a `tile` event, fetched at most
 //                           every 250 ms (slower as the image converges), coalesced
 //   DELETE /v1/jobs/ID, POST /v1/jobs/ID/extend      the buttons
+//   PATCH /v1/jobs/ID {"priority"}                    the priority control
+//   POST /v1/jobs?priority=P (the job's spec)         Requeue a failed or cancelled job
+//   GET /v1/workers         the workers panel, cluster mode only (workers.js)
 //   GET /v1/session         who am I; 401 when the server wants a token (docs/security.md):
 //   POST /v1/session        then the page asks for it once and trades it for an HttpOnly,
 //   DELETE /v1/session      SameSite=Strict session cookie (EventSource sends no headers);
@@ -19,73 +22,7 @@
 (() => {
   const $ = (id) => document.getElementById(id);
 
-  // ------------------------------------------------------------------ helpers
-
-  async function api(method, url, body) {
-    const init = { method, headers: { Accept: 'application/json' } };
-    if (body !== undefined) {
-      init.headers['Content-Type'] = 'application/json';
-      init.body = typeof body === 'string' ? body : JSON.stringify(body);
-    }
-    const res = await fetch(url, init);
-    if (res.status === 401 && !url.startsWith('/v1/session')) showLogin('the session has ended; log in again');
-    const text = await res.text();
-    let json = null;
-    try { json = text ? JSON.parse(text) : null; } catch (e) { json = null; }
-    if (!res.ok) {
-      const err = new Error(problemText(res.status, json, text));
-      err.status = res.status;
-      err.problem = json;
-      throw err;
-    }
-    return json;
-  }
-
-  function problemText(status, p, text) {
-    if (p && (p.detail || p.title)) {
-      let s = `${status} ${p.title || ''}: ${p.detail || ''}`;
-      if (p.pointer) s += `\nat ${p.pointer}`;
-      if (Array.isArray(p.errors)) {
-        for (const e of p.errors) s += `\n${e.pointer || ''}: ${e.detail || ''}`;
-      }
-      return s;
-    }
-    return `${status}: ${text || 'request failed'}`;
-  }
-
-  function fmtNum(v, digits = 4) {
-    if (v === null || v === undefined || Number.isNaN(v)) return '—';
-    if (!Number.isFinite(v)) return v > 0 ? '∞' : '−∞';
-    if (v === 0) return '0';
-    const a = Math.abs(v);
-    if (a >= 1e-3 && a < 1e6) return Number(v.toPrecision(digits)).toString();
-    return v.toExponential(digits - 1);
-  }
-
-  function fmtCount(n) {
-    if (n === null || n === undefined) return '—';
-    if (n < 1e3) return String(n);
-    const units = [['G', 1e9], ['M', 1e6], ['k', 1e3]];
-    for (const [u, s] of units) if (n >= s) return (n / s).toPrecision(3) + u;
-    return String(n);
-  }
-
-  function fmtDuration(s) {
-    if (s === null || s === undefined || !Number.isFinite(s)) return '—';
-    if (s < 1) return `${Math.round(s * 1000)} ms`;
-    if (s < 60) return `${s.toFixed(1)} s`;
-    if (s < 3600) return `${Math.floor(s / 60)} min ${Math.round(s % 60)} s`;
-    return `${Math.floor(s / 3600)} h ${Math.round((s % 3600) / 60)} min`;
-  }
-
-  function el(tag, attrs, ...children) {
-    const e = document.createElement(tag);
-    for (const [k, v] of Object.entries(attrs || {})) {
-      if (k === 'class') e.className = v; else e.setAttribute(k, v);
-    }
-    for (const c of children) e.append(c instanceof Node ? c : document.createTextNode(String(c)));
-    return e;
-  }
+  const { api, fmtNum, fmtCount, fmtDuration, el } = window.tally;
 
   // sRGB OETF and 8-bit rounding exactly as the server's PNG encoder
   // (common/image/image_io.cpp): clamp to [0, 1], NaN -> 0, round half away from 0.
@@ -245,10 +182,43 @@
       el('details', {}, el('summary', {}, 'plan'), el('pre', {}, JSON.stringify(r.plan, null, 2))));
   }
 
+  // Submit validates first (as `tally submit` does) and, when the pilot predicts more
+  // compute than the "ask above" seconds (60 by default, the CLI's --warn-seconds), asks
+  // before submitting. No prediction (too many pilots, the pilot failed) asks nothing.
+  let pendingSubmit = null;
+
   async function submit(ev) {
     ev.preventDefault();
     let text;
     try { text = specText(); } catch (e) { showResult(el('pre', {}, `not JSON: ${e.message}`), true); return; }
+    askToSubmit(null);
+    showResult(el('p', { class: 'muted' }, 'checking the cost (short pilot run)…'));
+    let v = null;
+    try {
+      v = await api('POST', '/v1/jobs/validate', text);
+    } catch (e) {
+      // The spec's own problem (4xx) is the submit's too: show it. Otherwise (503: too
+      // many pilots) submit without a prediction, as the CLI does.
+      if (e.status >= 400 && e.status < 500) { showResult(el('pre', {}, e.message), true); return; }
+    }
+    const limit = Number($('warn-seconds').value);
+    const seconds = v && v.prediction ? v.prediction.seconds : null;
+    if (typeof seconds === 'number' && Number.isFinite(limit) && limit >= 0 && seconds > limit) {
+      showResult(validationView(v));
+      askToSubmit(text, `The pilot predicts ${fmtDuration(seconds)} of compute (stops by ${v.prediction.stops_by || '—'}), ` +
+        `more than ${fmtDuration(limit)}. Submit it?`);
+      return;
+    }
+    await submitText(text);
+  }
+
+  function askToSubmit(text, question) {
+    pendingSubmit = text;
+    $('confirm-submit').hidden = text === null;
+    $('confirm-text').textContent = question || '';
+  }
+
+  async function submitText(text) {
     try {
       const r = await api('POST', '/v1/jobs', text);
       showResult(el('p', {}, 'submitted ', el('code', {}, r.id)));
@@ -260,6 +230,23 @@
   }
 
   // ------------------------------------------------------------------ job view
+
+  const requeuedFrom = new Map();  // new job id -> the job it requeued
+
+  // The convergence curve from a status's trace: [compute s, error] with the error the
+  // plot shows. Integrals: the standard error. Images: the mean CI half-width, which the
+  // trace keeps divided by the critical value (std. error = σ/√n with z σ/√n the
+  // half-width, common/lighting/image_kernel.cpp): scaled by the factor that makes the
+  // trace's last point the status's `error.abs` (both from the same state).
+  function traceCurve(s, image) {
+    const pts = (s.trace || []).filter((t) => t[0] > 0 && t[3] > 0);
+    if (!image) return pts.map((t) => [t[0], t[3]]);
+    const last = pts[pts.length - 1];
+    const abs = s.error && s.error.abs;
+    if (!last || !(abs > 0) || !Number.isFinite(abs) || last[1] !== s.samples) return [];
+    const z = abs / last[3];
+    return pts.map((t) => [t[0], t[3] * z]);
+  }
 
   class JobView {
     constructor(id) {
@@ -294,6 +281,12 @@
       for (const id of ['download-exr', 'download-png']) $(id).hidden = true;
       $('plan').textContent = '';
       $('stats').querySelector('tbody').replaceChildren();
+      const from = requeuedFrom.get(this.id);
+      $('job-origin').hidden = !from;
+      if (from) {
+        $('job-origin-link').textContent = from;
+        $('job-origin-link').href = `#/jobs/${encodeURIComponent(from)}`;
+      }
       this.message(null);
       await this.loadStatus();
       if (this.closed) return;
@@ -324,6 +317,7 @@
       }
       const s = this.status;
       $('job-name').textContent = s.spec && typeof s.spec.name === 'string' ? s.spec.name : '';
+      if (typeof s.priority === 'number') $('priority-select').value = String(s.priority);
       this.setState(s.state, s.stop_reason);
       // The effects (what is on, what is off, why) first, then the rest of the plan.
       const plan = s.plan && typeof s.plan === 'object' && 'plan' in s.plan ? { plan: s.plan.plan, ...s.plan } : s.plan;
@@ -333,9 +327,10 @@
       $('extend-samples').value = rule.max_samples ? Math.max(rule.max_samples * 2, cur * 2) : Math.max(cur * 2, 1000);
       if (s.error_message) this.message(s.error_message);
       this.setupImage(s);
-      // The history before this page opened (integration jobs keep channel 0's trace).
-      if (this.points.length === 0 && !this.image && Array.isArray(s.trace)) {
-        for (const t of s.trace) if (t[0] > 0 && t[3] > 0) this.points.push([t[0], t[3]]);
+      // The history before this page opened: the job's trace (at most 512 points, thinned
+      // evenly; [compute s, samples, mean, std. error]), kept for every kind.
+      if (this.points.length === 0 && Array.isArray(s.trace)) {
+        for (const [x, y] of traceCurve(s, !!this.image)) this.points.push([x, y]);
       }
       if (s.passes !== undefined) this.onProgress(s, true);
     }
@@ -386,6 +381,10 @@
       $('cancel-btn').disabled = !active;
       $('extend-btn').disabled = active;
       $('delete-btn').disabled = active;
+      // A finished job keeps the priority it ran with; a failed or cancelled one may run again.
+      $('priority-select').disabled = !active;
+      $('priority-btn').disabled = !active;
+      $('requeue-btn').hidden = state !== 'failed' && state !== 'cancelled';
     }
 
     // --- the event stream -------------------------------------------------
@@ -617,11 +616,11 @@
       ctx.fillStyle = '#6b7482';
       const pts = this.points;
       if (pts.length < 2) {
-        if (this.image && this.ended) {
-          // The server keeps no per-pass history of an image's error: only what the page saw.
+        if (this.ended) {
+          // One pass (or none with an error bar): no curve to draw.
           const e = this.progress && this.progress.error;
-          ctx.fillText('an image job\'s history is drawn only while the page watches it;', 8, H / 2 - 8);
-          ctx.fillText(`final: CI half-width ${fmtNum(e && e.abs)} (${fmtNum(e && e.rel && 100 * e.rel, 3)}%)`, 8, H / 2 + 8);
+          ctx.fillText('fewer than two passes with an error bar;', L, H / 2 - 8);
+          ctx.fillText(`final: CI half-width ${fmtNum(e && e.abs)}`, L, H / 2 + 8);
           return;
         }
         ctx.fillText('the history starts when the page opens:', L, H / 2 - 8);
@@ -691,6 +690,31 @@
       catch (e) { this.message(e.message); }
     }
 
+    async setPriority() {
+      const p = Number($('priority-select').value);
+      try {
+        const r = await api('PATCH', `/v1/jobs/${encodeURIComponent(this.id)}`, { priority: p });
+        $('priority-select').value = String(r.priority);
+        this.message(`priority ${r.priority}`, true);
+        refreshJobs();
+      } catch (e) { this.message(e.message); }
+    }
+
+    // Runs a failed or cancelled job again: its spec as submitted (with its name and
+    // seed), at its priority, as a new job of the caller (POST /v1/jobs, admitted like
+    // any submit: quotas, the queue, the memory budget); the page opens the new job.
+    async requeue() {
+      const s = this.status;
+      if (!s || !s.spec) { this.message('the job\'s spec is not known yet'); return; }
+      const from = this.id;
+      try {
+        const r = await api('POST', `/v1/jobs?priority=${encodeURIComponent(s.priority || 0)}`, s.spec);
+        requeuedFrom.set(r.id, from);
+        location.hash = `#/jobs/${encodeURIComponent(r.id)}`;
+        refreshJobs();
+      } catch (e) { this.message(e.message); }
+    }
+
     async extend() {
       const n = Number($('extend-samples').value);
       if (!(n > 0)) { this.message('max samples must be a positive number'); return; }
@@ -740,6 +764,8 @@
     hook.loggedIn = false;
   }
 
+  window.tally.onUnauthorized = (why) => showLogin(why);
+
   function showApp(me) {
     loggedIn = true;
     hook.loggedIn = true;
@@ -750,9 +776,10 @@
     if (!started) {
       started = true;
       loadExamples();
-      setInterval(refreshJobs, 2000);
+      setInterval(() => { refreshJobs(); window.tally.workers.refresh(); }, 2000);
     }
     refreshJobs();
+    window.tally.workers.refresh();
     selectedId = null;
     route();
   }
@@ -788,6 +815,10 @@
   $('cancel-btn').addEventListener('click', () => view && view.cancel());
   $('delete-btn').addEventListener('click', () => view && view.remove());
   $('extend-btn').addEventListener('click', () => view && view.extend());
+  $('priority-btn').addEventListener('click', () => view && view.setPriority());
+  $('requeue-btn').addEventListener('click', () => view && view.requeue());
+  $('confirm-yes').addEventListener('click', () => { const t = pendingSubmit; askToSubmit(null); if (t !== null) submitText(t); });
+  $('confirm-no').addEventListener('click', () => { askToSubmit(null); showResult(el('p', { class: 'muted' }, 'not submitted')); });
   for (const r of document.querySelectorAll('input[name=view]')) {
     r.addEventListener('change', () => view && view.setMode(r.value));
   }

@@ -46,6 +46,46 @@ async function hook(page) {
   });
 }
 
+// A JSON call to the server from the test (not the page).
+async function call(baseUrl, method, url, body) {
+  const init = { method, headers: {} };
+  if (body !== undefined) { init.headers['Content-Type'] = 'application/json'; init.body = JSON.stringify(body); }
+  const res = await fetch(`${baseUrl}${url}`, init);
+  const text = await res.text();
+  return { status: res.status, json: text ? JSON.parse(text) : null };
+}
+
+async function jobIds(baseUrl) {
+  return (await call(baseUrl, 'GET', '/v1/jobs?limit=1000')).json.jobs.map((j) => j.id);
+}
+
+// Cancels (if unfinished) and deletes a job.
+async function removeJob(baseUrl, id) {
+  if ((await call(baseUrl, 'DELETE', `/v1/jobs/${id}`)).status === 204) return;
+  await waitFor(async () => ['cancelled', 'failed', 'succeeded'].includes((await call(baseUrl, 'GET', `/v1/jobs/${id}`)).json.state),
+    { what: `job ${id} to stop` });
+  assert.equal((await call(baseUrl, 'DELETE', `/v1/jobs/${id}`)).status, 204);
+}
+
+// An integral that would run for an hour: the pilot predicts it, the tests stop it.
+const LONG_SPEC = {
+  kind: 'integrate', name: 'a long integral', seed: 5, integrand: { builtin: 'unit_disk' },
+  domain: { type: 'box', lower: [-1, -1], upper: [1, 1] }, stop: { max_samples: 1e11, time_budget_s: 3600 },
+};
+
+// A cluster's GET /v1/workers answer (server/cluster/cluster_http.cpp), for the page alone.
+const WORKERS = {
+  executor: 'redis', redis: 'redis://10.0.0.5:6379', lease_seconds: 30, pools: { '': 2 },
+  workers: [
+    { name: 'render-node-with-a-rather-long-name-01', host: 'rack7-blade12.cluster.example.org', threads: 64,
+      pools: [], last_heartbeat: '2026-12-03T16:00:00Z', seconds_since_heartbeat: 1.5, blocks_done: 123456,
+      current_job: '0123456789abcdef' },
+    { name: 'w2', host: 'h2', threads: 8, pools: [], last_heartbeat: '2026-12-03T16:00:00Z',
+      seconds_since_heartbeat: 12, blocks_done: 7, current_job: null },
+  ],
+  results: { first: 0 },
+};
+
 function assertConsecutive(passes, finalPass) {
   assert.ok(passes.length > 0, 'no progress events seen');
   for (let i = 1; i < passes.length; ++i) {
@@ -208,6 +248,8 @@ describe('preview page', { concurrency: 1 }, () => {
   test('the dashboard fits 1280 and 390 px: names, a readable prediction, downloads and delete', async () => {
     const page = await browser.context.newPage();
     await page.setViewportSize({ width: 1280, height: 900 });
+    // The workers panel too, as a cluster's server shows it (long names, six columns).
+    await page.route('**/v1/workers', (route) => route.fulfill({ json: WORKERS }));
     try {
       const name = 'dashboard check: a long job name that must wrap or be cut, never widen the page';
       const id = await submitExample(page, server.url, (spec) => { spec.name = name; spec.stop = { max_samples: 2 }; });
@@ -233,20 +275,21 @@ describe('preview page', { concurrency: 1 }, () => {
       assert.match(prediction, /stops by/);
       assert.doesNotMatch(prediction, /[{}]/);
 
+      assert.equal(await page.isVisible('#workers-panel'), true, 'the workers panel is part of the layout checked');
       const shots = shotDir || fs.mkdtempSync(path.join(process.env.TMPDIR || '/tmp', 'tally-dashboard-'));
       for (const width of [1280, 390]) {
         await page.setViewportSize({ width, height: 900 });
         await sleep(200);
         const o = await page.evaluate(() => {
           const over = [];
-          for (const e of document.querySelectorAll('header, main, .panel, #jobs, #stats, #prediction, #plot, #image, .job-head .buttons > *')) {
+          for (const e of document.querySelectorAll('header, main, .panel, #jobs, #workers, #stats, #prediction, #plot, #image, .job-head .buttons > *, #submit-form .buttons > *')) {
             const r = e.getBoundingClientRect();
             if (r.width > 0 && (r.right > window.innerWidth + 0.5 || r.left < -0.5)) {
               over.push(`${e.id || e.className || e.tagName}: ${Math.round(r.left)}..${Math.round(r.right)}`);
             }
           }
           // Panels that scroll inside (the job list, the plan) must not have to either.
-          for (const e of document.querySelectorAll('#jobs-panel, #stats, #prediction')) {
+          for (const e of document.querySelectorAll('#jobs-panel, #workers-panel, #stats, #prediction')) {
             if (e.scrollWidth > e.clientWidth + 1) over.push(`${e.id} scrolls: ${e.scrollWidth} > ${e.clientWidth}`);
           }
           return { scrollWidth: document.documentElement.scrollWidth, innerWidth: window.innerWidth, over };
@@ -265,6 +308,175 @@ describe('preview page', { concurrency: 1 }, () => {
       assert.equal((await fetch(`${server.url}/v1/jobs/${id}`)).status, 404);
     } finally {
       await page.close();
+    }
+  });
+
+  test('the priority control changes a running job\'s priority; Requeue runs a cancelled job again', async () => {
+    const page = await browser.context.newPage();
+    const errors = [];
+    page.on('pageerror', (e) => errors.push(String(e)));
+    const made = [];
+    try {
+      const sub = await call(server.url, 'POST', '/v1/jobs?priority=-2', LONG_SPEC);
+      assert.equal(sub.status, 202);
+      const id = sub.json.id;
+      made.push(id);
+      await page.goto(`${server.url}/#/jobs/${id}`);
+      await waitFor(async () => (await page.inputValue('#priority-select')) === '-2', { what: 'the job\'s priority on the page' });
+      assert.equal(await page.isDisabled('#priority-btn'), false);
+      assert.equal(await page.isHidden('#requeue-btn'), true, 'no requeue for a running job');
+      await page.selectOption('#priority-select', '3');
+      await page.click('#priority-btn');
+      await waitFor(async () => (await call(server.url, 'GET', `/v1/jobs/${id}`)).json.priority === 3,
+        { what: 'the server to hold priority 3' });
+      assert.equal((await call(server.url, 'GET', '/v1/jobs')).json.jobs.find((j) => j.id === id).priority, 3);
+      assert.equal(await page.inputValue('#priority-select'), '3', 'the page shows what the server answered');
+
+      // Cancelled: the priority is fixed, Requeue appears and submits the spec again.
+      await page.click('#cancel-btn');
+      await page.waitForFunction(() => !document.getElementById('requeue-btn').hidden, null, { timeout: 30000 });
+      assert.equal(await page.isDisabled('#priority-btn'), true);
+      assert.equal((await call(server.url, 'PATCH', `/v1/jobs/${id}`, { priority: 1 })).status, 409);
+      const before = await jobIds(server.url);
+      await page.click('#requeue-btn');
+      await page.waitForFunction((old) => /^#\/jobs\//.test(location.hash) && !location.hash.endsWith(old), id);
+      const requeued = decodeURIComponent((await page.evaluate(() => location.hash)).replace('#/jobs/', ''));
+      made.push(requeued);
+      assert.ok(!before.includes(requeued), 'a new job');
+      assert.deepEqual((await jobIds(server.url)).filter((j) => !before.includes(j)), [requeued], 'exactly one job more');
+      const a = (await call(server.url, 'GET', `/v1/jobs/${id}`)).json;
+      const b = (await call(server.url, 'GET', `/v1/jobs/${requeued}`)).json;
+      assert.deepEqual(b.spec, a.spec, 'the same spec (name, seed, stop rule)');
+      assert.equal(b.spec.name, LONG_SPEC.name);
+      assert.equal(b.priority, 3, 'at the priority the job had');
+      assert.ok(['queued', 'running'].includes(b.state), b.state);
+      assert.equal(a.state, 'cancelled', 'the old job stays as it was');
+      await page.waitForFunction((old) => !document.getElementById('job-origin').hidden &&
+        document.getElementById('job-origin-link').getAttribute('href') === `#/jobs/${old}`, id);
+      assert.equal(await page.textContent('#job-origin'), `a requeue of job ${id}`);
+      assert.equal(await page.textContent('#job-name'), LONG_SPEC.name);
+      assert.deepEqual(errors, []);
+    } finally {
+      for (const id of made) await removeJob(server.url, id);
+      await page.close();
+    }
+  });
+
+  test('Submit asks before a job predicted to compute longer than the threshold', async () => {
+    const page = await browser.context.newPage();
+    const errors = [];
+    page.on('pageerror', (e) => errors.push(String(e)));
+    let made = null;
+    try {
+      await page.goto(`${server.url}/`);
+      await page.waitForSelector('#submit-btn');
+      assert.equal(await page.inputValue('#warn-seconds'), '60', 'the CLI\'s --warn-seconds default');
+      await page.fill('#spec', JSON.stringify(LONG_SPEC, null, 2));
+      const before = await jobIds(server.url);
+      await page.click('#submit-btn');
+      await page.waitForSelector('#confirm-submit:not([hidden])', { timeout: 60000 });
+      assert.match(await page.textContent('#confirm-text'), /^The pilot predicts .* of compute \(stops by [a-z_]+\), more than 1 min 0 s\. Submit it\?$/);
+      await page.click('#confirm-no');
+      await page.waitForSelector('#confirm-submit', { state: 'hidden' });
+      assert.equal(await page.textContent('#submit-result'), 'not submitted');
+      assert.deepEqual(await jobIds(server.url), before, 'no job was submitted');
+
+      await page.click('#submit-btn');
+      await page.waitForSelector('#confirm-submit:not([hidden])', { timeout: 60000 });
+      await page.click('#confirm-yes');
+      await page.waitForFunction(() => /^#\/jobs\//.test(location.hash));
+      made = decodeURIComponent((await page.evaluate(() => location.hash)).replace('#/jobs/', ''));
+      assert.deepEqual((await jobIds(server.url)).filter((j) => !before.includes(j)), [made]);
+      assert.deepEqual((await call(server.url, 'GET', `/v1/jobs/${made}`)).json.spec, LONG_SPEC);
+      await removeJob(server.url, made);
+      const asked = made;
+      made = null;
+
+      // Under the threshold: submitted without a question.
+      await page.fill('#spec', JSON.stringify({ ...LONG_SPEC, stop: { max_samples: 1000 } }));
+      await page.click('#submit-btn');
+      await page.waitForFunction((old) => /^#\/jobs\//.test(location.hash) && !location.hash.endsWith(old), asked);
+      made = decodeURIComponent((await page.evaluate(() => location.hash)).replace('#/jobs/', ''));
+      assert.equal(await page.isHidden('#confirm-submit'), true);
+      assert.equal((await call(server.url, 'GET', `/v1/jobs/${made}`)).json.spec.stop.max_samples, 1000);
+      assert.deepEqual(errors, []);
+    } finally {
+      if (made) await removeJob(server.url, made);
+      await page.close();
+    }
+  });
+
+  test('the workers panel: hidden in process, the cluster\'s workers when the server has them', async () => {
+    const direct = await call(server.url, 'GET', '/v1/workers');
+    assert.deepEqual(direct.json, { executor: 'in_process', workers: [] });
+    const page = await browser.context.newPage();
+    try {
+      await page.goto(`${server.url}/`);
+      await page.waitForSelector('#jobs-panel');
+      await page.waitForResponse((r) => r.url().endsWith('/v1/workers'));
+      await sleep(100);
+      assert.equal(await page.isHidden('#workers-panel'), true, 'in process: no panel');
+
+      await page.route('**/v1/workers', (route) => route.fulfill({ json: WORKERS }));
+      await page.waitForSelector('#workers-panel:not([hidden])', { timeout: 10000 });  // the next 2 s poll
+      const rows = await page.$$eval('#workers tbody tr', (trs) => trs.map((tr) => [...tr.cells].map((c) => c.textContent)));
+      assert.deepEqual(rows, [
+        ['render-node-with-a-rather-long-name-01', 'rack7-blade12.cluster.example.org', '64', '1.5 s ago', '123k', '01234567'],
+        ['w2', 'h2', '8', '12 s ago', '7', 'idle'],
+      ]);
+      assert.equal(await page.getAttribute('#workers tbody tr:first-child a', 'href'), '#/jobs/0123456789abcdef');
+      assert.equal(await page.textContent('#workers-summary'), '2 workers, 72 threads · redis://10.0.0.5:6379');
+      assert.equal(await page.isHidden('#workers-empty'), true);
+      // A user the route refuses (403): hidden again.
+      await page.unroute('**/v1/workers');
+      await page.route('**/v1/workers', (route) => route.fulfill({ status: 403, contentType: 'application/problem+json',
+        body: JSON.stringify({ type: 'about:blank', title: 'Forbidden', status: 403, detail: 'admin only' }) }));
+      await page.waitForSelector('#workers-panel', { state: 'hidden', timeout: 10000 });
+    } finally {
+      await page.close();
+    }
+  });
+
+  test('a finished image job\'s convergence plot is drawn from the trace the server keeps', async () => {
+    const spec = await (await fetch(`${server.url}${EXAMPLE}`)).json();
+    spec.query.max_pass_spp = 4;
+    spec.stop = { max_samples: 32 };  // 8 passes
+    const sub = await call(server.url, 'POST', '/v1/jobs', spec);
+    const id = sub.json.id;
+    await waitFor(async () => (await call(server.url, 'GET', `/v1/jobs/${id}`)).json.state === 'succeeded',
+      { what: 'the image job to finish', timeout: 120000 });
+    const status = (await call(server.url, 'GET', `/v1/jobs/${id}`)).json;
+    const page = await browser.context.newPage();
+    try {
+      await page.goto(`${server.url}/#/jobs/${id}`);  // opened after the end: no live progress seen
+      await page.waitForFunction(() => window.tallyPreview.settled, null, { timeout: 60000 });
+      const h = await hook(page);
+      // The stream of a finished job replays its last progress only (same compute time
+      // as the trace's last point: no point added).
+      assert.ok(h.passesSeen.length <= 1, `passes seen: ${h.passesSeen}`);
+      const trace = status.trace.filter((t) => t[0] > 0 && t[3] > 0);
+      assert.ok(trace.length >= 2, `the server keeps the image's trace (${status.trace.length} points)`);
+      assert.equal(h.points.length, trace.length);
+      const z = status.error.abs / trace[trace.length - 1][3];
+      assert.ok(z > 1.9 && z < 2.1, `the CI half-width over the trace's σ/√n is the 95% critical value (${z})`);
+      for (let i = 0; i < trace.length; ++i) {
+        assert.equal(h.points[i][0], trace[i][0]);
+        assert.ok(Math.abs(h.points[i][1] - trace[i][3] * z) <= 1e-12 * h.points[i][1], `point ${i}`);
+      }
+      assert.ok(Math.abs(h.points[trace.length - 1][1] - status.error.abs) <= 1e-12 * status.error.abs,
+        'the last point is the final CI half-width');
+      // The curve is drawn (the plot's blue), not a note.
+      const blue = await page.evaluate(() => {
+        const c = document.getElementById('plot');
+        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        let n = 0;
+        for (let i = 0; i < d.length; i += 4) if (d[i] === 47 && d[i + 1] === 111 && d[i + 2] === 219) n++;
+        return n;
+      });
+      assert.ok(blue > 50, `${blue} pixels of the curve`);
+    } finally {
+      await page.close();
+      await removeJob(server.url, id);
     }
   });
 
