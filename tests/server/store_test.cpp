@@ -81,11 +81,7 @@ TEST(JobStore, SqliteSaveUpdatesThePriority) {
   auto store = open_sqlite_store(dir.path.string());
   StoredJob j;
   j.id = "abc";
-  j.seq = 1;
-  j.spec = "{}";
-  j.priority = 0;
-  j.state = "queued";
-  j.stop_rule = "{}";
+  j.state = "queued";  // priority 0
   store->save(j);
   j.priority = -3;
   store->save(j);
