@@ -450,4 +450,19 @@ JobEnding Job::publish_pass(const std::vector<Block>& blocks, const PassCommit& 
   return ending;
 }
 
+int Job::set_priority(int priority, bool put_back) {
+  std::lock_guard lock(mu_);
+  if (!put_back && is_terminal(status_)) {
+    throw JobError(JobError::Kind::conflict, fmt::format("job {} has already finished ({}); its priority no longer "
+                                                         "changes anything",
+                                                         id_, job_status_name(status_)));
+  }
+  if (!put_back && finishing_) {
+    throw JobError(JobError::Kind::conflict,
+                   fmt::format("job {} has already finished; its result is being stored", id_));
+  }
+  version_++;  // its documents change, and the save that follows is newer than the last
+  return priority_.exchange(priority);
+}
+
 }  // namespace tally

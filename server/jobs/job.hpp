@@ -114,6 +114,10 @@ class Job : public std::enable_shared_from_this<Job> {
   // naming the job, if it is not finished, failed or the rule is already met; then
   // `check_room` (JobError if there is no room to wait). The job is untouched if refused.
   bool extend_locked(const StopRule& rule, std::unique_ptr<JobRunner> loaded, const std::function<void()>& check_room);
+  // A queued or running job's priority from now on (takes mu_); returns the old one.
+  // JobError conflict, naming the job, once it has finished (or is being stored), unless
+  // `put_back` (a change the store did not take is undone whatever the job's state).
+  int set_priority(int priority, bool put_back = false);
   // A queued job is cancelled at once.
   void cancel_queued_locked(double now);
   // A parked job's state read back (null: `error`): running can start, or it failed.

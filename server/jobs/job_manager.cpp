@@ -448,41 +448,21 @@ std::shared_ptr<Job> JobManager::extend(const std::string& id, const StopRule& r
 std::shared_ptr<Job> JobManager::set_priority(const std::string& id, int priority) {
   std::shared_ptr<Job> job = find(id);
   if (!job) throw JobError(JobError::Kind::not_found, fmt::format("no job with id \"{}\"", id));
-  priority = clamp_priority(priority);
-  // Under the manager's lock (Admission reads priorities under it), then the job's.
-  const auto apply = [&](int p) {
+  const auto apply = [&](int p, bool put_back) {  // manager's lock (Admission reads under it), job's, executor's
     std::lock_guard lock(mu_);
-    int was = 0;
-    {
-      std::lock_guard jl(job->mu_);
-      if (is_terminal(job->status_)) {
-        throw JobError(JobError::Kind::conflict, fmt::format("job {} has already finished ({}); its priority no "
-                                                             "longer changes anything",
-                                                             id, job_status_name(job->status_)));
-      }
-      if (job->finishing_) {
-        throw JobError(JobError::Kind::conflict,
-                       fmt::format("job {} has already finished; its result is being stored", id));
-      }
-      was = job->priority_.exchange(p);
-      job->version_++;  // its documents change, and the save below is newer than the last
-    }
-    executor_->set_priority(id, p);  // manager, then executor: the order start_locked's add keeps
-    start_queued_locked();           // a raised job may start first or preempt; a lowered one give way
+    const int was = job->set_priority(p, put_back);
+    executor_->set_priority(id, p);
+    start_queued_locked();  // a raised job may start first or preempt; a lowered one give way
     return was;
   };
-  const int was = apply(priority);
+  const int was = apply(clamp_priority(priority), false);
   if (!recorder_.persist(*job, false, false)) {
-    try {
-      apply(was);
-    } catch (const JobError& e) {  // it finished meanwhile: nothing to put back
-      log::job(log::Level::debug, id, "the old priority was not put back: {}", e.what());
-    }
-    throw JobError(JobError::Kind::unavailable,
-                   fmt::format("the job store is failing ({}); the priority was not changed, retry later",
-                               recorder_.store_problem().value_or("unknown error")));
+    apply(was, true);  // not stored: as it was, even if it has finished meanwhile
+    throw JobError(JobError::Kind::unavailable, fmt::format("the job store is failing ({}); the priority was not "
+                                                            "changed, retry later",
+                                                            recorder_.store_problem().value_or("unknown error")));
   }
-  log::job(log::Level::info, id, "priority {} -> {}", was, priority);
+  log::job(log::Level::info, id, "priority {} -> {}", was, job->priority());
   return job;
 }
 
