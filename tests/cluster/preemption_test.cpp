@@ -35,11 +35,15 @@ TEST(ClusterPreemption, UrgentJobPausesTheRunningOneWhichResumesBitIdentical) {
 
   // Watch the low job's status from its own connection while the urgent one runs.
   std::atomic<bool> stop{false}, seen_preempted{false};
+  json at_pause;  // the low job's status when first seen paused (written once, before seen_preempted)
   HttpClient watcher = cl.server.client();
   std::thread watch([&] {
     while (!stop) {
       const json s = get_json(watcher, "/v1/jobs/" + a);
-      if (s.at("state") == "queued" && s.value("waiting_reason", "") == "preempted") seen_preempted = true;
+      if (!seen_preempted && s.at("state") == "queued" && s.value("waiting_reason", "") == "preempted") {
+        at_pause = s;
+        seen_preempted = true;
+      }
       std::this_thread::sleep_for(std::chrono::milliseconds(5));
     }
   });
@@ -60,7 +64,16 @@ TEST(ClusterPreemption, UrgentJobPausesTheRunningOneWhichResumesBitIdentical) {
   stop = true;
   watch.join();
 
-  std::printf("cluster preemption: the priority-5 job started %.0f ms after its submit\n", started_ms);
+  // The pass in flight when the urgent job came: the low job's last pass before it was
+  // paused, from its status when first seen paused (trace points are [compute time s,
+  // samples, mean, std error] per pass; compute time is the pass's wall time).
+  const json trace = (seen_preempted ? at_pause : sa_mid).value("trace", json::array());
+  const double pass_ms =
+      trace.size() >= 2 ? 1e3 * (trace[trace.size() - 1][0].get<double>() - trace[trace.size() - 2][0].get<double>())
+                        : -1;
+  std::printf("cluster preemption: the priority-5 job started %.0f ms after its submit; the low job's pass then "
+              "took %.0f ms (%.2f pass lengths)\n",
+              started_ms, pass_ms, pass_ms > 0 ? started_ms / pass_ms : -1.0);
   EXPECT_TRUE(seen_preempted) << "the low job never read as queued/preempted; while the urgent ran: " << sa_mid.dump();
   EXPECT_GE(metric(c, "tally_preemptions_total"), 1);
   EXPECT_EQ(sb.at("bits"), expected_urgent);
