@@ -5,7 +5,7 @@
 // peak RSS (wait4's ru_maxrss) is its own; bytes per pixel are the slope between the two
 // resolutions, which cancels each program's fixed cost (code, scene, BVH).
 //
-//   frame_memory_bench [--small 512] [--large 2048] [--spp 8]
+//   frame_memory_bench [--small 512] [--large 2048|1920x1080] [--spp 8]
 //
 // tally: `tally run`'s path in process (compile_lighting_job, run_local, 1 thread),
 // the default sobol sampler (K = 8 replicates, so at least 8 samples a pixel), direct
@@ -64,7 +64,9 @@ def quad(name, corner, eu, ev, mat):
     ob.data.materials.append(mat)
     sc.collection.objects.link(ob)
 white = bpy.data.materials.new('white'); white.use_nodes = True
-white.node_tree.nodes['Principled BSDF'].inputs['Base Color'].default_value = (0.8, 0.8, 0.8, 1)
+nt = white.node_tree; nt.nodes.clear()
+df = nt.nodes.new('ShaderNodeBsdfDiffuse'); df.inputs['Color'].default_value = (0.8, 0.8, 0.8, 1)
+mo = nt.nodes.new('ShaderNodeOutputMaterial'); nt.links.new(df.outputs[0], mo.inputs[0])
 lamp = bpy.data.materials.new('lamp'); lamp.use_nodes = True
 nt = lamp.node_tree; nt.nodes.clear()
 em = nt.nodes.new('ShaderNodeEmission'); em.inputs['Color'].default_value = (1, 1, 1, 1); em.inputs['Strength'].default_value = 5
@@ -161,49 +163,74 @@ std::optional<double> peak_per_pixel(const char* name, const Child& small, const
   return bpp;
 }
 
+struct Size {
+  int w = 0, h = 0;
+  uint64_t pixels() const { return uint64_t(w) * uint64_t(h); }
+  std::string text() const { return std::to_string(w) + "x" + std::to_string(h); }
+};
+
+// "512" (square) or "1920x1080".
+Size parse_size(const std::string& s) {
+  const size_t x = s.find('x');
+  if (x == std::string::npos) return {std::atoi(s.c_str()), std::atoi(s.c_str())};
+  return {std::atoi(s.substr(0, x).c_str()), std::atoi(s.substr(x + 1).c_str())};
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  int small = 512, large = 2048;
+  Size small{512, 512}, large{2048, 2048};
   uint64_t spp = 8;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string f = argv[i];
     if (f == "--child" && i + 3 < argc) return child_main(std::atoi(argv[i + 1]), std::atoi(argv[i + 2]), std::strtoull(argv[i + 3], nullptr, 10));
-    if (f == "--small") small = std::atoi(argv[i + 1]);
-    else if (f == "--large") large = std::atoi(argv[i + 1]);
+    if (f == "--small") small = parse_size(argv[i + 1]);
+    else if (f == "--large") large = parse_size(argv[i + 1]);
     else if (f == "--spp") spp = std::strtoull(argv[i + 1], nullptr, 10);
   }
-  const uint64_t ps = uint64_t(small) * small, pl = uint64_t(large) * large;
-  std::printf("frame_memory_bench: %dx%d and %dx%d, %llu spp, 1 thread, direct light\n", small, small, large, large,
-              static_cast<unsigned long long>(spp));
+  if (small.w <= 0 || small.h <= 0 || large.pixels() <= small.pixels()) {
+    std::fprintf(stderr, "usage: frame_memory_bench [--small 512] [--large 2048|1920x1080] [--spp 8]\n");
+    return 2;
+  }
+  const uint64_t ps = small.pixels(), pl = large.pixels();
+  std::printf("frame_memory_bench: %s and %s, %llu spp, 1 thread, direct light\n", small.text().c_str(),
+              large.text().c_str(), static_cast<unsigned long long>(spp));
   // The state estimate as the limits compute it (32-pixel tiles, K = 8).
-  const auto state = [&](int s) {
-    auto job = compile_lighting_job(frame_spec(s, s, spp), unlimited_state());
+  const auto state = [&](Size s) {
+    auto job = compile_lighting_job(frame_spec(s.w, s.h, spp), unlimited_state());
     return job_state_bytes(job->kernel()->channel_count(), job->kernel()->partition_count());
   };
   const uint64_t ss = state(small), sl = state(large);
   std::printf("tally job state (job_state_bytes): %.1f MB, %.1f MB: %.1f bytes/pixel\n", ss / 1e6, sl / 1e6,
               per_pixel(ss, sl, ps, pl));
   const std::string self = std::filesystem::canonical("/proc/self/exe").string();
-  const auto tally_run = [&](int s) {
-    return run_child({self, "--child", std::to_string(s), std::to_string(s), std::to_string(spp)}, false);
+  const auto tally_run = [&](Size s) {
+    return run_child({self, "--child", std::to_string(s.w), std::to_string(s.h), std::to_string(spp)}, false);
   };
-  const std::optional<double> tally_bpp = peak_per_pixel("tally", tally_run(small), tally_run(large), ps, pl);
+  const bool cycles = on_path("blender");
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("frame_memory_bench." + std::to_string(getpid()));
+  if (cycles) {
+    std::filesystem::create_directories(dir);
+    std::ofstream(dir / "scene.py") << kCyclesScript;
+  }
+  const auto cycles_run = [&](Size s) {
+    return run_child({"blender", "-b", "--factory-startup", "-P", (dir / "scene.py").string(), "--", std::to_string(s.w),
+                      std::to_string(s.h), std::to_string(spp), (dir / "out.exr").string()},
+                     true);
+  };
+  // Interleaved (tally, Cycles at the small size, then both at the large one) so that
+  // whatever else the machine does between runs falls on both programs alike.
+  const Child ts = tally_run(small);
+  const Child cs = cycles ? cycles_run(small) : Child{};
+  const Child tl = tally_run(large);
+  const Child cl = cycles ? cycles_run(large) : Child{};
+  if (cycles) std::filesystem::remove_all(dir);
+  const std::optional<double> tally_bpp = peak_per_pixel("tally", ts, tl, ps, pl);
   if (!tally_bpp) return 1;
-  if (!on_path("blender")) {
+  if (!cycles) {
     std::printf("blender is not on PATH: Cycles not measured\n");
     return 0;
   }
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("frame_memory_bench." + std::to_string(getpid()));
-  std::filesystem::create_directories(dir);
-  { std::ofstream(dir / "scene.py") << kCyclesScript; }
-  const auto cycles_run = [&](int s) {
-    return run_child({"blender", "-b", "--factory-startup", "-P", (dir / "scene.py").string(), "--", std::to_string(s),
-                      std::to_string(s), std::to_string(spp), (dir / "out.exr").string()},
-                     true);
-  };
-  const Child cs = cycles_run(small), cl = cycles_run(large);
-  std::filesystem::remove_all(dir);
   const std::optional<double> cycles_bpp = peak_per_pixel("Cycles", cs, cl, ps, pl);
   if (!cycles_bpp) return 1;
   std::printf("tally / Cycles bytes per pixel of peak RSS: %.2f (goal <= 1.0)\n", *tally_bpp / *cycles_bpp);

@@ -42,6 +42,8 @@ class ByteWriter {
   }
   const std::string& str() const { return out_; }
   std::string take() { return std::move(out_); }
+  // Drops the first `n` bytes written (a writer that hands its output on in pieces).
+  void drop_front(size_t n) { out_.erase(0, n); }
 
   // n, mean, M2
   void tally(const Tally& t) {

@@ -1,5 +1,6 @@
 #include "common/engine/checkpoint.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <cstring>
 #include <fmt/format.h>
@@ -33,18 +34,68 @@ using Reader = ByteReader<CheckpointError>;
 
 uint64_t checkpoint_checksum(std::string_view body) { return fnv1a64(body); }
 
-std::string encode_checkpoint(const JobState& s) {
-  ByteWriter w;
-  w.reserve(64 + 8 * s.partition_samples.size() + 24 * s.channels.size() + 32 * s.trace.size() +
-            8 * s.tail.heap().size() + s.kernel_state.size() + 1024);
+namespace {
+
+// A ByteWriter whose output goes to a sink in pieces of `piece` bytes as it grows,
+// hashed on the way (the checksum that ends a checkpoint covers every byte before it).
+class PieceWriter {
+ public:
+  PieceWriter(const CheckpointSink& sink, size_t piece) : sink_(sink), piece_(std::max<size_t>(piece, 1)) {
+    w_.reserve(std::min<size_t>(piece_, size_t{1} << 26) + 4096);
+  }
+  ByteWriter& w() { return w_; }
+  // Hands on the whole pieces written so far; call after each item.
+  void pass_on() {
+    if (w_.str().size() >= piece_) emit(false);
+  }
+  // The rest, the checksum after it; returns the bytes written in all.
+  uint64_t finish() {
+    emit(false);
+    w_.u64(fnv1a64_update(hash_, w_.str()));  // the checksum of every byte before it
+    emit(true);
+    return total_;
+  }
+
+ private:
+  void emit(bool all) {
+    const std::string_view b = w_.str();
+    size_t at = 0;
+    while (b.size() - at >= piece_ || (all && at < b.size())) {
+      const std::string_view p = b.substr(at, std::min(piece_, b.size() - at));
+      hash_ = fnv1a64_update(hash_, p);
+      sink_(p);
+      at += p.size();
+    }
+    total_ += at;
+    w_.drop_front(at);
+  }
+
+  const CheckpointSink& sink_;
+  const size_t piece_;
+  ByteWriter w_;
+  uint64_t hash_ = kFnv1a64Basis;
+  uint64_t total_ = 0;
+};
+
+}  // namespace
+
+uint64_t write_checkpoint(const JobState& s, const CheckpointSink& sink, size_t piece_bytes) {
+  PieceWriter out(sink, piece_bytes);
+  ByteWriter& w = out.w();
   w.raw(std::string_view(kMagic, sizeof kMagic));
   w.u64(kVersion);
   w.u64(s.passes);
   w.u64(s.samples);
   w.u64(s.partition_samples.size());
-  for (uint64_t v : s.partition_samples) w.u64(v);
+  for (uint64_t v : s.partition_samples) {
+    w.u64(v);
+    out.pass_on();
+  }
   w.u64(s.channels.size());
-  for (const Tally& t : s.channels) w.tally(t);
+  for (const Tally& t : s.channels) {
+    w.tally(t);
+    out.pass_on();
+  }
   TALLY_CHECK_LE(s.counters.values.size(), s.counter_names.size());  // every counter has a name
   w.u64(s.counter_names.size());
   for (size_t i = 0; i < s.counter_names.size(); ++i) {
@@ -63,11 +114,18 @@ std::string encode_checkpoint(const JobState& s) {
     w.f64(p.mean);
     w.f64(p.std_error);
   }
+  out.pass_on();
   w.bytes(s.kernel_state);
   w.u64(s.results_version);
-  const uint64_t h = fnv1a64(w.str());
-  w.u64(h);
-  return w.take();
+  return out.finish();
+}
+
+std::string encode_checkpoint(const JobState& s) {
+  std::string out;
+  out.reserve(64 + 8 * s.partition_samples.size() + 24 * s.channels.size() + 32 * s.trace.size() +
+              8 * s.tail.heap().size() + s.kernel_state.size() + 1024);
+  write_checkpoint(s, [&](std::string_view piece) { out.append(piece); });
+  return out;
 }
 
 JobState decode_checkpoint(std::string_view bytes) {

@@ -173,7 +173,11 @@ void JobRunner::commit_pass(std::vector<BlockResult>&& results, double wall_seco
   commit_groups(combine_groups(std::move(results), groups_), wall_seconds);
 }
 
-void JobRunner::commit_groups(std::vector<BlockResult>&& results, double wall_seconds) {
+void JobRunner::commit_groups(std::vector<BlockResult>&& given, double wall_seconds) {
+  // Owned here, so the pass's results (for an image, as large as the state) are freed
+  // as they are merged, not when the caller's vector goes: whatever follows the commit
+  // (views, a checkpoint) has the state alone in memory.
+  std::vector<BlockResult> results = std::move(given);
   TALLY_CHECK_EQ(results.size(), groups_.size());  // one result per result group
   for (const BlockResult& r : results) {
     TALLY_CHECK_LE(r.counters.values.size(), state_.counter_names.size());  // only ids the kernel declared
@@ -184,6 +188,7 @@ void JobRunner::commit_groups(std::vector<BlockResult>&& results, double wall_se
     for (size_t c = 0; c < r.tallies.size(); ++c) {
       state_.channels.at(r.first_channel + c).merge(r.tallies[c]);
     }
+    std::vector<Tally>().swap(r.tallies);
     state_.counters.merge(r.counters);
     state_.tail.merge(r.tail);
     state_.weights.merge(r.weights);

@@ -36,7 +36,10 @@ void combine_results(BlockResult& acc, const BlockResult& next) {
   if (!acc.fault && next.fault) acc.fault = next.fault;
 }
 
-std::vector<BlockResult> combine_groups(std::vector<BlockResult>&& per_block, std::span<const ResultGroup> groups) {
+std::vector<BlockResult> combine_groups(std::vector<BlockResult>&& per_block, std::span<const ResultGroup> groups,
+                                        std::span<const uint8_t> folded) {
+  TALLY_CHECK_MSG(folded.empty() || folded.size() == per_block.size(), "{} folded flags for {} blocks", folded.size(),
+                  per_block.size());
   size_t covered = 0;
   for (const ResultGroup& g : groups) covered += g.count;
   TALLY_CHECK_MSG(covered == per_block.size(), "{} result groups cover {} blocks, the pass has {}", groups.size(), covered,
@@ -47,7 +50,10 @@ std::vector<BlockResult> combine_groups(std::vector<BlockResult>&& per_block, st
   for (const ResultGroup& g : groups) {
     TALLY_CHECK_LE(g.first + g.count, per_block.size());
     out.push_back(std::move(per_block[g.first]));
-    for (size_t i = g.first + 1; i < g.first + g.count; ++i) combine_results(out.back(), per_block[i]);
+    for (size_t i = g.first + 1; i < g.first + g.count; ++i) {
+      if (!folded.empty() && folded[i]) continue;
+      combine_results(out.back(), per_block[i]);
+    }
   }
   return out;
 }

@@ -93,7 +93,12 @@ std::vector<ResultGroup> result_groups(std::span<const Block> blocks, uint64_t g
 // block order stays. `acc` keeps its block_index (the group's first block).
 void combine_results(BlockResult& acc, const BlockResult& next);
 // One result per group from one result per block (moved from): what a pass merges.
-std::vector<BlockResult> combine_groups(std::vector<BlockResult>&& per_block, std::span<const ResultGroup> groups);
+// `folded` (empty, or one flag per block): block i's result was combined into its
+// group's first already, in block order, as it was computed (an executor whose worker
+// computed the group's blocks from its first one on); it is skipped. Folded blocks are
+// the ones right after their group's first.
+std::vector<BlockResult> combine_groups(std::vector<BlockResult>&& per_block, std::span<const ResultGroup> groups,
+                                        std::span<const uint8_t> folded = {});
 
 class Kernel {
  public:

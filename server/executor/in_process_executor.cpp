@@ -1,6 +1,7 @@
 #include "server/executor/in_process_executor.hpp"
 
 #include <algorithm>
+#include <span>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -77,6 +78,7 @@ void InProcessExecutor::start_pass_locked(Active& a, PassWork pass) {
   a.pass = std::move(pass);
   a.results.clear();
   a.results.resize(a.pass.blocks.size());
+  a.folded.assign(a.pass.blocks.size(), 0);
   a.next = a.done = 0;
   a.pass_started = false;
 }
@@ -169,7 +171,15 @@ void InProcessExecutor::worker_loop() {
     cv_.wait(lock, [&] { return stopping_ || (a = pick_locked()) != nullptr; });
     if (stopping_) return;
     const size_t begin = a->next;
-    const size_t end = begin + chunk_size_locked(*a);
+    size_t end = begin + chunk_size_locked(*a);
+    // Whole result groups (at most group_blocks blocks more): their blocks fold into
+    // the group's first as they are computed.
+    if (const auto& gs = a->pass.groups; !gs.empty()) {
+      const auto it = std::upper_bound(gs.begin(), gs.end(), end - 1,
+                                       [](size_t b, const ResultGroup& r) { return b < r.first; });
+      if (it != gs.begin()) end = std::max(end, std::prev(it)->first + std::prev(it)->count);
+      end = std::min(end, a->pass.blocks.size());
+    }
     a->next = end;
     a->inflight += 1;
     if (!a->pass_started) {
@@ -183,6 +193,8 @@ void InProcessExecutor::worker_loop() {
     const Block* blocks = a->pass.blocks.data();
     const std::string_view pass_input = a->pass.pass_input;
     BlockResult* results = a->results.data();
+    uint8_t* folded = a->folded.data();
+    const std::span<const ResultGroup> groups(a->pass.groups);
     const std::atomic<bool>* abandon = &a->abandon;  // `a` lives while inflight > 0
     lock.unlock();
 
@@ -191,10 +203,26 @@ void InProcessExecutor::worker_loop() {
     uint64_t samples = 0;
     {
       ScopedBlockAbandon scope(abandon);
+      // The group of block `begin` (groups are consecutive slots, in order).
+      size_t g = static_cast<size_t>(std::upper_bound(groups.begin(), groups.end(), begin,
+                                                      [](size_t b, const ResultGroup& r) { return b < r.first; }) -
+                                     groups.begin());
       for (size_t i = begin; i < end && !abandon->load(std::memory_order_relaxed); ++i) {
         results[i].block_index = blocks[i].index;
         kernel->run_block_with(blocks[i], pass_input, results[i]);
         samples += blocks[i].sample_count;
+        while (g < groups.size() && groups[g].first <= i) ++g;  // g - 1: block i's group
+        if (g == 0) continue;
+        const ResultGroup& grp = groups[g - 1];
+        // Its group's earlier blocks all ran here, in order: fold it into the first
+        // now (combine_groups' order, so the same bits) and free it.
+        if (i > grp.first && grp.first >= begin && results[i].aux.empty() && results[grp.first].aux.empty() &&
+            results[i].first_channel == results[grp.first].first_channel &&
+            results[i].tallies.size() == results[grp.first].tallies.size()) {
+          combine_results(results[grp.first], results[i]);
+          results[i] = BlockResult{};
+          folded[i] = 1;
+        }
       }
     }
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -228,6 +256,7 @@ void InProcessExecutor::worker_loop() {
     const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - a->pass_start).count();
     PassWork pass_done = std::move(a->pass);
     std::vector<BlockResult> results_done = std::move(a->results);
+    const std::vector<uint8_t> folded_done = std::move(a->folded);
     const std::string id = a->id;
     const uint64_t run = a->run;
     lock.unlock();
@@ -236,7 +265,7 @@ void InProcessExecutor::worker_loop() {
     const size_t pass_blocks = pass_done.blocks.size();
     std::vector<BlockResult> grouped;
     try {
-      grouped = combine_groups(std::move(results_done), pass_done.groups);
+      grouped = combine_groups(std::move(results_done), pass_done.groups, folded_done);
     } catch (const std::exception& e) {
       // A kernel bug (results that do not combine): pass_done's commit then refuses the
       // empty pass and fails the job with an internal error, the server stays up.

@@ -58,6 +58,10 @@ class InProcessExecutor final : public Executor {
     double vtime = 0.0;
     PassWork pass;  // blocks being computed, with their pass input
     std::vector<BlockResult> results;
+    // Blocks whose result a worker folded into its group's first as it computed them
+    // (combine_groups' `folded`): a pass of several blocks per tile then holds about
+    // one result per group, not one per block.
+    std::vector<uint8_t> folded;
     size_t next = 0;       // next block to hand out
     size_t done = 0;       // blocks finished
     unsigned inflight = 0; // chunks running

@@ -271,7 +271,7 @@ void Job::reopen_locked(JobRunner runner, bool park) {
     runner_.reset();
     parked_ = true;
   } else {
-    *runner_ = std::move(runner);
+    runner_ = std::make_shared<JobRunner>(std::move(runner));  // a checkpoint may still read the old one
     facts_.reset();
   }
   status_ = JobStatus::queued;

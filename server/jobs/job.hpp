@@ -158,13 +158,24 @@ class Job : public std::enable_shared_from_this<Job> {
   // Bytes of the job's row in the store (spec, result, checkpoint), for retention.
   std::atomic<uint64_t> stored_bytes_{0};
 
+  // Held by a pass's commit while it changes runner_'s state, and by a checkpoint
+  // streaming that state to the store (JobRecorder::store, no copy of it) while it
+  // encodes a piece; not while the store writes one. A commit so waits for one piece
+  // at most; the checkpoint then finds the state's passes changed and is abandoned.
+  // Taken before mu_.
+  std::mutex state_mu_;
+
   mutable std::mutex mu_;
   // --- guarded by mu_ ---
   std::shared_ptr<const JobDefinition> def_;  // null if the stored spec no longer compiles
   // The channel state, in memory only while the job runs (and for queued jobs resumed
   // from a checkpoint or extended): null before it starts, once finished and stored,
   // or if it could not be restored. facts_ then says what the views show.
-  std::unique_ptr<JobRunner> runner_;
+  // Shared with a checkpoint being written (JobRecorder), which reads its state in
+  // place under state_mu_: the state is never changed in place but by a pass's commit
+  // (under state_mu_, which changes its passes); whatever else changes the runner
+  // replaces it.
+  std::shared_ptr<JobRunner> runner_;
   std::shared_ptr<const RunFacts> facts_;
   JobCaps caps_;  // the runner's caps, fixed at submission
   JobStatus status_ = JobStatus::queued;

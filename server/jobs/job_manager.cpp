@@ -310,6 +310,9 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
   const auto t0 = Clock::now();
   Job::PassCommit c;
   {
+    // A checkpoint streaming the state is abandoned (JobRecorder::store): waited for
+    // one piece's encoding at most.
+    std::lock_guard state_lock(job->state_mu_);
     std::lock_guard lock(job->mu_);
     c = job->commit_pass_locked(std::move(results), wall, done.pass, config_.checkpoint_interval_s);
   }

@@ -19,6 +19,11 @@ using nlohmann::json;
 
 namespace {
 std::string dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
+
+// Thrown through the store by a checkpoint stream whose state changed under it.
+struct CheckpointAbandoned : std::exception {
+  const char* what() const noexcept override { return "checkpoint abandoned: the state changed while it was written"; }
+};
 }  // namespace
 
 JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint, const JobEnding* ending) const {
@@ -41,7 +46,11 @@ JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint, const Job
   s.error = ending ? ending->error : job.error_;
   if (is_terminal(status) && final_result && !final_result->is_null()) s.result = dump(*final_result);
   if (is_terminal(status) && facts) s.facts = dump(run_facts_json(*facts));
-  if (with_checkpoint && job.runner_) p.state = job.runner_->state();  // encoded later, without the lock
+  if (with_checkpoint && job.runner_) {
+    // Encoded later, without the lock, from the state itself: no copy of it.
+    p.runner = job.runner_;
+    p.passes = job.runner_->state().passes;
+  }
   s.created_at = job.created_at_;
   s.started_at = job.started_at_;
   s.finished_at = ending ? ending->finished_at : job.finished_at_;
@@ -61,15 +70,36 @@ bool JobRecorder::persist_with(Job& job, std::string checkpoint) {
 bool JobRecorder::store(Job& job, Pending pending, bool retry) {
   StoredJob& s = pending.row;
   const uint64_t version = pending.version;
-  // A request that waits for the job's lock waits for a copy, not for the encoding
-  // (an image's checkpoint is hundreds of MB).
-  if (pending.state) s.checkpoint = encode_checkpoint(*pending.state);
-  pending.state.reset();
+  // The checkpoint streams from the runner's state to the store piece by piece (an
+  // image's is hundreds of MB, over a GB at 1080p): neither a copy of the state nor
+  // the whole encoding is held. Each piece is encoded under the job's state_mu_; a
+  // pass committed meanwhile (the state's passes moved on) abandons it: the store
+  // keeps the checkpoint it had, and the next one is due at a later pass boundary.
+  uint64_t streamed = 0;
+  if (pending.runner) {
+    s.checkpoint_stream = [&](const CheckpointSink& sink) {
+      const auto steady = [&] {
+        std::unique_lock held(job.state_mu_);
+        if (pending.runner->state().passes != pending.passes) throw CheckpointAbandoned();
+        return held;
+      };
+      std::unique_lock held = steady();
+      streamed = write_checkpoint(pending.runner->state(), [&](std::string_view piece) {
+        held.unlock();  // the store writes the piece (the writer's own bytes) without it
+        sink(piece);
+        held = steady();
+      });
+      return streamed;
+    };
+  }
   std::lock_guard save_lock(job.save_mu_);
-  if (job.removed_) return true;                  // deleted meanwhile: nothing to keep
-  if (version < job.saved_version_) return true;  // a newer state is already stored
+  if (job.removed_ || version < job.saved_version_) return true;  // deleted meanwhile, or a newer state is stored
   try {
     store_.save(s);
+  } catch (const CheckpointAbandoned&) {
+    log::job(log::Level::info, job.id_, "checkpoint of pass {} abandoned: the next pass was committed while it was written",
+             pending.passes);
+    return true;
   } catch (const std::exception& e) {
     // The job keeps running; the save is retried until stored, and until then the
     // server refuses new jobs and /readyz says why.
@@ -84,6 +114,7 @@ bool JobRecorder::store(Job& job, Pending pending, bool retry) {
   }
   job.saved_version_ = version;
   if (s.checkpoint) job.checkpoint_bytes_ = s.checkpoint->size();
+  if (streamed > 0) job.checkpoint_bytes_ = streamed;
   job.stored_bytes_ = s.spec.size() + s.result.size() + s.facts.size() + job.checkpoint_bytes_;
   health_.succeeded();
   return true;

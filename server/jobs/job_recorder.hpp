@@ -93,10 +93,13 @@ class JobRecorder {
 
  private:
   // What persist stores, taken under the job's lock (the state is encoded later).
+  // With a checkpoint: the runner, read in place while it streams to the store, and
+  // its passes then (a commit meanwhile abandons the checkpoint: Job::state_mu_).
   struct Pending {
     StoredJob row;
     uint64_t version = 0;
-    std::optional<JobState> state;
+    std::shared_ptr<const JobRunner> runner;
+    uint64_t passes = 0;
   };
   // The job's row as stored; with `ending`, as it will read once that ending is published.
   Pending take(Job& job, bool with_checkpoint, const JobEnding* ending = nullptr) const;

@@ -2,12 +2,19 @@
 // Where jobs live between restarts. The server talks to this interface only, so a
 // store shared by several servers can replace the embedded SQLite one later.
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "common/engine/checkpoint.hpp"
+
 namespace tally {
+
+// Streams a checkpoint to a store's sink in pieces (write_checkpoint of the job's state,
+// read in place): returns its size.
+using CheckpointStream = std::function<uint64_t(const CheckpointSink& sink)>;
 
 struct StoredJob {
   std::string id;
@@ -21,6 +28,9 @@ struct StoredJob {
   std::string result;         // final status JSON of a finished job, "" otherwise
   std::optional<std::string> checkpoint;  // encode_checkpoint bytes; nullopt on save = keep
                                           // (load_all: unfinished jobs only; see load_checkpoint)
+  // On save, instead of `checkpoint`: the checkpoint written piece by piece as the store
+  // takes it (a store holds no more than a piece of it in memory). Ignored on load.
+  CheckpointStream checkpoint_stream;
   std::string facts;          // a finished job's RunFacts (run_facts_json), "" if none
   uint64_t stored_bytes = 0;  // load_all: bytes the row takes (spec, result, checkpoint)
   double created_at = 0, started_at = 0, finished_at = 0;  // unix seconds, 0 = not yet
@@ -29,7 +39,8 @@ struct StoredJob {
 class JobStore {
  public:
   virtual ~JobStore() = default;
-  // Insert or update one job atomically. A nullopt checkpoint keeps the stored one.
+  // Insert or update one job atomically. A nullopt checkpoint (and no checkpoint_stream)
+  // keeps the stored one.
   virtual void save(const StoredJob& job) = 0;
   // Every job, in submission order. Checkpoints only of unfinished jobs (queued,
   // running): a finished job's state stays on disk until asked for.

@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <map>
 #include <mutex>
+#include <string_view>
 
 #include "server/jobs/job_store.hpp"
 
@@ -14,11 +15,17 @@ class MemoryJobStore final : public JobStore {
   bool probe() override { return true; }
   void save(const StoredJob& j) override {
     std::lock_guard lock(mu_);
-    auto [it, inserted] = jobs_.try_emplace(j.id, j);
+    StoredJob row = j;
+    row.checkpoint_stream = nullptr;
+    if (j.checkpoint_stream) {
+      row.checkpoint.emplace();
+      j.checkpoint_stream([&](std::string_view piece) { row.checkpoint->append(piece); });
+    }
+    auto [it, inserted] = jobs_.try_emplace(j.id, row);
     if (!inserted) {
-      auto keep = it->second.checkpoint;
-      it->second = j;
-      if (!j.checkpoint) it->second.checkpoint = std::move(keep);
+      auto keep = std::move(it->second.checkpoint);
+      it->second = std::move(row);
+      if (!it->second.checkpoint) it->second.checkpoint = std::move(keep);
     }
   }
   std::vector<StoredJob> load_all() override {

@@ -5,6 +5,7 @@
 #include <ctime>
 #include <filesystem>
 #include <mutex>
+#include <string_view>
 
 #include "common/log/log.hpp"
 #include "server/jobs/job_store.hpp"
@@ -33,6 +34,11 @@ class SqliteJobStore final : public JobStore {
         " updated_at REAL NOT NULL DEFAULT ((julianday('now') - 2440587.5) * 86400.0),"
         " owner TEXT NOT NULL DEFAULT '')");
     db_.exec("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value INTEGER NOT NULL)");
+    // A checkpoint in pieces of kCheckpointPieceBytes (n = 0, 1, ...): one BLOB may not
+    // exceed 1e9 bytes, and a save streams the pieces in as they are encoded. The jobs
+    // table's checkpoint column holds those of files written before (read, never written).
+    db_.exec("CREATE TABLE IF NOT EXISTS checkpoint_pieces (id TEXT NOT NULL, n INTEGER NOT NULL,"
+             " bytes BLOB NOT NULL, PRIMARY KEY (id, n))");
     migrate();
   }
 
@@ -88,18 +94,48 @@ class SqliteJobStore final : public JobStore {
     st.bind(6, j.stop_rule);
     st.bind(7, j.error);
     st.bind(8, j.result);
-    if (j.checkpoint) {
-      st.bind(9, j.checkpoint->data(), static_cast<int>(j.checkpoint->size()));
-    } else {
-      st.bind(9);  // NULL: keep the stored checkpoint
-    }
+    st.bind(9);  // NULL: the legacy column keeps what it had, unless replaced below
     st.bind(10, j.created_at);
     st.bind(11, j.started_at);
     st.bind(12, j.finished_at);
     st.bind(13, j.owner);
     st.bind(14, j.facts);
     st.exec();
+    if (j.checkpoint || j.checkpoint_stream) write_pieces(j);
     tx.commit();
+  }
+
+  // Replaces the job's checkpoint by j's, streamed in pieces (inside save's transaction).
+  void write_pieces(const StoredJob& j) {
+    SQLite::Statement legacy(db_, "UPDATE jobs SET checkpoint = NULL WHERE id = ?");
+    legacy.bind(1, j.id);
+    legacy.exec();
+    SQLite::Statement drop(db_, "DELETE FROM checkpoint_pieces WHERE id = ?");
+    drop.bind(1, j.id);
+    drop.exec();
+    SQLite::Statement put(db_, "INSERT INTO checkpoint_pieces (id, n, bytes) VALUES (?, ?, ?)");
+    int64_t n = 0;
+    const auto sink = [&](std::string_view piece) {
+      put.reset();
+      put.bind(1, j.id);
+      put.bind(2, n++);
+      // Not copied by the binding (SQLite copies it into its pages); "" for an empty
+      // piece, since a null pointer would bind NULL.
+      put.bindNoCopy(3, piece.empty() ? "" : piece.data(), static_cast<int>(piece.size()));
+      put.exec();
+    };
+    if (j.checkpoint) {
+      const std::string_view all(*j.checkpoint);
+      for (size_t at = 0; at < all.size(); at += kCheckpointPieceBytes) sink(all.substr(at, kCheckpointPieceBytes));
+    } else {
+      j.checkpoint_stream(sink);
+    }
+    if (n == 0) sink({});  // an empty checkpoint is still one
+  }
+
+  std::optional<std::string> checkpoint_of(const std::string& id, std::optional<std::string> legacy) {
+    if (legacy) return legacy;
+    return read_checkpoint_pieces(db_, id);
   }
 
   std::vector<StoredJob> load_all() override {
@@ -108,11 +144,14 @@ class SqliteJobStore final : public JobStore {
     SQLite::Statement q(db_, fmt::format("SELECT {},"
                                          " CASE WHEN state IN ('queued', 'running') THEN checkpoint END,"
                                          " length(spec) + length(result) + length(facts) + COALESCE(length(checkpoint), 0)"
+                                         " + (SELECT COALESCE(SUM(length(p.bytes)), 0) FROM checkpoint_pieces p"
+                                         " WHERE p.id = jobs.id)"
                                          " FROM jobs ORDER BY seq",
                                          job_row_columns()));
     while (q.executeStep()) {
       StoredJob j = read_job_row(q);
       j.checkpoint = read_blob(q.getColumn(kJobRowColumnCount));
+      if (j.state == "queued" || j.state == "running") j.checkpoint = checkpoint_of(j.id, std::move(j.checkpoint));
       j.stored_bytes = static_cast<uint64_t>(q.getColumn(kJobRowColumnCount + 1).getInt64());
       out.push_back(std::move(j));
     }
@@ -124,14 +163,20 @@ class SqliteJobStore final : public JobStore {
     SQLite::Statement q(db_, "SELECT checkpoint FROM jobs WHERE id = ?");
     q.bind(1, id);
     if (!q.executeStep()) return std::nullopt;
-    return read_blob(q.getColumn(0));
+    return checkpoint_of(id, read_blob(q.getColumn(0)));
   }
 
   bool remove(const std::string& id) override {
     std::lock_guard lock(mu_);
+    SQLite::Transaction tx(db_);
+    SQLite::Statement pieces(db_, "DELETE FROM checkpoint_pieces WHERE id = ?");
+    pieces.bind(1, id);
+    pieces.exec();
     SQLite::Statement st(db_, "DELETE FROM jobs WHERE id = ?");
     st.bind(1, id);
-    return st.exec() > 0;
+    const bool removed = st.exec() > 0;
+    tx.commit();
+    return removed;
   }
 
   bool probe() override {

@@ -39,6 +39,22 @@ StoredJob read_job_row(const SQLite::Statement& q) {
   return j;
 }
 
+std::optional<std::string> read_checkpoint_pieces(SQLite::Database& db, const std::string& id) {
+  if (!db.tableExists("checkpoint_pieces")) return std::nullopt;
+  SQLite::Statement size(db, "SELECT count(*), COALESCE(SUM(length(bytes)), 0) FROM checkpoint_pieces WHERE id = ?");
+  size.bind(1, id);
+  if (!size.executeStep() || size.getColumn(0).getInt64() == 0) return std::nullopt;
+  std::string out;
+  out.reserve(static_cast<size_t>(size.getColumn(1).getInt64()));
+  SQLite::Statement q(db, "SELECT bytes FROM checkpoint_pieces WHERE id = ? ORDER BY n");
+  q.bind(1, id);
+  while (q.executeStep()) {
+    const SQLite::Column c = q.getColumn(0);
+    out.append(static_cast<const char*>(c.getBlob()), static_cast<size_t>(c.getBytes()));
+  }
+  return out;
+}
+
 std::optional<std::string> read_blob(const SQLite::Column& c) {
   if (c.isNull()) return std::nullopt;
   return std::string(static_cast<const char*>(c.getBlob()), static_cast<size_t>(c.getBytes()));

@@ -31,6 +31,11 @@ inline constexpr int kJobRowColumnCount = 13;
 // The StoredJob of the current row (without checkpoint and stored_bytes).
 StoredJob read_job_row(const SQLite::Statement& q);
 
+// A job's checkpoint as stored since checkpoints outgrew one BLOB (SQLite refuses one
+// over 1e9 bytes, a 1080p image's is 1.2 GB): rows of checkpoint_pieces, joined in
+// order; nullopt when it has none (or `db` has no such table: a file of before them).
+std::optional<std::string> read_checkpoint_pieces(SQLite::Database& db, const std::string& id);
+
 // A BLOB column's bytes, nullopt for NULL.
 std::optional<std::string> read_blob(const SQLite::Column& c);
 

@@ -125,6 +125,7 @@ SalvageResult quarantine_and_salvage(const std::string& db_path) {
       if (!whole.executeStep()) continue;  // no such row: never existed or deleted
       StoredJob j = read_job_row(whole);
       j.checkpoint = read_blob(whole.getColumn(kJobRowColumnCount));
+      if (!j.checkpoint) j.checkpoint = read_checkpoint_pieces(*db, j.id);
       r.jobs.push_back(std::move(j));
       continue;
     } catch (const SQLite::Exception&) {

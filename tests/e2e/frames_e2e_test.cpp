@@ -1,7 +1,8 @@
 // Production frames over the wire (issue 28): the real tally-server with its default
-// limits admits a 1920x1080 image job and runs it to the end; with --max-state-bytes
+// limits admits a 1920x1080 image job, runs it to the end and stores its state; with --max-state-bytes
 // below what the frame's state needs it refuses it with 422 naming the resolution, the
 // bytes the state would need and the limit.
+#include <SQLiteCpp/SQLiteCpp.h>
 #include <gtest/gtest.h>
 
 #include <string>
@@ -26,6 +27,17 @@ TEST(FramesE2E, FullHdImageRunsWithDefaultLimits) {
   const json st = wait_state(c, id, "succeeded", 240);
   EXPECT_EQ(st.at("samples"), 8) << st.dump();
   EXPECT_EQ(st.at("passes"), 1) << st.dump();
+  server.kill9();
+  // Its final state is stored: 1920 x 1080 x 24 tallies of 24 bytes and the rest, over
+  // SQLite's 1e9-byte limit for one blob (this save used to fail with "string or blob
+  // too big" and the job was kept without its state), so in pieces.
+  SQLite::Database db((tmp.path / "data" / "tally.db").string(), SQLite::OPEN_READONLY);
+  SQLite::Statement q(db, "SELECT count(*), SUM(length(bytes)) FROM checkpoint_pieces WHERE id = ?");
+  q.bind(1, id);
+  ASSERT_TRUE(q.executeStep());
+  EXPECT_GT(q.getColumn(0).getInt64(), 1);
+  EXPECT_GT(q.getColumn(1).getInt64(), int64_t{1920} * 1080 * 24 * 24);
+  EXPECT_LT(q.getColumn(1).getInt64(), int64_t{1920} * 1080 * 24 * 24 + (1 << 20));
 }
 
 TEST(FramesE2E, FrameOverMaxStateBytesIs422WithTheBytes) {

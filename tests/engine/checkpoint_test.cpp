@@ -8,6 +8,8 @@
 #include <fstream>
 #include <iterator>
 #include <sstream>
+#include <string_view>
+#include <vector>
 
 #include "common/engine/job_runner.hpp"
 
@@ -258,6 +260,34 @@ TEST(Checkpoint, EverySingleByteCorruptionIsReported) {
 TEST(Checkpoint, GarbageIsReported) {
   EXPECT_THROW(decode_checkpoint("hello"), CheckpointError);
   EXPECT_THROW(decode_checkpoint(std::string(1000, '\0')), CheckpointError);
+}
+
+// write_checkpoint hands a store the checkpoint in pieces of the size asked for (so no
+// buffer of the whole checkpoint and no blob over SQLite's limit): every piece but the
+// last has exactly that size, the last is not empty, and joined they are
+// encode_checkpoint's bytes, which decode to the same state.
+TEST(Checkpoint, StreamedInPiecesOfTheGivenSize) {
+  JobState s = sample_state();
+  s.channels.resize(1000);  // 24,000 bytes of tallies
+  for (size_t i = 0; i < s.channels.size(); ++i) s.channels[i].add(static_cast<double>(i) * 0.37);
+  const std::string whole = encode_checkpoint(s);
+  ASSERT_GT(whole.size(), 24000u);
+  for (const size_t piece : {size_t{1}, size_t{7}, size_t{100}, size_t{4096}, whole.size(), whole.size() + 1}) {
+    std::vector<std::string> pieces;
+    const uint64_t total = write_checkpoint(s, [&](std::string_view p) { pieces.emplace_back(p); }, piece);
+    EXPECT_EQ(total, whole.size()) << piece;
+    ASSERT_EQ(pieces.size(), (whole.size() + piece - 1) / piece) << piece;
+    std::string joined;
+    for (size_t i = 0; i < pieces.size(); ++i) {
+      if (i + 1 < pieces.size()) {
+        EXPECT_EQ(pieces[i].size(), piece) << "piece " << i << " of " << piece;
+      }
+      EXPECT_FALSE(pieces[i].empty());
+      joined += pieces[i];
+    }
+    EXPECT_EQ(joined, whole) << piece;
+  }
+  EXPECT_EQ(encode_checkpoint(decode_checkpoint(whole)), whole);
 }
 
 }  // namespace

@@ -240,6 +240,91 @@ TEST(JobStore, MemoryStoreBehavesLikeSqlite) {
   EXPECT_EQ(store->load_all().size(), 1u);
 }
 
+// A checkpoint larger than one piece (SQLite refuses a blob over 1e9 bytes; a 1080p
+// image's checkpoint is 1.2 GB, and its final save failed with "string or blob too
+// big") is streamed in pieces and read back whole, by both stores; a new one replaces
+// every piece of the old; removing the job removes its pieces.
+TEST(JobStore, CheckpointOverOnePieceStreamsInAndReadsBack) {
+  const size_t size = 2 * kCheckpointPieceBytes + 5;
+  std::string expected(size, '\0');
+  for (size_t i = 0; i < size; ++i) expected[i] = static_cast<char>((i * 131) >> 3);
+  TempDir dir;
+  std::vector<std::unique_ptr<JobStore>> stores;
+  stores.push_back(open_sqlite_store(dir.path.string()));
+  stores.push_back(make_memory_store());
+  for (auto& store : stores) {
+    StoredJob j;
+    j.id = "big";
+    j.seq = 1;
+    j.state = "running";
+    size_t calls = 0;
+    j.checkpoint_stream = [&](const CheckpointSink& sink) {
+      ++calls;
+      for (size_t at = 0; at < size; at += kCheckpointPieceBytes) {
+        sink(std::string_view(expected).substr(at, kCheckpointPieceBytes));
+      }
+      return static_cast<uint64_t>(size);
+    };
+    store->save(j);
+    EXPECT_EQ(calls, 1u);
+    EXPECT_EQ(store->load_checkpoint("big"), expected);
+    auto rows = store->load_all();
+    ASSERT_EQ(rows.size(), 1u);
+    EXPECT_EQ(rows[0].checkpoint, expected);
+    EXPECT_GE(rows[0].stored_bytes, size);
+    j.checkpoint_stream = nullptr;
+    j.checkpoint = "small";
+    store->save(j);
+    EXPECT_EQ(store->load_checkpoint("big"), "small");
+    EXPECT_LT(store->load_all().at(0).stored_bytes, 1000u);
+    j.checkpoint.reset();  // a state-only save keeps it
+    j.state = "succeeded";
+    store->save(j);
+    EXPECT_EQ(store->load_checkpoint("big"), "small");
+    EXPECT_TRUE(store->remove("big"));
+    EXPECT_FALSE(store->load_checkpoint("big"));
+  }
+  stores.clear();
+  SQLite::Database d((dir.path / "tally.db").string(), SQLite::OPEN_READONLY);
+  EXPECT_EQ(d.execAndGet("SELECT count(*) FROM checkpoint_pieces").getInt64(), 0);
+}
+
+// A file written before checkpoints came in pieces keeps its checkpoint in the jobs
+// table: it still reads (load_checkpoint, load_all), and the next checkpoint saved
+// replaces it (in pieces, which a salvage reads as well).
+TEST(JobStore, CheckpointInTheOldColumnStillReads) {
+  TempDir dir;
+  {
+    auto store = open_sqlite_store(dir.path.string());
+    StoredJob j;
+    j.id = "old";
+    j.seq = 1;
+    j.state = "running";
+    store->save(j);
+  }
+  {
+    SQLite::Database d((dir.path / "tally.db").string(), SQLite::OPEN_READWRITE);
+    d.exec("UPDATE jobs SET checkpoint = x'0001ff' WHERE id = 'old'");
+    d.exec("DROP TABLE checkpoint_pieces");
+  }
+  auto store = open_sqlite_store(dir.path.string());
+  EXPECT_EQ(store->load_checkpoint("old"), std::string("\0\1\xff", 3));
+  EXPECT_EQ(store->load_all().at(0).checkpoint, std::string("\0\1\xff", 3));
+  StoredJob j = store->load_all().at(0);
+  j.checkpoint = "new";
+  store->save(j);
+  EXPECT_EQ(store->load_checkpoint("old"), "new");
+  store.reset();
+  {
+    SQLite::Database d((dir.path / "tally.db").string(), SQLite::OPEN_READONLY);
+    EXPECT_TRUE(d.execAndGet("SELECT checkpoint FROM jobs WHERE id = 'old'").isNull());
+  }
+  // A salvage reads the pieces too.
+  const SalvageResult r = quarantine_and_salvage((dir.path / "tally.db").string());
+  ASSERT_EQ(r.jobs.size(), 1u);
+  EXPECT_EQ(r.jobs[0].checkpoint, "new");
+}
+
 // Runs a job to the end in one go and returns its bits.
 std::string uninterrupted_bits(const json& spec) {
   Harness h;
@@ -332,8 +417,9 @@ TEST(Recovery, CorruptCheckpointIsReportedNotReset) {
   }
   {
     SQLite::Database db((dir.path / "tally.db").string(), SQLite::OPEN_READWRITE);
-    // Truncate the checkpoint to half its length.
-    db.exec("UPDATE jobs SET checkpoint = substr(checkpoint, 1, length(checkpoint) / 2)");
+    // Truncate the checkpoint (one piece: a fake job's is small) to half its length.
+    ASSERT_EQ(db.execAndGet("SELECT count(*) FROM checkpoint_pieces").getInt64(), 1);
+    db.exec("UPDATE checkpoint_pieces SET bytes = substr(bytes, 1, length(bytes) / 2)");
   }
   Harness h(test_manager_config(), open_sqlite_store(dir.path.string()));
   const json s = h.call_json("GET", "/v1/jobs/" + id);
@@ -356,13 +442,14 @@ TEST(Recovery, FlippedByteInCheckpointIsReported) {
   }
   {
     SQLite::Database db((dir.path / "tally.db").string(), SQLite::OPEN_READWRITE);
-    SQLite::Statement q(db, "SELECT checkpoint FROM jobs");
+    SQLite::Statement q(db, "SELECT bytes FROM checkpoint_pieces WHERE n = 0");
     ASSERT_TRUE(q.executeStep());
     const SQLite::Column c = q.getColumn(0);
     std::string blob(static_cast<const char*>(c.getBlob()), static_cast<size_t>(c.getBytes()));
     q.reset();
+    ASSERT_GT(blob.size(), 100u);
     blob[blob.size() / 2] = static_cast<char>(blob[blob.size() / 2] ^ 0x40);
-    SQLite::Statement u(db, "UPDATE jobs SET checkpoint = ?");
+    SQLite::Statement u(db, "UPDATE checkpoint_pieces SET bytes = ? WHERE n = 0");
     u.bind(1, blob.data(), static_cast<int>(blob.size()));
     u.exec();
   }
