@@ -120,10 +120,16 @@ uint64_t write_checkpoint(const JobState& s, const CheckpointSink& sink, size_t 
   return out.finish();
 }
 
+uint64_t checkpoint_size_hint(const JobState& s) {
+  uint64_t names = 0;
+  for (const std::string& n : s.counter_names) names += 16 + n.size();
+  return 64 + 8 * s.partition_samples.size() + 24 * s.channels.size() + 32 * s.trace.size() +
+         8 * s.tail.heap().size() + s.kernel_state.size() + names + 1024;
+}
+
 std::string encode_checkpoint(const JobState& s) {
   std::string out;
-  out.reserve(64 + 8 * s.partition_samples.size() + 24 * s.channels.size() + 32 * s.trace.size() +
-              8 * s.tail.heap().size() + s.kernel_state.size() + 1024);
+  out.reserve(checkpoint_size_hint(s));
   write_checkpoint(s, [&](std::string_view piece) { out.append(piece); });
   return out;
 }

@@ -28,6 +28,8 @@ inline constexpr size_t kCheckpointPieceBytes = size_t{16} << 20;
 // encode_checkpoint's bytes. Returns their total size.
 uint64_t write_checkpoint(const JobState& state, const CheckpointSink& sink, size_t piece_bytes = kCheckpointPieceBytes);
 std::string encode_checkpoint(const JobState& state);
+// At least the size of `state`'s checkpoint (what encode_checkpoint reserves).
+uint64_t checkpoint_size_hint(const JobState& state);
 JobState decode_checkpoint(std::string_view bytes);  // throws CheckpointError
 // The checksum that ends a checkpoint, of the bytes before it (magic included). Tests and
 // the fuzz target damage a body and re-append it, so the parser's own checks run.

@@ -164,6 +164,9 @@ class Job : public std::enable_shared_from_this<Job> {
   // at most; the checkpoint then finds the state's passes changed and is abandoned.
   // Taken before mu_.
   std::mutex state_mu_;
+  // The job's last checkpoint streamed from the live state was abandoned: the next one
+  // holds state_mu_ for its whole write (JobRecorder::store).
+  std::atomic<bool> checkpoint_abandoned_{false};
 
   mutable std::mutex mu_;
   // --- guarded by mu_ ---

@@ -34,6 +34,7 @@ JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compil
       retention_(JobRetention::Policy{config_.retain_max_age_s, config_.retain_max_jobs, config_.retain_max_bytes,
                                       config_.retention_interval_s}),
       answers_(store) {
+  recorder_.set_copy_bytes(config_.checkpoint_copy_bytes);
   ExecutorCallbacks cb;
   cb.pass_done = [this](const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
                         double wall) { return on_pass_done(id, done, std::move(results), wall); };

@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "common/engine/checkpoint.hpp"
 #include "common/engine/job_definition.hpp"
 #include "common/protocol/job_snapshot.hpp"
 #include "server/executor/executor.hpp"
@@ -36,6 +37,9 @@ struct ManagerConfig {
   size_t max_running = 16;   // jobs sharing the workers at once
   size_t max_queued = 256;   // jobs waiting for a running slot
   double checkpoint_interval_s = 0.5;
+  // States whose checkpoint is at most this many bytes are copied at the pass boundary
+  // (JobRecorder::set_copy_bytes); bigger ones stream from the live state.
+  uint64_t checkpoint_copy_bytes = kCheckpointPieceBytes;
   size_t event_buffer = 1024;
   double chunk_target_s = 0.004;
   // Memory for jobs' state (JobManager::state_bytes): a job that needs more is refused

@@ -47,9 +47,16 @@ JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint, const Job
   if (is_terminal(status) && final_result && !final_result->is_null()) s.result = dump(*final_result);
   if (is_terminal(status) && facts) s.facts = dump(run_facts_json(*facts));
   if (with_checkpoint && job.runner_) {
-    // Encoded later, without the lock, from the state itself: no copy of it.
-    p.runner = job.runner_;
-    p.passes = job.runner_->state().passes;
+    // Encoded later, without the lock. A small state is copied now (a commit needs mu_
+    // too, so it is the state at this boundary): its checkpoint always lands, however
+    // slow the store. A big one (an image) is read from the live state, piece by piece,
+    // when the store takes it: no copy of it.
+    if (checkpoint_size_hint(job.runner_->state()) <= copy_bytes_.load()) {
+      p.copy = std::make_shared<const JobState>(job.runner_->state());
+    } else {
+      p.runner = job.runner_;
+      p.passes = job.runner_->state().passes;
+    }
   }
   s.created_at = job.created_at_;
   s.started_at = job.started_at_;
@@ -70,14 +77,30 @@ bool JobRecorder::persist_with(Job& job, std::string checkpoint) {
 bool JobRecorder::store(Job& job, Pending pending, bool retry) {
   StoredJob& s = pending.row;
   const uint64_t version = pending.version;
-  // The checkpoint streams from the runner's state to the store piece by piece (an
-  // image's is hundreds of MB, over a GB at 1080p): neither a copy of the state nor
-  // the whole encoding is held. Each piece is encoded under the job's state_mu_; a
+  // A small state's checkpoint is encoded from the copy take() made. A big one (an
+  // image's is hundreds of MB, over a GB at 1080p) streams from the runner's state to
+  // the store piece by piece: neither a copy of the state nor the whole encoding is
+  // held. Each piece is encoded under the job's state_mu_; a
   // pass committed meanwhile (the state's passes moved on) abandons it: the store
   // keeps the checkpoint it had, and the next one is due at a later pass boundary.
+  // After an abandoned one, the next checkpoint writes the state as it is when the store
+  // takes it and keeps state_mu_ for the whole write: the job's next commit waits for
+  // it, so a job whose checkpoint always takes longer than a pass still gets every
+  // other one stored (a kill -9 loses a few intervals of its work, not all of it).
   uint64_t streamed = 0;
-  if (pending.runner) {
+  if (pending.copy) {
     s.checkpoint_stream = [&](const CheckpointSink& sink) {
+      streamed = write_checkpoint(*pending.copy, sink);
+      return streamed;
+    };
+  } else if (pending.runner) {
+    const bool hold = job.checkpoint_abandoned_.load();
+    s.checkpoint_stream = [&](const CheckpointSink& sink) {
+      if (hold) {  // after an abandoned one: the state as it is now, the commit waiting for the whole write
+        std::lock_guard held(job.state_mu_);
+        streamed = write_checkpoint(pending.runner->state(), sink);
+        return streamed;
+      }
       const auto steady = [&] {
         std::unique_lock held(job.state_mu_);
         if (pending.runner->state().passes != pending.passes) throw CheckpointAbandoned();
@@ -97,7 +120,10 @@ bool JobRecorder::store(Job& job, Pending pending, bool retry) {
   try {
     store_.save(s);
   } catch (const CheckpointAbandoned&) {
-    log::job(log::Level::info, job.id_, "checkpoint of pass {} abandoned: the next pass was committed while it was written",
+    job.checkpoint_abandoned_ = true;
+    log::job(log::Level::info, job.id_,
+             "checkpoint of pass {} abandoned: the next pass was committed while it was written; the next one "
+             "holds the commit until it is stored",
              pending.passes);
     return true;
   } catch (const std::exception& e) {
@@ -113,6 +139,7 @@ bool JobRecorder::store(Job& job, Pending pending, bool retry) {
     return false;
   }
   job.saved_version_ = version;
+  if (pending.runner) job.checkpoint_abandoned_ = false;
   if (s.checkpoint) job.checkpoint_bytes_ = s.checkpoint->size();
   if (streamed > 0) job.checkpoint_bytes_ = streamed;
   job.stored_bytes_ = s.spec.size() + s.result.size() + s.facts.size() + job.checkpoint_bytes_;

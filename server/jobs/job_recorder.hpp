@@ -3,6 +3,7 @@
 // checkpoints and at the end, and how a restart turns stored rows back into jobs.
 // Failures never take a job down silently: each is logged at warn with the job id
 // and what it means for the job.
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <functional>
@@ -16,6 +17,7 @@
 #include <nlohmann/json.hpp>
 #include <vector>
 
+#include "common/engine/checkpoint.hpp"
 #include "common/engine/job_definition.hpp"
 #include "server/jobs/job.hpp"
 #include "server/jobs/job_store.hpp"
@@ -46,6 +48,10 @@ class JobRecorder {
   // time: while the job's previous checkpoint is still being written, this one is
   // skipped (the next interval takes it). Failures are handled as persist's, with retry.
   void checkpoint_later(const std::shared_ptr<Job>& job);
+  // States whose checkpoint is estimated at most this many bytes are copied at the pass
+  // boundary and encoded from the copy (never abandoned); larger ones stream from the
+  // live state (see store()). Default: one checkpoint piece. Tests set 0 to stream all.
+  void set_copy_bytes(uint64_t bytes) { copy_bytes_ = bytes; }
   // The save of a job that has ended at a pass boundary, with `ending` (its status,
   // result and facts, not yet published) and its final checkpoint, on the recorder's
   // finisher thread: the thread that ended it (a worker; in cluster mode the
@@ -98,6 +104,9 @@ class JobRecorder {
   struct Pending {
     StoredJob row;
     uint64_t version = 0;
+    // The state to checkpoint: a copy taken at the pass boundary when it is small
+    // (copy_bytes_), else the live runner's, streamed piece by piece at `passes`.
+    std::shared_ptr<const JobState> copy;
     std::shared_ptr<const JobRunner> runner;
     uint64_t passes = 0;
   };
@@ -124,6 +133,7 @@ class JobRecorder {
   std::mutex checkpoint_mu_;
   std::condition_variable_any checkpoint_cv_;
   std::vector<std::pair<std::shared_ptr<Job>, Pending>> checkpoints_;  // queued
+  std::atomic<uint64_t> copy_bytes_{kCheckpointPieceBytes};
   std::set<std::string> checkpoint_busy_;  // ids of jobs whose checkpoint is queued or being written
   std::mutex finals_mu_;
   std::condition_variable_any finals_cv_;

@@ -281,5 +281,71 @@ TEST(Readiness, JobRoutesWaitForRecovery) {
   EXPECT_EQ(h.call("GET", "/v1/jobs").status, 200);
 }
 
+// Wraps a store; every save of a running job's checkpoint starts `delay` late (a store
+// slower than the job's passes), and counts which of them landed and which were
+// abandoned (JobRecorder::store: the state moved on while it was being written).
+class SlowCheckpointStore final : public JobStore {
+ public:
+  SlowCheckpointStore(std::unique_ptr<JobStore> inner, std::chrono::milliseconds delay)
+      : inner_(std::move(inner)), delay_(delay) {}
+  void save(const StoredJob& j) override {
+    const bool periodic = j.state == "running" && (j.checkpoint.has_value() || j.checkpoint_stream);
+    if (!periodic) return inner_->save(j);
+    std::this_thread::sleep_for(delay_);
+    try {
+      inner_->save(j);
+    } catch (...) {
+      ++abandoned;
+      if (landed == 0) ++abandoned_before_first;
+      throw;
+    }
+    ++landed;
+  }
+  std::vector<StoredJob> load_all() override { return inner_->load_all(); }
+  std::optional<std::string> load_checkpoint(const std::string& id) override { return inner_->load_checkpoint(id); }
+  bool remove(const std::string& id) override { return inner_->remove(id); }
+  uint64_t next_epoch() override { return inner_->next_epoch(); }
+  std::atomic<int> landed{0}, abandoned{0}, abandoned_before_first{0};
+
+ private:
+  std::unique_ptr<JobStore> inner_;
+  std::chrono::milliseconds delay_;
+};
+
+// A job's periodic checkpoints must land however slow the store is against its passes.
+// Streamed from the live state, a checkpoint is abandoned when a pass commits while it
+// is written: with a store 50 ms late and passes of a few ms, every checkpoint of such a
+// job was abandoned, and a kill -9 lost all its work. Now a small state is copied at the
+// pass boundary (nothing to abandon), and a big one that was abandoned once holds the
+// next commit until it is stored.
+TEST(Checkpoint, SmallStatesCheckpointsLandThoughTheStoreIsSlowerThanAPass) {
+  auto owned = std::make_unique<SlowCheckpointStore>(make_memory_store(), std::chrono::milliseconds(50));
+  SlowCheckpointStore* store = owned.get();
+  Harness h(test_manager_config(), std::move(owned));  // a checkpoint at every pass
+  const std::string id = h.submit(fake_spec(4'000'000'000, 20));
+  EXPECT_TRUE(wait_until([&] { return store->landed + store->abandoned >= 4; }, 30));
+  const json mid = h.call_json("GET", "/v1/jobs/" + id);
+  h.call("DELETE", "/v1/jobs/" + id);
+  ASSERT_TRUE(h.wait_state(id, "cancelled"));
+  EXPECT_EQ(mid.at("state"), "running");
+  EXPECT_GE(store->landed, 4);
+  EXPECT_EQ(store->abandoned, 0);
+}
+
+TEST(Checkpoint, AfterAnAbandonedCheckpointTheNextOneLands) {
+  auto owned = std::make_unique<SlowCheckpointStore>(make_memory_store(), std::chrono::milliseconds(50));
+  SlowCheckpointStore* store = owned.get();
+  ManagerConfig mc = test_manager_config();
+  mc.checkpoint_copy_bytes = 0;  // every state streams from the live one, as an image's does
+  Harness h(mc, std::move(owned));
+  const std::string id = h.submit(fake_spec(4'000'000'000, 20));
+  EXPECT_TRUE(wait_until([&] { return store->landed >= 3; }, 30))
+      << store->landed << " landed, " << store->abandoned << " abandoned";
+  h.call("DELETE", "/v1/jobs/" + id);
+  ASSERT_TRUE(h.wait_state(id, "cancelled"));
+  EXPECT_EQ(store->abandoned_before_first, 1) << "the first is abandoned (the passes are faster), the next lands";
+  EXPECT_LE(store->abandoned, store->landed + 1) << "never two abandoned in a row";
+}
+
 }  // namespace
 }  // namespace tally::test
