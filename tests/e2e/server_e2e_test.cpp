@@ -374,7 +374,8 @@ TEST(ServerE2E, CorruptCheckpointIsReported) {
   server.kill9();
   {
     SQLite::Database db((tmp.path / "data" / "tally.db").string(), SQLite::OPEN_READWRITE);
-    SQLite::Statement u(db, "UPDATE jobs SET checkpoint = substr(checkpoint, 1, 40) WHERE id = ?");
+    // Checkpoints are stored in pieces (table checkpoint_pieces): truncate the first.
+    SQLite::Statement u(db, "UPDATE checkpoint_pieces SET bytes = substr(bytes, 1, 40) WHERE id = ? AND n = 0");
     u.bind(1, victim);
     ASSERT_EQ(u.exec(), 1);
   }
