@@ -35,18 +35,15 @@ TEST(ClusterPreemption, UrgentJobPausesTheRunningOneWhichResumesBitIdentical) {
 
   // Watch the low job's status from its own connection while the urgent one runs.
   std::atomic<bool> stop{false}, seen_preempted{false};
-  json at_pause;  // the low job's status when first seen paused (written once, before seen_preempted)
   HttpClient watcher = cl.server.client();
   std::thread watch([&] {
     while (!stop) {
       const json s = get_json(watcher, "/v1/jobs/" + a);
-      if (!seen_preempted && s.at("state") == "queued" && s.value("waiting_reason", "") == "preempted") {
-        at_pause = s;
-        seen_preempted = true;
-      }
+      if (s.at("state") == "queued" && s.value("waiting_reason", "") == "preempted") seen_preempted = true;
       std::this_thread::sleep_for(std::chrono::milliseconds(5));
     }
   });
+  const uint64_t low_samples_at_submit = get_json(c, "/v1/jobs/" + a).value("samples", uint64_t{0});
   const auto t0 = std::chrono::steady_clock::now();
   const std::string b = submit(c, urgent, "?priority=5");
   double started_ms = -1;
@@ -64,14 +61,18 @@ TEST(ClusterPreemption, UrgentJobPausesTheRunningOneWhichResumesBitIdentical) {
   stop = true;
   watch.join();
 
-  // The pass in flight when the urgent job came: the low job's last pass before it was
-  // paused, from its status when first seen paused (trace points are [compute time s,
-  // samples, mean, std error] per pass; compute time is the pass's wall time).
-  const json trace = (seen_preempted ? at_pause : sa_mid).value("trace", json::array());
-  const double pass_ms =
-      trace.size() >= 2 ? 1e3 * (trace[trace.size() - 1][0].get<double>() - trace[trace.size() - 2][0].get<double>())
-                        : -1;
-  std::printf("cluster preemption: the priority-5 job started %.0f ms after its submit; the low job's pass then "
+  // The pass in flight when the urgent job came: the first of the low job's passes whose
+  // count passed the samples it had then, from its final trace (points are [compute time
+  // s, samples, mean, std error] per pass; a pass's compute time is its wall time).
+  const json trace = sa.value("trace", json::array());
+  double pass_ms = -1;
+  for (size_t i = 1; i < trace.size(); ++i) {
+    if (trace[i][1].get<uint64_t>() > low_samples_at_submit) {
+      pass_ms = 1e3 * (trace[i][0].get<double>() - trace[i - 1][0].get<double>());
+      break;
+    }
+  }
+  std::printf("cluster preemption: the priority-5 job started %.0f ms after its submit; the low job's pass in flight "
               "took %.0f ms (%.2f pass lengths)\n",
               started_ms, pass_ms, pass_ms > 0 ? started_ms / pass_ms : -1.0);
   EXPECT_TRUE(seen_preempted) << "the low job never read as queued/preempted; while the urgent ran: " << sa_mid.dump();
