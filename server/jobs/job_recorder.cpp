@@ -95,7 +95,8 @@ bool JobRecorder::store(Job& job, Pending pending, bool retry) {
     };
   } else if (pending.runner) {
     const bool hold = job.checkpoint_abandoned_.load();
-    s.checkpoint_stream = [&](const CheckpointSink& sink) {
+    // `hold` by value: the stream runs inside store_.save, after this block has ended.
+    s.checkpoint_stream = [&, hold](const CheckpointSink& sink) {
       if (hold) {  // after an abandoned one: the state as it is now, the commit waiting for the whole write
         std::lock_guard held(job.state_mu_);
         streamed = write_checkpoint(pending.runner->state(), sink);

@@ -51,7 +51,8 @@ TEST(PriorityChange, ExactStatusesAndTheJobsSummary) {
     EXPECT_EQ(h.call_json("GET", "/v1/jobs/" + id).at("priority"), p) << "the status document follows at once";
   }
   // The list shows it too.
-  for (const json& j : h.call_json("GET", "/v1/jobs").at("jobs")) {
+  const json list = h.call_json("GET", "/v1/jobs");  // the loop reads into it: keep it alive
+  for (const json& j : list.at("jobs")) {
     EXPECT_EQ(j.at("priority"), j.at("id") == running ? 3 : 5);
   }
 
