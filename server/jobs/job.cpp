@@ -249,17 +249,16 @@ void Job::park_locked() {
   parked_ = true;
 }
 
-uint64_t Job::pause_locked(bool stored) {
+uint64_t Job::pause_locked() {
   preempt_requested_ = false;
   preempted_ = true;
   status_ = JobStatus::queued;
   const uint64_t samples = runner_ ? runner_->state().samples : 0;
-  if (stored) park_locked();
   engine_.reset();
   live_facts_.reset();
   version_++;
   publish_state_locked();
-  events_.append("preempted", dump(nlohmann::json{{"samples", samples}, {"state_stored", stored}}));
+  events_.append("preempted", dump(nlohmann::json{{"samples", samples}}));
   return samples;
 }
 

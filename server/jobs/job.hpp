@@ -103,9 +103,9 @@ class Job : public std::enable_shared_from_this<Job> {
   std::optional<PassWork> start_running_locked(uint64_t epoch, double now, ExecutorJob& ej);
   // The state leaves memory, the figures stay (facts_): read back when it starts.
   void park_locked();
-  // running -> queued at a pass boundary, its state stored (`stored`: then released).
-  // Returns the samples it had.
-  uint64_t pause_locked(bool stored);
+  // running -> queued at a pass boundary, its state still in memory (stored next, then
+  // parked: Preemption). Returns the samples it had.
+  uint64_t pause_locked();
   // A finished job waits again with `runner` (the old one's state, the new rule); with
   // `park`, on disk.
   void reopen_locked(JobRunner runner, bool park);

@@ -206,11 +206,23 @@ void JobManager::preempt_locked() {
 }
 
 void JobManager::pause(const std::shared_ptr<Job>& job) {
-  // Its state at this pass boundary is stored before it leaves memory.
-  const bool stored = recorder_.persist(*job, true, false);
-  std::lock_guard lock(mu_);
-  preemption_.requeue(job, stored);
-  start_queued_locked();
+  // The slot is free at once: the job that goes first starts now (if the memory budget
+  // lets it beside this one's state), not after this state is written (hundreds of ms
+  // for an image). The state is stored on the recorder's loader thread, so this thread
+  // (a worker; in cluster mode the coordinator) goes on too; once stored it leaves
+  // memory. Until then the paused job waits with its state in memory: if it is started
+  // again first, it goes on from there; if the store fails, it stays so.
+  uint64_t version = 0;
+  {
+    std::lock_guard lock(mu_);
+    version = preemption_.requeue(job);
+    start_queued_locked();
+  }
+  recorder_.load_later([this, job, version] {
+    if (!recorder_.persist(*job, true, false)) return;
+    std::lock_guard lock(mu_);
+    if (preemption_.release_stored(job, version)) start_queued_locked();
+  });
 }
 
 void JobManager::start_locked(const std::shared_ptr<Job>& job) {

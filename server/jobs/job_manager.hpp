@@ -168,8 +168,9 @@ class JobManager {
   void resume_loaded(const std::shared_ptr<Job>& job);
   // Under mu_: asks the running jobs Admission picks to pause at their next pass boundary.
   void preempt_locked();
-  // At a pass boundary (on_pass_done): stores the job's state, releases it and queues
-  // the job again (Preemption::requeue).
+  // At a pass boundary (on_pass_done): queues the job again and frees its slot
+  // (Preemption::requeue), then stores its state on the recorder's loader thread and
+  // releases it (Preemption::release_stored).
   void pause(const std::shared_ptr<Job>& job);
   // Once a finished job is stored with its final checkpoint: frees its state.
   void release_state(Job& job);

@@ -13,18 +13,30 @@ void Preemption::request_pauses(double now) {
   }
 }
 
-void Preemption::requeue(const std::shared_ptr<Job>& job, bool stored) {
-  uint64_t samples = 0;
+uint64_t Preemption::requeue(const std::shared_ptr<Job>& job) {
+  uint64_t samples = 0, version = 0;
   {
     std::lock_guard jl(job->mu_);
-    samples = job->pause_locked(stored);
+    samples = job->pause_locked();
+    version = job->version_;
   }
-  if (stored) admission_.release(*job);
   admission_.stopped(*job);
   admission_.enqueue(job);
   ++preemptions_;
-  log::job(log::Level::info, job->id(), "paused at a pass boundary ({} samples{}); queued until it resumes", samples,
-           stored ? ", state stored and released" : ", state kept: the store failed");
+  log::job(log::Level::info, job->id(),
+           "paused at a pass boundary ({} samples); queued until it resumes, its state being stored", samples);
+  return version;
+}
+
+bool Preemption::release_stored(const std::shared_ptr<Job>& job, uint64_t version) {
+  {
+    std::lock_guard jl(job->mu_);
+    if (job->status_ != JobStatus::queued || job->version_ != version || !job->runner_) return false;
+    job->park_locked();
+  }
+  admission_.release(*job);
+  log::job(log::Level::debug, job->id(), "the paused job's state is stored; it leaves memory");
+  return true;
 }
 
 Preemption::Start Preemption::start_locked(const std::shared_ptr<Job>& job, double now) {

@@ -28,9 +28,15 @@ class Preemption {
   // Asks each running job Admission picks to pause at its next pass boundary (takes the
   // job's lock). `now`: steady clock seconds.
   void request_pauses(double now);
-  // A job that paused at a pass boundary waits in the queue again; its state was stored
-  // (`stored`: then it leaves memory) or kept (the store failed). Takes the job's lock.
-  void requeue(const std::shared_ptr<Job>& job, bool stored);
+  // A job that paused at a pass boundary waits in the queue again, its running slot free
+  // at once (the job that goes first starts beside the save of this one's state); its
+  // state stays in memory, charged, until stored. Returns the job's version then, for
+  // release_stored. Takes the job's lock.
+  uint64_t requeue(const std::shared_ptr<Job>& job);
+  // The paused job's state was stored at `version`: if it still waits unchanged since
+  // (not resumed from memory meanwhile, not cancelled), the state leaves memory and its
+  // memory charge is released (true: a waiting job may fit now). Takes the job's lock.
+  bool release_stored(const std::shared_ptr<Job>& job, uint64_t version);
 
   // Admission chose a queued job to start; call under the job's lock. not_parked: start
   // it as usual; load: its state is on disk: it now holds its slot and memory, read the

@@ -8,6 +8,7 @@
 
 #include "common/protocol/job_kinds.hpp"
 #include "common/protocol/job_json.hpp"
+#include "gated_store.hpp"
 #include "server_test_support.hpp"
 
 namespace tally::test {
@@ -54,7 +55,8 @@ void expect_preempted_run_is_bit_identical(const json& spec) {
     const JobSnapshot s = m.snapshot(low);
     ASSERT_EQ(s.status, JobStatus::queued) << "it finished before its next pass boundary: make it longer";
     EXPECT_EQ(s.executor.waiting_reason, "preempted");
-    EXPECT_FALSE(m.snapshot(low, JobManager::SnapshotOf::state).runner) << "its state left memory";
+    EXPECT_TRUE(wait_until([&] { return !m.snapshot(low, JobManager::SnapshotOf::state).runner; }, 30))
+        << "its state is stored, then leaves memory";
     EXPECT_TRUE(has_event(m, low, "preempted"));
     const json summary = summary_json(s);
     EXPECT_EQ(summary.at("waiting_reason"), "preempted");
@@ -99,6 +101,53 @@ TEST(Preemption, ImageJobResumesBitIdentical) {
     "query": {"type": "image", "max_pass_spp": 4}, "estimators": ["mis"], "stop": {"max_samples": 96}
   })");
   expect_preempted_run_is_bit_identical(spec);
+}
+
+// The job that goes first starts at the paused job's pass boundary, not once the paused
+// job's state is written (an image's takes hundreds of ms; the pause used to store it on
+// the thread that published the pass, and only then free the slot). Here the paused
+// job's save is held at a gate: the urgent job runs meanwhile, the paused job keeps its
+// state in memory until the save lands, then releases it, and still ends bit-identical.
+TEST(Preemption, TheUrgentJobStartsBeforeThePausedJobsStateIsStored) {
+  // Once armed (just before the urgent submit), every save of a state waits at the gate:
+  // the pause's, and any periodic checkpoint of the low job (the pause's save then waits
+  // behind it for the job's save lock).
+  auto armed = std::make_shared<std::atomic<bool>>(false);
+  auto owned = std::make_unique<GatedStore>(make_memory_store(), [armed](const StoredJob& j) {
+    return *armed && (j.checkpoint.has_value() || static_cast<bool>(j.checkpoint_stream));
+  });
+  GatedStore* store = owned.get();
+  struct OpenAtExit {  // a failed assertion must not leave the loader held at the gate
+    GatedStore* s;
+    ~OpenAtExit() { s->open(); }
+  } open_at_exit{store};
+  JobManager m(one_slot(0), *store, compile_any);
+  m.recover();
+  const json spec = {{"kind", "integrate"},
+                     {"seed", 3},
+                     {"integrand", {{"expression", "exp(-x*x-y*y)"}}},
+                     {"domain", {{"type", "box"}, {"lower", {0, 0}}, {"upper", {1, 1}}}},
+                     {"stop", {{"max_samples", 20000000}}}};
+  const std::string ref = m.submit(spec, 0)->id();
+  ASSERT_TRUE(wait_until([&] { return status_of(m, ref) == JobStatus::succeeded; }, 120));
+
+  const std::string low = m.submit(spec, 0, {}, /*use_cache=*/false)->id();
+  ASSERT_TRUE(wait_until([&] { return passes_of(m, low) >= 1; }, 60));
+  *armed = true;
+  const std::string high = m.submit(fake_spec(kForever, 1, 99), 5)->id();
+  ASSERT_TRUE(store->wait_until_a_save_is_held(60)) << "the low job's state is saved";
+  ASSERT_TRUE(wait_until([&] { return status_of(m, high) == JobStatus::running; }, 20))
+      << "the urgent job starts while the paused job's save is held";
+  EXPECT_EQ(status_of(m, low), JobStatus::queued);
+  EXPECT_EQ(m.snapshot(low).executor.waiting_reason, "preempted");
+  EXPECT_TRUE(m.snapshot(low, JobManager::SnapshotOf::state).runner) << "in memory until stored";
+  store->open();
+  EXPECT_TRUE(wait_until([&] { return !m.snapshot(low, JobManager::SnapshotOf::state).runner; }, 30))
+      << "stored, it leaves memory";
+  m.cancel(high);
+  ASSERT_TRUE(wait_until([&] { return status_of(m, low) == JobStatus::succeeded; }, 120));
+  EXPECT_EQ(m.snapshot(low).final_result->at("bits"), m.snapshot(ref).final_result->at("bits"));
+  m.shutdown();
 }
 
 TEST(Preemption, NotBeforeTheMinimumRunTimeAndNotForEqualPriority) {
