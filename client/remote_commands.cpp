@@ -165,6 +165,25 @@ std::string prediction_text(const json& v) {
   return out;
 }
 
+// The validate answer's suggested estimator as one line ("" when there is none).
+std::string suggestion_text(const json& v) {
+  const json s = v.value("suggestion", json());
+  if (!s.is_object()) return "";
+  const json w = s.value("would_choose", json::object());
+  std::string out = fmt::format("faster: add \"estimator\": {{\"type\": \"auto\"}}; it would choose {}{}",
+                                w.value("estimator", "?"),
+                                w.contains("periodize") ? fmt::format(" ({})", w["periodize"].get<std::string>()) : "");
+  const json fewer = s.value("fewer_evaluations", json()), evals = s.value("predicted_evaluations", json()),
+             dflt = s.value("default_predicted_evaluations", json());
+  if (fewer.is_number() && evals.is_number() && dflt.is_number()) {
+    out += fmt::format(", about {}x fewer integrand evaluations ({} against the default's {})", format_count(fewer.get<double>()),
+                       format_count(evals.get<double>()), format_count(dflt.get<double>()));
+  }
+  const json secs = s.value("predicted_seconds", json());
+  if (secs.is_number()) out += fmt::format(", about {} of compute", format_duration(secs.get<double>()));
+  return out;
+}
+
 // Seconds the validate answer predicts (nullopt when it has no prediction).
 std::optional<double> predicted_seconds(const json& v) {
   const json p = v.value("prediction", json());
@@ -338,6 +357,7 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
             const json vj = json::parse(v.body);
             const std::string text = prediction_text(vj);
             if (!text.empty()) fmt::print(stderr, "tally: {}\n", text);
+            if (const std::string faster = suggestion_text(vj); !faster.empty()) fmt::print(stderr, "tally: {}\n", faster);
             const auto secs = predicted_seconds(vj);
             if (secs && *secs > *warn_s) {
               fmt::print(stderr,
@@ -394,6 +414,7 @@ void add_remote_commands(CLI::App& app, int& exit_code) {
                        format_count(pt["samples"].get<double>()), format_duration(pt["seconds"].get<double>()));
           }
         }
+        if (const std::string faster = suggestion_text(v); !faster.empty()) fmt::print("{}\n", faster);
         const json pilot = v.value("pilot", json::object());
         for (const auto& w : pilot.value("warnings", json::array())) {
           if (w.is_string()) fmt::print("warning: {}\n", w.get<std::string>());

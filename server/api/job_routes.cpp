@@ -11,6 +11,7 @@
 #include "common/spec/priority_field.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "common/spec/stop_rule_json.hpp"
+#include "server/api/estimator_suggestion.hpp"
 #include "server/api/job_event_stream.hpp"
 #include "server/api/pilot.hpp"
 #include "server/api/request_handler.hpp"
@@ -259,6 +260,8 @@ HttpResponse RequestHandler::validate_job(const ApiRequest& req, const PathParam
   }
   out["pilot"] = pilot["pilot"];
   out["prediction"] = pilot["prediction"];
+  const auto compile = [&](const json& s) { return manager_.compile(s, limits); };
+  if (auto s = estimator_suggestion(spec, *def, out["prediction"], compile)) out["suggestion"] = std::move(*s);
   return json_response(200, out);
 }
 

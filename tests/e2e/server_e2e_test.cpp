@@ -426,6 +426,48 @@ TEST(ServerE2E, ValidateMetricsAndOpenApiOverTheWire) {
   EXPECT_EQ(c.request("GET", "/readyz").status, 200);
 }
 
+// A spec that names no estimator runs plain Monte Carlo; validate names the estimator
+// the automatic choice would take when it is cheaper (issue 30), and that estimator
+// really is: the job with it reaches the target with fewer evaluations than the
+// suggestion says plain Monte Carlo needs.
+TEST(ServerE2E, ValidateNamesAFasterEstimatorForASmoothIntegrand) {
+  TempDir tmp;
+  ServerProcess server(tmp.path / "data");
+  HttpClient c = server.client();
+  json spec = {{"kind", "integrate"},
+               {"seed", 5},
+               {"integrand", {{"expression", "exp(-x*x)"}}},
+               {"domain", {{"type", "box"}, {"lower", {0}}, {"upper", {1}}}},
+               {"stop", {{"rel_error", 1e-5}}}};
+  const auto validate = [&](const json& s) {
+    const ClientResponse v = c.request("POST", "/v1/jobs/validate", s.dump(), {{"Content-Type", "application/json"}});
+    EXPECT_EQ(v.status, 200) << v.body;
+    return json::parse(v.body);
+  };
+  const json v = validate(spec);
+  ASSERT_TRUE(v.contains("suggestion")) << v.dump();
+  const json& s = v.at("suggestion");
+  EXPECT_EQ(s.at("estimator"), (json{{"type", "auto"}}));
+  EXPECT_NE(s.at("would_choose").at("estimator"), "uniform");
+  EXPECT_GT(s.at("fewer_evaluations").get<double>(), 100.0);
+  EXPECT_NEAR(s.at("fewer_evaluations").get<double>(),
+              s.at("default_predicted_evaluations").get<double>() / s.at("predicted_evaluations").get<double>(), 1e-6);
+  EXPECT_LT(s.at("predicted_seconds").get<double>(), v.at("prediction").at("seconds").get<double>());
+
+  json faster = spec;
+  faster["estimator"] = s.at("estimator");
+  EXPECT_FALSE(validate(faster).contains("suggestion")) << "a spec that names its estimator gets none";
+  const std::string id = submit(c, faster);
+  const json done = wait_state(c, id, "succeeded", 60);
+  EXPECT_EQ(done.at("stop_reason"), "error_target");
+  EXPECT_LT(done.at("result").at("evaluations").get<double>(), s.at("default_predicted_evaluations").get<double>() / 100)
+      << done.dump();
+  // erf(1) sqrt(pi) / 2, within 4 of its reported standard errors (and the target).
+  const double mean = done.at("estimate").at("mean").get<double>();
+  EXPECT_NEAR(mean, 0.7468241328124270, 4 * done.at("estimate").at("std_error").get<double>() + 1e-12);
+
+}
+
 // ---- the CLI
 
 struct CliResult {

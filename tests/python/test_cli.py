@@ -221,6 +221,27 @@ class AgainstRealServer(ServerTestCase):
         self.assertEqual(r.returncode, USAGE)
         self.assertIn("the spec on stdin is not valid JSON", r.stderr)
 
+    def test_validate_names_a_faster_estimator(self) -> None:
+        d = tempfile.mkdtemp(prefix="tally_cli_")
+        try:
+            path = os.path.join(d, "smooth.json")
+            with open(path, "w", encoding="utf-8") as f:
+                json.dump({"kind": "integrate", "integrand": {"expression": "exp(-x*x)"},
+                           "domain": {"type": "box", "lower": [0], "upper": [1]},
+                           "stop": {"rel_error": 1e-5}}, f)
+            r = run("validate", path, "--server", self.server.url)
+            self.assertEqual(r.returncode, 0, r.stderr)
+            faster = [ln for ln in r.stdout.splitlines() if ln.startswith("faster: ")]
+            self.assertEqual(len(faster), 1, r.stdout)
+            self.assertTrue(faster[0].startswith('faster: add "estimator": {"type": "auto"}; it would choose '),
+                            faster[0])
+            self.assertIn("fewer integrand evaluations", faster[0])
+            # A spec that names its estimator gets no such line.
+            r = run("validate", os.path.join(SOURCE_DIR, "examples", "unit_disk.json"), "--server", self.server.url)
+            self.assertNotIn("faster: ", r.stdout)
+        finally:
+            shutil.rmtree(d, ignore_errors=True)
+
     def test_validate_names_the_field_of_an_invalid_spec(self) -> None:
         d = tempfile.mkdtemp(prefix="tally_cli_")
         try:
