@@ -11,6 +11,8 @@
 //     (worst case) and with the default entry sizing.
 //  3. Reclaim latency after kill -9 of a worker holding an entry (lease 1 s; goal <=
 //     lease + 1 s), and the duplicate ratio of that run.
+//  4. Preemption latency (issue 32): a priority-5 submit just after a pass boundary of
+//     the running low-priority image job; its start against that pass ("preemption" alone).
 #include <fmt/format.h>
 #include <signal.h>
 #include <sys/wait.h>
@@ -215,7 +217,7 @@ void ceiling(const std::string& url, size_t max_entry_blocks, size_t passes, siz
 
 int main(int argc, char** argv) {
   const int rounds = argc > 1 ? std::atoi(argv[1]) : 9;
-  // "reclaim": part 3 alone; "lighting" / "colour" / "integration" / "heavy": that overhead alone.
+  // "reclaim": part 3 alone; "preemption": part 4 alone; "lighting" / "colour" / "integration" / "heavy": that overhead alone.
   const std::string only = argc > 2 ? argv[2] : "";
   TempDir tmp;
   const fs::path sock = tmp.path / "r.sock";
@@ -287,6 +289,60 @@ int main(int argc, char** argv) {
       for (pid_t p : pids) reap(p);
       reap(redis);
       return 0;
+    }
+
+    if (only.empty() || only == "preemption") {
+      // 4. Preemption latency through Redis: one 2-thread worker, --max-running 1; a
+      // priority-5 job submitted right after a pass boundary of the running priority -5
+      // image job (the worst moment: a whole pass to wait). Printed: its start after the
+      // submit against the low job's pass in flight (from that job's own trace).
+      const std::string url3 = url + "?db=3";
+      ServerProcess farm(tmp.path / "d", {"--redis", url3, "--max-running", "1", "--preempt-min-run", "0"});
+      pids.push_back(worker(url3, "farm", 2, tmp.path));
+      HttpClient cf = farm.client();
+      std::ifstream lecture(std::string(TALLY_SOURCE_DIR) + "/examples/lecture_lighting_image.json");
+      json low = json::parse(lecture);
+      low["stop"] = {{"max_samples", 1'000'000}};
+      low["query"].erase("adaptive");
+      const std::string a = submit(cf, low, "?priority=-5");
+      const auto samples_of = [&](const std::string& id) {
+        return get_json(cf, "/v1/jobs/" + id).value("samples", uint64_t{0});
+      };
+      while (get_json(cf, "/v1/jobs/" + a).value("passes", 0) < 6) std::this_thread::sleep_for(2ms);
+      const uint64_t before = samples_of(a);
+      uint64_t at_submit = before;
+      while ((at_submit = samples_of(a)) == before) std::this_thread::sleep_for(1ms);  // a boundary just passed
+      const auto t0 = std::chrono::steady_clock::now();
+      const std::string b = submit(cf, disk_spec(2'000'000, 32), "?priority=5");
+      while (get_json(cf, "/v1/jobs/" + b).at("state") == "queued") std::this_thread::sleep_for(1ms);
+      const double started_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+      wait_state(cf, b, "succeeded", 120);
+      json sa;
+      while ((sa = get_json(cf, "/v1/jobs/" + a)).value("samples", uint64_t{0}) <= at_submit ||
+             sa.at("state") != "running") {
+        std::this_thread::sleep_for(5ms);
+      }
+      double pass_ms = -1;
+      const json trace = sa.value("trace", json::array());
+      for (size_t i = 1; i < trace.size(); ++i) {
+        if (trace[i][1].get<uint64_t>() > at_submit) {
+          pass_ms = 1e3 * (trace[i][0].get<double>() - trace[i - 1][0].get<double>());
+          break;
+        }
+      }
+      cf.request("DELETE", "/v1/jobs/" + a);
+      fmt::print("preemption through Redis (--max-running 1, one 2-thread worker, lecture image at priority -5): a "
+                 "priority-5 job submitted just after a pass boundary started {:.0f} ms later; the low job's pass in "
+                 "flight took {:.0f} ms (latency / pass = {:.2f}; beyond the pass: {:.0f} ms)\n",
+                 started_ms, pass_ms, pass_ms > 0 ? started_ms / pass_ms : -1.0, started_ms - pass_ms);
+      farm.terminate();
+      reap(pids.back());
+      pids.pop_back();
+      if (only == "preemption") {
+        for (pid_t p : pids) reap(p);
+        reap(redis);
+        return 0;
+      }
     }
 
     // 3. Reclaim latency after kill -9, lease 1 s.

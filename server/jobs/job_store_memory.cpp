@@ -14,13 +14,15 @@ class MemoryJobStore final : public JobStore {
  public:
   bool probe() override { return true; }
   void save(const StoredJob& j) override {
-    std::lock_guard lock(mu_);
+    // A streamed checkpoint is encoded before the lock, as the SQLite store does: other
+    // saves do not wait for its encoding.
     StoredJob row = j;
     row.checkpoint_stream = nullptr;
-    if (j.checkpoint_stream) {
+    if (!j.checkpoint && j.checkpoint_stream) {
       row.checkpoint.emplace();
       j.checkpoint_stream([&](std::string_view piece) { row.checkpoint->append(piece); });
     }
+    std::lock_guard lock(mu_);
     auto [it, inserted] = jobs_.try_emplace(j.id, row);
     if (!inserted) {
       auto keep = std::move(it->second.checkpoint);

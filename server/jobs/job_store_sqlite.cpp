@@ -8,6 +8,7 @@
 #include <string_view>
 
 #include "common/log/log.hpp"
+#include "server/jobs/checkpoint_spool.hpp"
 #include "server/jobs/job_store.hpp"
 #include "server/jobs/sqlite_job_row.hpp"
 #include "server/jobs/sqlite_salvage.hpp"
@@ -19,7 +20,8 @@ namespace {
 class SqliteJobStore final : public JobStore {
  public:
   explicit SqliteJobStore(const std::string& path)
-      : db_(path, SQLite::OPEN_READWRITE | SQLite::OPEN_CREATE | SQLite::OPEN_FULLMUTEX) {
+      : db_(path, SQLite::OPEN_READWRITE | SQLite::OPEN_CREATE | SQLite::OPEN_FULLMUTEX),
+        dir_(std::filesystem::absolute(path).parent_path()) {
     db_.exec("PRAGMA journal_mode=WAL");
     // NORMAL is durable against a crashed or killed process (not power loss) and
     // far cheaper than FULL; checkpoints are small and frequent.
@@ -76,6 +78,10 @@ class SqliteJobStore final : public JobStore {
   }
 
   void save(const StoredJob& j) override {
+    // A streamed checkpoint is encoded before the lock (checkpoint_spool.hpp): other
+    // saves wait for its copy into the database, not for its encoding.
+    std::optional<CheckpointSpool> spool;
+    if (!j.checkpoint && j.checkpoint_stream) spool.emplace(dir_, j.checkpoint_stream);
     std::lock_guard lock(mu_);
     SQLite::Transaction tx(db_);
     SQLite::Statement st(db_,
@@ -101,12 +107,13 @@ class SqliteJobStore final : public JobStore {
     st.bind(13, j.owner);
     st.bind(14, j.facts);
     st.exec();
-    if (j.checkpoint || j.checkpoint_stream) write_pieces(j);
+    if (j.checkpoint || spool) write_pieces(j, spool ? &*spool : nullptr);
     tx.commit();
   }
 
-  // Replaces the job's checkpoint by j's, streamed in pieces (inside save's transaction).
-  void write_pieces(const StoredJob& j) {
+  // Replaces the job's checkpoint by j's (or the spooled one), in pieces (inside save's
+  // transaction).
+  void write_pieces(const StoredJob& j, CheckpointSpool* spool) {
     SQLite::Statement legacy(db_, "UPDATE jobs SET checkpoint = NULL WHERE id = ?");
     legacy.bind(1, j.id);
     legacy.exec();
@@ -128,7 +135,7 @@ class SqliteJobStore final : public JobStore {
       const std::string_view all(*j.checkpoint);
       for (size_t at = 0; at < all.size(); at += kCheckpointPieceBytes) sink(all.substr(at, kCheckpointPieceBytes));
     } else {
-      j.checkpoint_stream(sink);
+      spool->replay(kCheckpointPieceBytes, sink);
     }
     if (n == 0) sink({});  // an empty checkpoint is still one
   }
@@ -201,6 +208,7 @@ class SqliteJobStore final : public JobStore {
  private:
   std::mutex mu_;
   SQLite::Database db_;
+  std::filesystem::path dir_;  // the database's directory: checkpoints spool there
   std::optional<std::string> damage_;
 };
 

@@ -5,7 +5,9 @@
 #include <SQLiteCpp/SQLiteCpp.h>
 
 #include <filesystem>
+#include <future>
 #include <map>
+#include <thread>
 
 #include <fmt/format.h>
 
@@ -287,6 +289,56 @@ TEST(JobStore, CheckpointOverOnePieceStreamsInAndReadsBack) {
   stores.clear();
   SQLite::Database d((dir.path / "tally.db").string(), SQLite::OPEN_READONLY);
   EXPECT_EQ(d.execAndGet("SELECT count(*) FROM checkpoint_pieces").getInt64(), 0);
+}
+
+// A checkpoint's encoding (JobRecorder streams it from the job's state, piece by piece,
+// waiting for the job's passes) used to run under the store's lock: every other save
+// waited for it, so a submit was acknowledged seconds late while an image job
+// checkpointed. Now both stores encode a streamed checkpoint before they lock (the SQLite
+// one into an unlinked spool file in its directory): here one stream is held half-way,
+// and another job's save lands meanwhile; then the held one lands whole, and no spool
+// file is left behind.
+TEST(JobStore, OtherSavesDoNotWaitForAStreamedCheckpointsEncoding) {
+  const size_t size = kCheckpointPieceBytes + 7;
+  std::string expected(size, '\0');
+  for (size_t i = 0; i < size; ++i) expected[i] = static_cast<char>((i * 37) >> 2);
+  TempDir dir;
+  std::vector<std::unique_ptr<JobStore>> stores;
+  stores.push_back(open_sqlite_store(dir.path.string()));
+  stores.push_back(make_memory_store());
+  for (auto& store : stores) {
+    std::promise<void> half_way, go_on;
+    std::shared_future<void> go = go_on.get_future().share();
+    StoredJob big;
+    big.id = "big";
+    big.seq = 1;
+    big.state = "running";
+    big.checkpoint_stream = [&](const CheckpointSink& sink) {
+      sink(std::string_view(expected).substr(0, kCheckpointPieceBytes));
+      half_way.set_value();
+      go.wait();
+      sink(std::string_view(expected).substr(kCheckpointPieceBytes));
+      return static_cast<uint64_t>(size);
+    };
+    std::thread saver([&] { store->save(big); });
+    half_way.get_future().wait();
+    StoredJob other;
+    other.id = "other";
+    other.seq = 2;
+    other.state = "queued";
+    auto landed = std::async(std::launch::async, [&] { store->save(other); });
+    const bool in_time = landed.wait_for(std::chrono::seconds(20)) == std::future_status::ready;
+    EXPECT_TRUE(in_time) << "another job's save waited for the held encoding";
+    go_on.set_value();
+    saver.join();
+    landed.get();
+    EXPECT_EQ(store->load_checkpoint("big"), expected);
+    ASSERT_EQ(store->load_all().size(), 2u);
+  }
+  stores.clear();
+  for (const auto& e : std::filesystem::directory_iterator(dir.path)) {
+    EXPECT_EQ(e.path().filename().string().rfind(".checkpoint-spool", 0), std::string::npos) << e.path();
+  }
 }
 
 // A file written before checkpoints came in pieces keeps its checkpoint in the jobs
