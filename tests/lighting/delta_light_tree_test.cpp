@@ -72,10 +72,8 @@ Scene scene_of(const std::vector<DeltaLight>& lights) {
   return s;
 }
 
-Vec3 random_point(uint64_t seed, uint64_t i) {
-  const SampleRng rng(seed, i);
-  return {12 * rng.uniform(0) - 6, 4 * rng.uniform(1) - 0.5, 12 * rng.uniform(2) - 6};
-}
+// Shading points around and among the lights.
+Vec3 random_point(uint64_t seed, uint64_t i) { return test::random_point(seed, i, {-6, -0.5, -6}, {6, 3.5, 6}); }
 
 TEST(DeltaLightTree, PmfSumsToOneAndSampleReportsItExactly) {
   const RandomLights L = random_lights(300, 3);
@@ -162,13 +160,6 @@ json plane_spec(const json& lights, const std::vector<Vec3>& points, const std::
           {"estimators", {"mis"}}, {"stop", {{"max_samples", samples}}}};
 }
 
-json effect(const test::JobRun& r, const std::string& name) {
-  const json plan = plan_json(*r.job);
-  for (const json& e : plan["plan"]["effects"]) {
-    if (e["effect"] == name) return e;
-  }
-  return nullptr;
-}
 
 TEST(DeltaLightTree, OneLightEstimateEqualsTheExactSumOverAllLights) {
   // 240 lights (187 point, 47 spot, 6 directional) over a diffuse
@@ -180,7 +171,7 @@ TEST(DeltaLightTree, OneLightEstimateEqualsTheExactSumOverAllLights) {
   const std::vector<Vec3> points{{0.2, 0, -0.3}, {-4.5, 0, 3.5}, {5.5, 0, 5.5}};
   const uint64_t n = 40000;
   const test::JobRun r = test::run_spec(plane_spec(L.lights, points, "auto", n));
-  const json e = effect(r, "delta_light_tree");
+  const json e = test::plan_effect(r, "delta_light_tree");
   ASSERT_FALSE(e.is_null());
   ASSERT_TRUE(e["on"].get<bool>()) << e.dump();
   // One shadow ray per sample for the picked light plus one per directional light
@@ -209,14 +200,10 @@ TEST(DeltaLightTree, OneLightEstimateEqualsTheExactSumOverAllLights) {
 }
 
 TEST(DeltaLightTree, ImagesAreBitIdenticalOnOneAndTwoThreads) {
-  json scene = scenes::many_point_lights_scene(300);
-  scene["camera"] = {{"position", {0, 1.5, 5.5}}, {"look_at", {0, 1.2, 0}}, {"fov_deg", 70}, {"resolution", {24, 16}}};
-  const json spec = {{"kind", "lighting"}, {"seed", 8}, {"sampler", "sobol"}, {"scene", scene},
-                     {"query", {{"type", "image"}, {"max_depth", 2}, {"tile_size", 8}}},
-                     {"estimators", {"mis"}}, {"stop", {{"max_samples", 16}}}};
+  const json spec = test::room_image_spec(scenes::many_point_lights_scene(300));
   const test::JobRun one = test::run_spec(spec, 1);
   const test::JobRun two = test::run_spec(spec, 2);
-  ASSERT_TRUE(effect(one, "delta_light_tree")["on"].get<bool>());
+  ASSERT_TRUE(test::plan_effect(one, "delta_light_tree")["on"].get<bool>());
   EXPECT_EQ(test::differing_channels(one, two), 0u);
   double sum = 0;
   for (const Tally& t : one.runner->state().channels) sum += t.mean;
@@ -242,7 +229,7 @@ TEST(DeltaLightTree, PlannerKeepsTheExactLoopAtOrBelowTheThreshold) {
   const size_t few = kDeltaLightTreeMinLights, many = kDeltaLightTreeMinLights + 1;
 
   const test::JobRun loop = test::run_spec(plane_spec(points_only(few), at, "auto", n));
-  const json off = effect(loop, "delta_light_tree");
+  const json off = test::plan_effect(loop, "delta_light_tree");
   ASSERT_FALSE(off.is_null());
   EXPECT_FALSE(off["on"].get<bool>());
   EXPECT_NE(off["why"].get<std::string>().find("64 point/spot lights, at most 64"), std::string::npos) << off.dump();
@@ -250,7 +237,7 @@ TEST(DeltaLightTree, PlannerKeepsTheExactLoopAtOrBelowTheThreshold) {
   EXPECT_EQ(loop.channel(0).variance(), 0.0);
 
   const test::JobRun tree = test::run_spec(plane_spec(points_only(many), at, "auto", n));
-  const json on = effect(tree, "delta_light_tree");
+  const json on = test::plan_effect(tree, "delta_light_tree");
   ASSERT_FALSE(on.is_null());
   EXPECT_TRUE(on["on"].get<bool>());
   EXPECT_NE(on["why"].get<std::string>().find("65 point/spot lights, more than 64"), std::string::npos) << on.dump();
@@ -258,14 +245,14 @@ TEST(DeltaLightTree, PlannerKeepsTheExactLoopAtOrBelowTheThreshold) {
   EXPECT_GT(tree.channel(0).variance(), 0.0);
 
   // "light_selection" forces either way; "plan": "full" does not force the tree.
-  EXPECT_FALSE(effect(test::run_spec(plane_spec(points_only(many), at, "power", 2)), "delta_light_tree")["on"].get<bool>());
-  EXPECT_TRUE(effect(test::run_spec(plane_spec(points_only(3), at, "tree", 2)), "delta_light_tree")["on"].get<bool>());
+  EXPECT_FALSE(test::plan_effect(test::run_spec(plane_spec(points_only(many), at, "power", 2)), "delta_light_tree")["on"].get<bool>());
+  EXPECT_TRUE(test::plan_effect(test::run_spec(plane_spec(points_only(3), at, "tree", 2)), "delta_light_tree")["on"].get<bool>());
   json full = plane_spec(points_only(few), at, "auto", 2);
   full["plan"] = "full";
-  EXPECT_FALSE(effect(test::run_spec(full), "delta_light_tree")["on"].get<bool>());
+  EXPECT_FALSE(test::plan_effect(test::run_spec(full), "delta_light_tree")["on"].get<bool>());
   // Without point or spot lights the plan has no such line.
   const json dir = json::array({{{"type", "directional"}, {"direction", {0, 1, 0}}, {"irradiance", {1, 1, 1}}}});
-  EXPECT_TRUE(effect(test::run_spec(plane_spec(dir, at, "auto", 2)), "delta_light_tree").is_null());
+  EXPECT_TRUE(test::plan_effect(test::run_spec(plane_spec(dir, at, "auto", 2)), "delta_light_tree").is_null());
 }
 
 }  // namespace
