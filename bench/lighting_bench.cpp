@@ -6,8 +6,13 @@
 //  3. the lecture's scene: variance, time per sample and efficiency of each estimator;
 //  4. the many-light room (bench/many_lights_scene.hpp, 1,000 emitters): variance per
 //     sample of MIS direct lighting at equal samples, light tree vs power selection.
-// `lighting_bench --many-lights-scene FILE` writes the many-light scene as a job spec.
+//  5. the same room lit by 1,000 point and spot lights (many_point_lights_scene): time per
+//     sample, variance per sample and RMSE at equal time of MIS with max_depth 2, every
+//     light added at every vertex (the loop) vs one light per vertex from the light tree.
+// `lighting_bench --many-lights-scene FILE` writes the many-light scene as a job spec;
+// `lighting_bench --many-point-lights` runs only 5.
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -117,12 +122,75 @@ void many_lights_line() {
   std::printf("  mean variance ratio tree / power at equal samples: %.3f\n", sum_ratio / 4);
 }
 
+// The room with 1,000 point/spot lights: MIS, max_depth 2 (so the loop has variance
+// too: the indirect bounce), at the four receivers of many_lights_spec, independent
+// samples; "power" keeps the loop over every light, "tree" picks one per vertex.
+json many_point_lights_spec(const std::string& selection, uint64_t samples, uint64_t seed) {
+  json spec = many_lights_spec(selection, samples);
+  spec["seed"] = seed;
+  spec["scene"] = scenes::many_point_lights_scene(1000);
+  spec["query"]["max_depth"] = 2;
+  return spec;
+}
+
+// Loop and tree jobs interleaved (loop, tree, loop, tree, ...; `rounds` of each, new seed
+// each round) on one thread; per receiver the pooled variance per sample and time per
+// sample of each, then the ratios.
+void many_point_lights_line() {
+  const int rounds = 3;
+  const uint64_t n_loop = 1000, n_tree = 50000;
+  std::printf("\nroom with 1,000 point/spot lights (bench/many_lights_scene.hpp), MIS max_depth 2, 4 points, 1 thread,\n"
+              "  %d interleaved rounds: loop over all lights %llu samples/round, light tree %llu samples/round\n",
+              rounds, static_cast<unsigned long long>(n_loop), static_cast<unsigned long long>(n_tree));
+  double var[2][4] = {}, mean[2][4] = {}, secs[2][4] = {};
+  uint64_t shadow[2] = {0, 0}, samples[2] = {0, 0};
+  for (int r = 0; r < rounds; ++r) {
+    int k = 0;
+    for (const char* sel : {"power", "tree"}) {
+      const uint64_t n = k == 0 ? n_loop : n_tree;
+      auto job = compile_lighting_job(many_point_lights_spec(sel, n, 100 + static_cast<uint64_t>(r)), JobLimits{});
+      JobRunner runner(job->kernel(), job->stop_rule(), JobCaps{});
+      run_local(runner, LocalRunOptions{});
+      const json res = lighting_result_json(job->result(runner));
+      for (size_t pt = 0; pt < 4; ++pt) {
+        const json& e = res["points"][pt]["estimators"]["mis"];
+        var[k][pt] += e["variance"][1].get<double>() / rounds;
+        mean[k][pt] += e["mean"][1].get<double>() / rounds;
+        secs[k][pt] += e["seconds_per_sample"].get<double>() / rounds;
+      }
+      shadow[k] += runner.state().counters[LightingCounter::shadow_rays];
+      samples[k] += 4 * n;
+      ++k;
+    }
+  }
+  std::printf("  shadow rays per sample: loop %.1f, tree %.2f\n", static_cast<double>(shadow[0]) / static_cast<double>(samples[0]),
+              static_cast<double>(shadow[1]) / static_cast<double>(samples[1]));
+  std::printf("  %-6s %-22s %-22s %-14s %-14s %s\n", "point", "mean(G) loop", "mean(G) tree", "s/sample l/t", "var/sample t/l",
+              "RMSE at equal time t/l");
+  double log_speed = 0, log_rmse = 0;
+  for (size_t pt = 0; pt < 4; ++pt) {
+    const double se_l = std::sqrt(var[0][pt] / (rounds * n_loop)), se_t = std::sqrt(var[1][pt] / (rounds * n_tree));
+    const double speed = secs[0][pt] / secs[1][pt];
+    const double rmse = std::sqrt(var[1][pt] * secs[1][pt] / (var[0][pt] * secs[0][pt]));
+    std::printf("  %-6zu %-9.5g +- %-9.2g %-9.5g +- %-9.2g %-14.1f %-14.2f %.3f\n", pt, mean[0][pt], se_l, mean[1][pt], se_t,
+                speed, var[1][pt] / var[0][pt], rmse);
+    log_speed += std::log(speed) / 4;
+    log_rmse += std::log(rmse) / 4;
+  }
+  std::printf("  geometric mean: time per sample loop / tree %.1f; RMSE at equal time tree / loop %.3f\n", std::exp(log_speed),
+              std::exp(log_rmse));
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   if (argc == 3 && std::strcmp(argv[1], "--many-lights-scene") == 0) {
     std::ofstream(argv[2]) << many_lights_spec("auto", 4096).dump(1) << "\n";
     std::printf("wrote %s\n", argv[2]);
+    return 0;
+  }
+  if (argc == 2 && std::strcmp(argv[1], "--many-point-lights") == 0) {
+    many_point_lights_line();
     return 0;
   }
   if (argc == 2 && std::strcmp(argv[1], "--many-lights") == 0) {
@@ -167,5 +235,6 @@ int main(int argc, char** argv) {
                 e["efficiency"].is_null() ? 0.0 : e["efficiency"].get<double>());
   }
   many_lights_line();
+  many_point_lights_line();
   return 0;
 }

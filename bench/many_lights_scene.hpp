@@ -5,6 +5,8 @@
 // and orientations, so that most emitters are far from any one shading point. Written
 // here, nothing downloaded: `lighting_bench --many-lights-scene FILE` saves it as a
 // lighting job spec; the bench and tests/lighting/light_tree_test.cpp render it.
+// many_point_lights_scene: the same room lit by point and spot lights instead
+// (bench/lighting_bench.cpp --many-point-lights, tests/lighting/delta_light_tree_test.cpp).
 #include <cmath>
 #include <cstdint>
 #include <nlohmann/json.hpp>
@@ -46,6 +48,35 @@ inline nlohmann::json many_lights_scene(int n, uint64_t seed = 1) {
     quad(c - (t + b) * (0.5 * s), t * s, b * s, json{{"type", "emissive"}, {"radiance", {L, L, L}}});
   }
   return {{"shapes", shapes}};
+}
+
+// The same room with `n` point lights instead of the emissive squares (issue 29, point
+// lights in the light tree): same positions, intensity 0.02..0.1 (W/sr-like, so the
+// floor gets about what the squares give it), every fifth one a spot light (outer cone
+// 50 degrees, inner 20) pointing at the floor with the square's tilt.
+inline nlohmann::json many_point_lights_scene(int n, uint64_t seed = 1) {
+  using json = nlohmann::json;
+  json scene = many_lights_scene(0, seed);
+  json lights = json::array();
+  const double h = 6.0;
+  for (int k = 0; k < n; ++k) {
+    const SampleRng rng(seed, static_cast<uint64_t>(k));
+    const Vec3 c{-h + 0.2 + (2 * h - 0.4) * rng.uniform(0), 1.5 + 1.4 * rng.uniform(1), -h + 0.2 + (2 * h - 0.4) * rng.uniform(2)};
+    const double cz = 0.2 + 0.8 * rng.uniform(3), phi = 2 * kPi * rng.uniform(4), sz = std::sqrt(1 - cz * cz);
+    const double I = 0.02 + 0.02 * (k % 5);
+    json l = {{"position", {c.x, c.y, c.z}}, {"intensity", {I, I, I}}};
+    if (k % 5 == 4) {
+      l["type"] = "spot";
+      l["direction"] = {sz * std::cos(phi), -cz, sz * std::sin(phi)};
+      l["outer_cone_deg"] = 50;
+      l["inner_cone_deg"] = 20;
+    } else {
+      l["type"] = "point";
+    }
+    lights.push_back(l);
+  }
+  scene["lights"] = lights;
+  return scene;
 }
 
 }  // namespace tally::scenes

@@ -13,8 +13,9 @@
 // instead (light_tree.hpp: importance by power, distance and orientation at the shading
 // point); the sky keeps its power share, the tree takes the rest. Every pdf then
 // includes the tree's pmf at that point.
-// Point and directional lights are not sampled: every estimator adds them
-// deterministically (a hemisphere sample can never hit them).
+// Point, spot and directional lights are not here: a hemisphere sample can never hit
+// them, so every estimator adds them deterministically (the path tracer), or, with many
+// point/spot lights, picks one per vertex from their own tree (delta_light_tree.hpp).
 // Lights of zero area are dropped (they emit no power) and listed in `dropped`.
 #include <optional>
 #include <string>

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <optional>
 
 #include "common/lighting/environment_map.hpp"
 #include "common/lighting/pixel_sampler.hpp"
@@ -54,36 +55,50 @@ Rgb PathTracer::reflected(Vertex v, const PathSettings& s, const Rng& rng, uint3
     auto below_geometric = [&](const Vec3& w) { return v.has_ns && dot(v.n, w) <= 0; };
 
     if (!m.is_delta()) {
-      for (const DeltaLight& dl : scene_.delta_lights) {
+      // The term beta f E cos of one delta light (nullopt: it sends nothing here).
+      auto delta_term = [&](const DeltaLight& dl) -> std::optional<Rgb> {
         Vec3 wi;
         double dist = kInf;
         Rgb e = dl.intensity;
         if (dl.type == DeltaLightType::point || dl.type == DeltaLightType::spot) {
           const Vec3 to = dl.position - v.p;
           const double d2 = dot(to, to);
-          if (!(d2 > 0)) continue;
+          if (!(d2 > 0)) return std::nullopt;
           dist = std::sqrt(d2);
           wi = to / dist;
           e = e / d2;
           if (dl.type == DeltaLightType::spot) {
             const double fall = spot_falloff(dl, -wi);
-            if (!(fall > 0)) continue;
+            if (!(fall > 0)) return std::nullopt;
             e = e * fall;
           }
         } else {
           wi = dl.direction;
         }
         const double cos_i = dot(ns, wi);
-        if (cos_i <= 0 || below_geometric(wi)) continue;
+        if (cos_i <= 0 || below_geometric(wi)) return std::nullopt;
         const Rgb f = bsdf_eval(m, ns, v.wo, wi);
-        if (is_black(f)) continue;
+        if (is_black(f)) return std::nullopt;
         if (plan_.shadows) {
           c.add(LightingCounter::shadow_rays);
           const Vec3 to = dist < kInf ? dl.position - origin : wi;
           const double len = dist < kInf ? length(to) : 1.0;
-          if (accel_.occluded(origin, to / len, dist < kInf ? len * kShadowShorten : kInf)) continue;
+          if (accel_.occluded(origin, to / len, dist < kInf ? len * kShadowShorten : kInf)) return std::nullopt;
         }
-        L += beta * f * e * cos_i;
+        return beta * f * e * cos_i;
+      };
+      if (delta_tree_ == nullptr) {
+        for (const DeltaLight& dl : scene_.delta_lights) {
+          if (const std::optional<Rgb> t = delta_term(dl)) L += *t;
+        }
+      } else {
+        for (uint32_t i : delta_tree_->directional()) {
+          if (const std::optional<Rgb> t = delta_term(scene_.delta_lights[i])) L += *t;
+        }
+        const uint32_t dim = dim0 + kDimDeltaLightChoice + static_cast<uint32_t>(bounce);
+        if (const auto pick = delta_tree_->sample(v.p, rng.uniform(dim))) {
+          if (const std::optional<Rgb> t = delta_term(scene_.delta_lights[pick->light])) L += *t / pick->pmf;
+        }
       }
       if (nee && !lights_.empty()) {
         c.add(LightingCounter::light_samples);

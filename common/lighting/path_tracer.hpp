@@ -8,17 +8,24 @@
 //   light_area          one light sample by area (next-event estimation) + a shadow
 //                       ray; BSDF-sampled bounces carry indirect light only
 //   mis                 one light sample and one BSDF sample, power heuristic (beta=2)
-// Point/spot/directional lights are added deterministically by every strategy; a mirror is
-// always followed in its one direction. Random numbers: dimensions dim0 + 6k .. + 5 at
-// the k-th vertex: light choice, roulette, light point x2, direction x2 -- three 2-D
-// pairs (dim0 is even), see common/lighting/pixel_sampler.hpp. `Rng` is SampleRng
-// (independent) or SobolSample (RQMC); both are instantiated in path_tracer.cpp.
+// Point/spot/directional lights are added deterministically by every strategy, each at
+// every non-mirror vertex -- unless the plan has delta_light_tree (many point/spot
+// lights): then one point or spot light per vertex is picked from the DeltaLightTree
+// with probability pmf and its term divided by pmf (directional lights are still all
+// added). A mirror is always followed in its one direction. Random numbers: dimensions
+// dim0 + 6k .. + 5 at the k-th vertex: light choice, roulette, light point x2, direction
+// x2 -- three 2-D pairs (dim0 is even), see common/lighting/pixel_sampler.hpp; the
+// point/spot light choice at vertex k uses dimension dim0 + kDimDeltaLightChoice + k,
+// past every vertex's (so scenes without the tree draw exactly what they drew before).
+// `Rng` is SampleRng (independent) or SobolSample (RQMC); both are instantiated in
+// path_tracer.cpp.
 #include <cstdint>
 
 #include "common/engine/counters.hpp"
 #include "common/lighting/lighting_counters.hpp"
 #include "common/lighting/accel.hpp"
 #include "common/lighting/bsdf.hpp"
+#include "common/lighting/delta_light_tree.hpp"
 #include "common/lighting/light_set.hpp"
 #include "common/lighting/planner.hpp"
 #include "common/rng/counter_rng.hpp"
@@ -45,8 +52,11 @@ struct PathSettings {
 
 class PathTracer {
  public:
-  PathTracer(const Scene& scene, const Accel& accel, const LightSet& lights, const Plan& plan)
-      : scene_(scene), accel_(accel), lights_(lights), plan_(plan) {}
+  // `delta_tree`: the scene's point/spot light tree when plan.delta_light_tree (else
+  // nullptr: every delta light is added at every vertex).
+  PathTracer(const Scene& scene, const Accel& accel, const LightSet& lights, const Plan& plan,
+             const DeltaLightTree* delta_tree = nullptr)
+      : scene_(scene), accel_(accel), lights_(lights), plan_(plan), delta_tree_(delta_tree) {}
 
   // Reflected radiance at v towards v.wo (without v's own emission).
   template <class Rng>
@@ -61,12 +71,17 @@ class PathTracer {
   static constexpr uint32_t kDimsPerVertex = 6;
   // Offsets inside a vertex's dimensions.
   static constexpr uint32_t kDimLightChoice = 0, kDimRoulette = 1, kDimLightPoint = 2, kDimDirection = 4;
+  // The point/spot light choice of vertex k: dim0 + kDimDeltaLightChoice + k, after the
+  // dimensions of kMaxVertices vertices (lighting_spec.cpp caps max_depth at 64).
+  static constexpr uint32_t kMaxVertices = 64;
+  static constexpr uint32_t kDimDeltaLightChoice = kDimsPerVertex * kMaxVertices;
 
  private:
   const Scene& scene_;
   const Accel& accel_;
   const LightSet& lights_;
   const Plan& plan_;
+  const DeltaLightTree* delta_tree_;
 };
 
 }  // namespace tally

@@ -100,6 +100,25 @@ Plan make_plan(const Scene& scene, const PlanQuery& q, bool full) {
                          fmt::format("{} emitter entries, more than {}: lights chosen by a light hierarchy (power, distance, orientation)",
                                      entries, kLightTreeMinEmitters)});
   }
+
+  // delta light tree (not forced by "full" either: both ways are exact)
+  const size_t positioned = positioned_light_count(scene);
+  if (positioned > 0) {
+    const char* loop = "each point/spot light is added at every vertex (one shadow ray each)";
+    const char* tree = "one point/spot light per vertex, chosen by a light hierarchy (power, distance, spot cone)";
+    if (q.light_selection) {
+      p.delta_light_tree = *q.light_selection == LightSelection::tree;
+      p.effects.push_back({"delta_light_tree", p.delta_light_tree,
+                           fmt::format("\"light_selection\": \"{}\" ({} point/spot lights): {}",
+                                       p.delta_light_tree ? "tree" : "power", positioned, p.delta_light_tree ? tree : loop)});
+    } else {
+      p.delta_light_tree = positioned > kDeltaLightTreeMinLights;
+      p.effects.push_back({"delta_light_tree", p.delta_light_tree,
+                           fmt::format("{} point/spot lights, {} {}: {}", positioned,
+                                       p.delta_light_tree ? "more than" : "at most", kDeltaLightTreeMinLights,
+                                       p.delta_light_tree ? tree : loop)});
+    }
+  }
   return p;
 }
 

@@ -21,12 +21,18 @@
 //             ("light_selection": "tree"); off otherwise or with "power". Listed in the
 //             plan only when on or asked for; "full" does not force it (both selections
 //             are exact, they differ only in variance).
+//   delta_light_tree  on when the scene has more than kDeltaLightTreeMinLights point and
+//             spot lights (delta_light_tree.hpp) or the spec asks for "tree": next-event
+//             estimation then picks one of them per vertex from a light tree; off (each
+//             one added at every vertex, the exact loop) otherwise or with "power".
+//             Listed whenever the scene has point or spot lights; "full" does not force it.
 // "plan": "full" forces every effect on: the tests compare both.
 #include <optional>
 #include <string>
 #include <vector>
 
 #include "common/lighting/bsdf.hpp"
+#include "common/lighting/delta_light_tree.hpp"
 #include "common/lighting/light_tree.hpp"
 #include "common/lighting/scene.hpp"
 
@@ -46,6 +52,7 @@ struct Plan {
   bool sky = true;
   bool emission = true;
   bool light_tree = false;  // choose area lights by the light tree (light_set.hpp)
+  bool delta_light_tree = false;  // pick one point/spot light per vertex (delta_light_tree.hpp)
   std::vector<PlanEffect> effects;
 };
 

@@ -51,10 +51,7 @@ RandomLights random_lights(size_t n, uint64_t seed) {
   return r;
 }
 
-Vec3 random_point(uint64_t seed, uint64_t i) {
-  const SampleRng rng(seed, i);
-  return {12 * rng.uniform(0) - 6, 12 * rng.uniform(1) - 6, 12 * rng.uniform(2) - 6};
-}
+Vec3 random_point(uint64_t seed, uint64_t i) { return test::random_point(seed, i, {-6, -6, -6}, {6, 6, 6}); }
 
 TEST(LightTree, PmfSumsToOneAndSampleReportsItExactly) {
   const RandomLights L = random_lights(500, 3);
@@ -211,11 +208,7 @@ TEST(LightTree, ManyLightEstimateEqualsPowerSelectionWithinErrorBars) {
 }
 
 TEST(LightTree, ImagesAreBitIdenticalOnOneAndTwoThreads) {
-  json scene = many_light_scene(300);
-  scene["camera"] = {{"position", {0, 1.5, 5.5}}, {"look_at", {0, 1.2, 0}}, {"fov_deg", 70}, {"resolution", {24, 16}}};
-  const json spec = {{"kind", "lighting"}, {"seed", 8}, {"sampler", "sobol"}, {"scene", scene},
-                     {"query", {{"type", "image"}, {"max_depth", 2}, {"tile_size", 8}}},
-                     {"estimators", {"mis"}}, {"stop", {{"max_samples", 16}}}};
+  const json spec = test::room_image_spec(many_light_scene(300));
   const test::JobRun one = test::run_spec(spec, 1);
   const test::JobRun two = test::run_spec(spec, 2);
   EXPECT_EQ(test::differing_channels(one, two), 0u);
@@ -225,13 +218,7 @@ TEST(LightTree, ImagesAreBitIdenticalOnOneAndTwoThreads) {
 }
 
 TEST(LightTree, PlannerUsesTheTreeAboveTheThresholdOnly) {
-  auto effect = [](const test::JobRun& r) -> json {
-    const json plan = plan_json(*r.job);
-    for (const json& e : plan["plan"]["effects"]) {
-      if (e["effect"] == "light_tree") return e;
-    }
-    return nullptr;
-  };
+  auto effect = [](const test::JobRun& r) { return test::plan_effect(r, "light_tree"); };
   const json few = many_light_scene(static_cast<int>(kLightTreeMinEmitters));
   const json many = many_light_scene(static_cast<int>(kLightTreeMinEmitters) + 1);
   EXPECT_TRUE(effect(test::run_spec(point_spec(few, "auto", 2))).is_null());

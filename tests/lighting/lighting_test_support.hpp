@@ -19,6 +19,7 @@
 #include "common/protocol/job_kinds.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "common/math/vec3.hpp"
+#include "common/rng/counter_rng.hpp"
 
 #include <unistd.h>
 
@@ -92,6 +93,31 @@ inline JobRun run_spec(json spec, unsigned threads = 1, const JobLimits& limits 
   o.threads = threads;
   run_local(*r.runner, o);
   return r;
+}
+
+// The effect `name` of the job's plan ({"effect", "on", "why"}); null when the plan does
+// not list it.
+inline json plan_effect(const JobRun& r, const std::string& name) {
+  const json plan = plan_json(*r.job);
+  for (const json& e : plan["plan"]["effects"]) {
+    if (e["effect"] == name) return e;
+  }
+  return nullptr;
+}
+
+// Point i of a fixed pseudo-random sequence (seed), uniform in the box [lo, hi].
+inline Vec3 random_point(uint64_t seed, uint64_t i, const Vec3& lo, const Vec3& hi) {
+  const SampleRng rng(seed, i);
+  return {lo.x + (hi.x - lo.x) * rng.uniform(0), lo.y + (hi.y - lo.y) * rng.uniform(1), lo.z + (hi.z - lo.z) * rng.uniform(2)};
+}
+
+// A 24 x 16 image job of the many-light room (bench/many_lights_scene.hpp) seen from its
+// front: sobol, MIS, max_depth 2, 16 spp (the light trees' thread bit-identity tests).
+inline json room_image_spec(json scene) {
+  scene["camera"] = {{"position", {0, 1.5, 5.5}}, {"look_at", {0, 1.2, 0}}, {"fov_deg", 70}, {"resolution", {24, 16}}};
+  return {{"kind", "lighting"}, {"seed", 8}, {"sampler", "sobol"}, {"scene", scene},
+          {"query", {{"type", "image"}, {"max_depth", 2}, {"tile_size", 8}}},
+          {"estimators", {"mis"}}, {"stop", {{"max_samples", 16}}}};
 }
 
 // `scene` parsed as a job's "/scene" (throws SpecError naming the field).
