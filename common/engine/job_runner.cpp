@@ -308,6 +308,9 @@ double JobRunner::samples_per_second() const {
 
 bool JobRunner::target_met() const {
   if (!rule_.has_error_target() || state_.samples < rule_.min_samples) return false;
+  if (rule_.component_targets) {  // every component its own target
+    return every_component_met(rule_, kernel_->component_errors(state_, rule_.confidence));
+  }
   const ErrorSummary e = error();
   if (rule_.abs_error > 0 && e.abs_error <= rule_.abs_error) return true;
   if (rule_.rel_error > 0 && e.rel_error <= rule_.rel_error) return true;
