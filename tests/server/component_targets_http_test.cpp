@@ -12,22 +12,13 @@ namespace {
 
 using nlohmann::json;
 
-// x, x^2, x^3 over [0, 1] with only component targets.
-json powers_job(uint64_t max_samples) {
-  return {{"kind", "integrate"},
-          {"seed", 9},
-          {"integrand", {{"expressions", {"x0", "x0^2", "x0^3"}}}},
-          {"domain", {{"type", "box"}, {"lower", {0.0}}, {"upper", {1.0}}}},
-          {"estimator", {{"type", "uniform"}}},
-          {"stop",
-           {{"max_samples", max_samples},
-            {"component_targets", {{"abs_error", {nullptr, 2e-3, nullptr}}, {"rel_error", {1e-2, nullptr, 4e-2}}}}}}};
-}
-
 TEST(ComponentTargetsHttp, BadTargetsAre422NamingTheField) {
   Harness h(test_manager_config(), make_memory_store(), {}, compile_any);
-  json spec = powers_job(1000);
-  spec["stop"]["component_targets"] = {{"rel_error", {1e-2, 4e-2}}};
+  // x^p for three values of p; two targets.
+  const json spec = {{"kind", "integrate"},
+                     {"integrand", {{"expression", "x0^p"}, {"parameters", {{"p", {1, 2, 3}}}}}},
+                     {"domain", {{"type", "interval"}, {"lower", 0}, {"upper", 1}}},
+                     {"stop", {{"max_samples", 1000}, {"component_targets", {{"rel_error", {1e-2, 4e-2}}}}}}};
   for (const char* target : {"/v1/jobs", "/v1/jobs/validate"}) {
     const auto r = h.call("POST", target, spec.dump());
     EXPECT_EQ(r.status, 422) << r.body;
@@ -35,6 +26,15 @@ TEST(ComponentTargetsHttp, BadTargetsAre422NamingTheField) {
     EXPECT_EQ(p.value("pointer", ""), "/stop/component_targets/rel_error") << r.body;
     EXPECT_EQ(p.value("detail", ""), "has 2 entries; the integrand has 3 components") << r.body;
   }
+  // An extend sets the job-wide targets; the job keeps its component targets.
+  json ok = spec;
+  ok["stop"]["component_targets"]["rel_error"] = {1e-2, 4e-2, 4e-2};
+  const std::string id = h.submit(ok);
+  ASSERT_TRUE(h.wait_state(id, "succeeded"));
+  const auto r = h.call("POST", "/v1/jobs/" + id + "/extend",
+                        R"({"max_samples": 2000, "component_targets": {"rel_error": [1, 1, 1]}})");
+  EXPECT_EQ(r.status, 422) << r.body;
+  EXPECT_EQ(json::parse(r.body).value("pointer", ""), "/component_targets") << r.body;
 }
 
 }  // namespace
