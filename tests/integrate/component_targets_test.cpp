@@ -233,6 +233,34 @@ TEST(ComponentTargets, TheStoredRuleKeepsTheTargetsAndResumesBitIdentically) {
   testing::expect_same_state(resumed.state(), whole->state());
 }
 
+// The runner forecasts the error target from the component furthest from its own target:
+// n * ratio^2 samples (half-widths fall as 1/sqrt(n)), which sizes the next pass, instead
+// of doubling the passes blindly.
+TEST(ComponentTargets, PredictionIsTheFurthestComponentsNeed) {
+  const Targets t{{0, 2e-5, 0}, {1e-4, 1e-9, 0}, 0.0, 3e-4};
+  const json spec = powers_job({{"type", "qmc"}, {"points", 16}}, t.stop());
+  const testing::Interrupted cut = testing::run_until_pass(spec, 2);
+  ASSERT_FALSE(cut.checkpoint.empty());
+  const JobRunner& jr = *cut.run.runner;
+  const IntegrationResult r = result_of(*cut.run.job, jr);
+  double worst = 0.0;
+  for (size_t c = 0; c < r.components.size(); ++c) {
+    const ComponentEstimate& e = r.components[c];
+    const double half = 0.5 * (e.ci_hi - e.ci_lo);
+    double ratio = std::numeric_limits<double>::infinity();
+    if (t.abs[c] > 0) ratio = std::min(ratio, half / t.abs[c]);
+    const double rel = t.rel[c] > 0 ? t.rel[c] : t.job_rel;
+    ratio = std::min(ratio, half / std::fabs(e.mean) / rel);
+    worst = std::max(worst, ratio);
+  }
+  ASSERT_GT(worst, 1.0);  // not met yet
+  const auto p = jr.prediction();
+  ASSERT_TRUE(p);
+  const double n = static_cast<double>(jr.state().samples);
+  EXPECT_NEAR(p->samples_needed, n * worst * worst, 1e-9 * n * worst * worst);
+  EXPECT_NEAR(p->samples_remaining, n * worst * worst - n, 1e-9 * n * worst * worst);
+}
+
 // The extend route reads its body with the job's rule kept: the targets stay, and the body
 // may not replace them.
 TEST(ComponentTargets, ExtendKeepsTheTargets) {
