@@ -172,6 +172,19 @@ TEST(ComponentTargets, EachComponentStopsAtItsOwnTarget) {
   }
 }
 
+// A sweep job keeps pair channels for the covariance (m <= 64) beside its components; the
+// targets read the components only, so a job with no job-wide target (the pairs have none)
+// still stops at its components' own targets.
+TEST(ComponentTargets, PairChannelsAreNotComponents) {
+  const Targets t{{0, 2e-5, 0}, {1e-4, 0, 3e-4}, 0.0, 0.0};
+  json stop = t.stop();
+  stop["max_samples"] = 1 << 20;
+  const auto r = run_spec(powers_job({{"type", "qmc"}, {"points", 16}}, stop), 2);
+  EXPECT_EQ(r->state().channels.size(), 3u + 3u);  // 3 components + 3 pairs
+  EXPECT_EQ(r->stop_reason(), StopReason::error_target);
+  EXPECT_LT(r->state().samples, 1u << 20);
+}
+
 // max_samples stops the job first: the summary counts the components that miss their
 // target and lists the first 100 of them by index. 250 components x^p; the even ones have
 // a reachable target of their own, the odd ones fall back on an unreachable job-wide one.
