@@ -12,5 +12,7 @@ namespace tally {
 // critical value (Student t with n - 1 degrees of freedom); infinite while a channel
 // has fewer than 2 samples.
 ErrorSummary worst_channel_summary(std::span<const Tally> channels, double confidence);
+// Each channel's half-width (the same critical value; infinite below 2 samples) and mean.
+std::vector<ComponentError> channel_errors(std::span<const Tally> channels, double confidence);
 
 }  // namespace tally

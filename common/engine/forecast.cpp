@@ -26,7 +26,10 @@ Forecast forecast(const StopRule& rule, const JobCaps& caps, const ErrorSummary&
   const double n = static_cast<double>(done);
   auto seconds_for = [&](double total) { return rate > 0 ? std::max(0.0, total - n) / rate : kInf; };
   f.samples_needed = kInf;
-  if (rule.has_error_target() && std::isfinite(err.sigma)) {
+  // Per-component targets: the worst component's sigma says nothing about the others'
+  // needs; the runner forecasts them from each component's own ratio (job_runner.cpp),
+  // a pilot makes no error-target forecast for them.
+  if (rule.has_error_target() && !rule.component_targets && std::isfinite(err.sigma)) {
     double need = kInf;
     if (rule.abs_error > 0) need = std::min(need, samples_for_half_width(err.sigma, rule.abs_error, rule.confidence));
     if (rule.rel_error > 0 && err.mean != 0.0) {

@@ -16,6 +16,24 @@ namespace tally {
 namespace {
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
+// forecast() for a runner: with per-component targets, the error target's forecast is the
+// samples the component furthest from its own target needs, n * ratio^2 (its half-width
+// falls as 1/sqrt(n)), no earlier than min_samples.
+Forecast runner_forecast(const Kernel& kernel, const JobState& st, const StopRule& rule, const JobCaps& caps,
+                         const ErrorSummary& err, double rate) {
+  Forecast f = forecast(rule, caps, err, st.samples, st.compute_seconds, rate);
+  if (!rule.component_targets || st.samples < 2) return f;
+  const std::vector<ComponentError> errors = kernel.component_errors(st, rule.confidence);
+  double worst = errors.empty() ? kInf : 0.0;
+  for (size_t c = 0; c < errors.size(); ++c) worst = std::max(worst, component_target_ratio(rule, c, errors[c]));
+  if (!std::isfinite(worst)) return f;
+  const double n = static_cast<double>(st.samples);
+  f.samples_needed = n * worst * worst;
+  const double fires = std::max(f.samples_needed, static_cast<double>(rule.min_samples));
+  f.error_target = RuleForecast{fires, rate > 0 ? std::max(0.0, fires - n) / rate : kInf};
+  return f;
+}
+
 std::vector<std::string> names_of(const Kernel& k) {
   const auto names = k.counter_names();
   TALLY_CHECK_LE(names.size(), Counters::kMaxCounters);
@@ -308,6 +326,9 @@ double JobRunner::samples_per_second() const {
 
 bool JobRunner::target_met() const {
   if (!rule_.has_error_target() || state_.samples < rule_.min_samples) return false;
+  if (rule_.component_targets) {  // every component its own target
+    return every_component_met(rule_, kernel_->component_errors(state_, rule_.confidence));
+  }
   const ErrorSummary e = error();
   if (rule_.abs_error > 0 && e.abs_error <= rule_.abs_error) return true;
   if (rule_.rel_error > 0 && e.rel_error <= rule_.rel_error) return true;
@@ -325,8 +346,7 @@ bool JobRunner::heavy_tail() const {
 
 std::optional<Prediction> JobRunner::prediction() const {
   if (!rule_.has_error_target() || state_.samples < 2) return std::nullopt;
-  const Forecast f =
-      forecast(rule_, caps_, error(), state_.samples, state_.compute_seconds, samples_per_second());
+  const Forecast f = runner_forecast(*kernel_, state_, rule_, caps_, error(), samples_per_second());
   if (!f.error_target) return std::nullopt;
   Prediction p;
   p.samples_needed = f.samples_needed;
@@ -338,8 +358,7 @@ std::optional<Prediction> JobRunner::prediction() const {
 
 double JobRunner::eta_seconds() const {
   if (finished()) return 0.0;
-  const Forecast f =
-      forecast(rule_, caps_, error(), state_.samples, state_.compute_seconds, samples_per_second());
+  const Forecast f = runner_forecast(*kernel_, state_, rule_, caps_, error(), samples_per_second());
   double eta = f.rule_seconds();
   // The error target's forecast needs σ from at least two samples.
   if (f.error_target && state_.samples < 2) {

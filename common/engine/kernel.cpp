@@ -68,6 +68,22 @@ ErrorSummary Kernel::error_summary(const JobState& state, double confidence) con
   return worst_channel_summary(state.channels, confidence);
 }
 
+std::vector<ComponentError> Kernel::component_errors(const JobState& state, double confidence) const {
+  return channel_errors(state.channels, confidence);
+}
+
+std::vector<ComponentError> channel_errors(std::span<const Tally> channels, double confidence) {
+  std::vector<ComponentError> out;
+  out.reserve(channels.size());
+  for (const Tally& t : channels) {
+    const double half = t.n < 2 ? std::numeric_limits<double>::infinity()
+                                : critical_value(confidence, t.n) * std::sqrt(t.variance()) /
+                                      std::sqrt(static_cast<double>(t.n));
+    out.push_back({half, t.mean});
+  }
+  return out;
+}
+
 ErrorSummary worst_channel_summary(std::span<const Tally> channels, double confidence) {
   ErrorSummary worst;
   bool any = false;

@@ -9,6 +9,7 @@
 #include <string_view>
 #include <vector>
 
+#include "common/engine/component_targets.hpp"
 #include "common/engine/counters.hpp"
 #include "common/engine/sample_stats.hpp"
 #include "common/stats/tail_index.hpp"
@@ -140,6 +141,9 @@ class Kernel {
   virtual std::vector<std::string> warnings(const JobState&) const { return {}; }
   // The error the stopping rule looks at. Default: the worst channel.
   virtual ErrorSummary error_summary(const JobState& state, double confidence) const;
+  // Each component's error, read against StopRule::component_targets. Default: one per
+  // channel, at its own Student t critical value (infinite below 2 samples).
+  virtual std::vector<ComponentError> component_errors(const JobState& state, double confidence) const;
   // Default: none, and progress shows channel 0.
   virtual std::optional<Headline> headline(const JobState&) const { return std::nullopt; }
   // Bytes the kernel itself holds while the job is in memory (a lighting job's scene:

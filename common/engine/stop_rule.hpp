@@ -1,9 +1,12 @@
 #pragma once
 // When a job stops: whichever of its rules fires first, checked at pass boundaries.
 #include <cstdint>
+#include <memory>
 #include <string_view>
 
 namespace tally {
+
+struct ComponentTargets;  // common/engine/component_targets.hpp
 
 struct StopRule {
   uint64_t max_samples = 0;    // 0: none (the per-job cap still applies)
@@ -12,8 +15,12 @@ struct StopRule {
   double rel_error = 0.0;      // target half-width / |mean|; 0: none
   double confidence = 0.95;
   uint64_t min_samples = 1000;  // error targets are not trusted before this
+  // A vector job's own target per component (null: none). With it the error target is
+  // met when every component meets its own (component_targets.hpp); shared because
+  // rules are copied into snapshots and a list may hold 16,384 entries.
+  std::shared_ptr<const ComponentTargets> component_targets;
 
-  bool has_error_target() const { return abs_error > 0.0 || rel_error > 0.0; }
+  bool has_error_target() const { return abs_error > 0.0 || rel_error > 0.0 || component_targets != nullptr; }
 };
 
 enum class StopReason { none, max_samples, time_budget, error_target, cancelled, failed, sample_cap };

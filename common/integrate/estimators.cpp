@@ -375,6 +375,10 @@ class SweepKernelBase : public IntegrationKernelBase {
     const std::span<const Tally> all(st.channels);
     return worst_channel_summary(all.first(std::min(m_, all.size())), confidence);
   }
+  std::vector<ComponentError> component_errors(const JobState& st, double confidence) const override {
+    const std::span<const Tally> all(st.channels);
+    return channel_errors(all.first(std::min(m_, all.size())), confidence);
+  }
 
  protected:
   // Fill the scratch uniform rows with points [j0, j0 + n) of sweep `sample`. True if

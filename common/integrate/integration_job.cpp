@@ -5,6 +5,7 @@
 #include <limits>
 #include <fmt/format.h>
 
+#include "common/engine/component_targets.hpp"
 #include "common/integrate/integration_counters.hpp"
 #include "common/integrate/vector_integrand.hpp"
 #include "common/integrate/vegas.hpp"
@@ -32,10 +33,12 @@ ComponentsSummary summarize_components(const std::vector<ComponentEstimate>& com
     const double rel = e.mean != 0.0 ? half / std::fabs(e.mean) : std::numeric_limits<double>::infinity();
     double score = rel;  // no target: the largest relative half-width is the worst
     if (stop.has_error_target()) {
-      score = std::numeric_limits<double>::infinity();
-      if (stop.abs_error > 0) score = std::min(score, half / stop.abs_error);
-      if (stop.rel_error > 0) score = std::min(score, rel / stop.rel_error);
-      if (score <= 1.0) ++*cs.met;
+      score = component_target_ratio(stop, c, {half, e.mean});
+      if (score <= 1.0) {
+        ++*cs.met;
+      } else if (cs.unmet.size() < ComponentsSummary::kMaxUnmetListed) {
+        cs.unmet.push_back(c);
+      }
     }
     if (std::isnan(score)) score = std::numeric_limits<double>::infinity();  // unknown reads as worst
     if (score > worst_score) {

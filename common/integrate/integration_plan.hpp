@@ -90,10 +90,15 @@ struct ComponentEstimate {
 // vector is summarised so that progress of thousands of components reads in one line.
 struct ComponentsSummary {
   uint64_t count = 0;
-  // Components whose interval half-width (or, for rules, error estimate) meets the stop
-  // rule's abs_error or rel_error; absent when the job has no error target.
+  // Components whose interval half-width (or, for rules, error estimate) meets their
+  // target: their own (stop.component_targets) or the stop rule's abs_error or rel_error;
+  // absent when the job has no error target.
   std::optional<uint64_t> met;
-  // The component furthest from the target (half-width / target, the smaller over the two
+  // The first kMaxUnmetListed components (by index) that do not meet their target; the
+  // count of all of them is count - met.
+  static constexpr size_t kMaxUnmetListed = 100;
+  std::vector<uint64_t> unmet;
+  // The component furthest from its target (half-width / target, the smaller over the two
   // targets), or with the largest relative half-width when there is no target.
   uint64_t worst = 0;
   double worst_half_width = 0.0;

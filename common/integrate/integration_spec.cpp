@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 #include <numbers>
 
+#include "common/engine/component_targets.hpp"
 #include "common/engine/job_state.hpp"
 #include "common/expr/compiled_expression.hpp"
 #include "common/expr/expr_parameters.hpp"
@@ -543,6 +544,28 @@ std::optional<double> reference_value(const ParsedIntegrand& in, const Domain& D
   return std::nullopt;
 }
 
+// The stop rule's per-component targets fit the integrand: one entry per component, on a
+// vector integrand, with an estimator that samples (cubature runs one rule for all).
+void check_component_targets(const StopRule& stop, size_t m, bool deterministic) {
+  if (!stop.component_targets) return;
+  const std::string where = "/stop/component_targets";
+  if (m == 1) {
+    throw SpecError(where, "needs a vector integrand (expressions, parameters or families); a scalar one has "
+                           "abs_error and rel_error");
+  }
+  if (deterministic) {
+    throw SpecError(where, "cubature runs one rule with one abs_error and rel_error for every component; "
+                           "per-component targets need a sampling estimator");
+  }
+  const ComponentTargets& t = *stop.component_targets;
+  for (const auto& [key, list] : {std::pair{"abs_error", &t.abs_error}, std::pair{"rel_error", &t.rel_error}}) {
+    if (!list->empty() && list->size() != m) {
+      throw SpecError(json_pointer_append(where, key),
+                      fmt::format("has {} entries; the integrand has {} components", list->size(), m));
+    }
+  }
+}
+
 }  // namespace
 
 std::unique_ptr<IntegrationJob> compile_integration_job(const json& spec, const JobLimits& limits) {
@@ -603,6 +626,7 @@ std::unique_ptr<IntegrationJob> compile_integration_job(const json& spec, const 
   job.stop = parse_stop_rule(stop, limits);
   EstimatorChoice est =
       parse_estimator(top.find("estimator"), "/estimator", prob, limits, job.stop, stop.has("max_samples"));
+  check_component_targets(job.stop, m, est.deterministic);
   if (est.deterministic) {
     job.stop.max_samples = 1;
     job.stop.min_samples = 1;  // one rule: its error estimate decides at once

@@ -580,6 +580,22 @@ class VegasKernel final : public Kernel {
     st.kernel_state = encode_state(s);
   }
 
+  // Component c's mean and standard error as the stop rule reads them: the weighted
+  // passes' (or the pooled samples'), scaled by the passes' disagreement; nullopt below
+  // 2 samples or for a non-finite error.
+  std::optional<std::pair<double, double>> component_mean_se(const JobState& st, const VegasReport& rep,
+                                                             size_t c) const {
+    const Tally& t = st.channels[c];  // the pooled post-warm-up samples
+    if (t.n < 2) return std::nullopt;
+    double mean = t.mean, se = t.std_error();
+    if (o_.weighted) {
+      mean = rep.combined_mean[c];
+      se = rep.combined_std_error[c];
+    }
+    if (!std::isfinite(se)) return std::nullopt;
+    return std::pair{mean, se * rep.error_scale};
+  }
+
   ErrorSummary error_summary(const JobState& st, double confidence) const override {
     ErrorSummary worst;
     worst.abs_error = worst.rel_error = std::numeric_limits<double>::infinity();
@@ -588,18 +604,12 @@ class VegasKernel final : public Kernel {
     worst.mean = st.channels[0].mean;
     const std::optional<VegasReport> rep = vegas_report(st);
     if (!rep) return worst;
-    const double scale = rep->error_scale;
     bool any = false;
     for (size_t c = 0; c < m_ && c < st.channels.size(); ++c) {
       const Tally& t = st.channels[c];  // the pooled post-warm-up samples
-      if (t.n < 2) return worst;
-      double mean = t.mean, se = t.std_error();
-      if (o_.weighted) {
-        mean = rep->combined_mean[c];
-        se = rep->combined_std_error[c];
-      }
-      if (!std::isfinite(se)) return worst;
-      se *= scale;
+      const auto ms = component_mean_se(st, *rep, c);
+      if (!ms) return worst;
+      const auto [mean, se] = *ms;
       const double z = critical_value(confidence, t.n);
       const double half = z * se;
       const double rel = mean != 0.0 ? half / std::fabs(mean)
@@ -616,6 +626,20 @@ class VegasKernel final : public Kernel {
       any = true;
     }
     return worst;
+  }
+
+  std::vector<ComponentError> component_errors(const JobState& st, double confidence) const override {
+    std::vector<ComponentError> out;
+    const std::optional<VegasReport> rep = vegas_report(st);
+    for (size_t c = 0; c < m_ && c < st.channels.size(); ++c) {
+      const auto ms = rep ? component_mean_se(st, *rep, c) : std::nullopt;
+      if (!ms) {
+        out.push_back({std::numeric_limits<double>::infinity(), st.channels[c].mean});
+        continue;
+      }
+      out.push_back({critical_value(confidence, st.channels[c].n) * ms->second, ms->first});
+    }
+    return out;
   }
 
   std::optional<Headline> headline(const JobState& st) const override {

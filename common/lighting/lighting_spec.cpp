@@ -92,6 +92,9 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
   {
     SpecReader stop = root.object("stop");
     stop_rule = parse_stop_rule(stop, limits);
+    if (stop_rule.component_targets) {
+      throw SpecError("/stop/component_targets", "only vector integration jobs have components");
+    }
   }
 
   SpecReader q = root.object("query");

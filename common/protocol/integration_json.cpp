@@ -128,6 +128,9 @@ json components_summary_json(const ComponentsSummary& cs) {
                {"half_width", finite_or_null(cs.worst_half_width)},
                {"rel_half_width", finite_or_null(cs.worst_rel_half_width)}}}};
   if (cs.met) sj["met"] = *cs.met;
+  if (cs.met && *cs.met < cs.count) {
+    sj["unmet"] = {{"count", cs.count - *cs.met}, {"first", cs.unmet}};
+  }
   return sj;
 }
 

@@ -1,8 +1,11 @@
 #pragma once
 // The "stop" object shared by every job kind:
 //   {"max_samples": N, "time_budget_s": T, "abs_error": e, "rel_error": r,
-//    "confidence": 0.95, "min_samples": 1000}
-// At least one rule is required; whichever fires first stops the job.
+//    "confidence": 0.95, "min_samples": 1000,
+//    "component_targets": {"abs_error": [e0, null, ...], "rel_error": [r0, ...]}}
+// At least one rule is required; whichever fires first stops the job. component_targets
+// (a vector job's own target per component, null: the job-wide one) is checked here for
+// its form; the integration spec checks its length against the integrand.
 // The one reader of stop rules: a spec's "stop", a stored rule, and the body of
 // POST /v1/jobs/{id}/extend (which passes `keep`: the job's rule, whose
 // confidence and min_samples stay and may not be set by the body).

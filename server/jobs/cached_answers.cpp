@@ -1,5 +1,6 @@
 #include "server/jobs/cached_answers.hpp"
 
+#include "common/engine/component_targets.hpp"
 #include "common/engine/results_version.hpp"
 #include "common/log/log.hpp"
 
@@ -12,7 +13,9 @@ bool CachedAnswers::answers_its_spec(const JobDefinition* def, const RunFacts* f
   if (f->results_version != kResultsVersion) return false;
   const StopRule a = f->rule, b = def->stop_rule();
   return a.max_samples == b.max_samples && a.time_budget_s == b.time_budget_s && a.abs_error == b.abs_error &&
-         a.rel_error == b.rel_error && a.confidence == b.confidence && a.min_samples == b.min_samples;
+         a.rel_error == b.rel_error && a.confidence == b.confidence && a.min_samples == b.min_samples &&
+         (a.component_targets == b.component_targets ||
+          (a.component_targets && b.component_targets && *a.component_targets == *b.component_targets));
 }
 
 void CachedAnswers::offer(const Job& job, JobStatus status, const RunFacts* facts) {

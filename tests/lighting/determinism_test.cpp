@@ -128,6 +128,9 @@ TEST(Spec, ErrorsNameTheField) {
   s = base;
   s["extra"] = true;
   EXPECT_EQ(spec_error_pointer(s), "/extra");
+  s = base;  // per-component targets are a vector integrand's (issue 31)
+  s["stop"]["component_targets"] = {{"rel_error", {0.1}}};
+  EXPECT_EQ(spec_error_pointer(s), "/stop/component_targets");
   s = base;
   s["scene"]["camera"] = {{"position", {0, 0, 5}}, {"look_at", {0, 0, 0}}, {"resolution", {5000, 5000}}};
   JobLimits small;
