@@ -42,14 +42,14 @@ std::shared_ptr<const ComponentTargets> read_component_targets(SpecReader& stop,
 }
 
 // Every component needs a target: its own entry or the job-wide one.
-void check_every_component_has_a_target(const StopRule& r, const std::string& pointer) {
+void check_every_component_has_a_target(const StopRule& r, const std::string& pointer, std::string_view why) {
   const ComponentTargets& t = *r.component_targets;
   const size_t m = std::max(t.abs_error.size(), t.rel_error.size());
   for (size_t c = 0; c < m; ++c) {
     if (component_abs_target(r, c) == 0.0 && component_rel_target(r, c) == 0.0) {
       throw SpecError(pointer, fmt::format("component {} has no error target: its entries are null and the rule "
-                                           "has no job-wide abs_error or rel_error",
-                                           c));
+                                           "has no job-wide abs_error or rel_error{}",
+                                           c, why));
     }
   }
 }
@@ -75,7 +75,12 @@ StopRule read_rule(SpecReader& stop, const JobLimits& limits, const StopRule* ke
   }
   stop.finish();
   if (r.component_targets) {
-    check_every_component_has_a_target(r, keep ? stop.pointer() : stop.pointer_of("component_targets"));
+    // On extend the kept targets are not the body's to fix: name the job-wide target the
+    // body must set (the one the job had, else rel_error).
+    check_every_component_has_a_target(
+        r, keep ? stop.pointer_of(keep->abs_error > 0.0 && keep->rel_error == 0.0 ? "abs_error" : "rel_error")
+                : stop.pointer_of("component_targets"),
+        keep ? " (extend keeps the job's component targets and replaces its job-wide ones)" : "");
   }
   if (r.max_samples == 0 && r.time_budget_s == 0.0 && !r.has_error_target()) {
     throw SpecError(stop.pointer(),

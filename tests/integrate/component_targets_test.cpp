@@ -299,5 +299,30 @@ TEST(ComponentTargets, ExtendKeepsTheTargets) {
   }
 }
 
+// A component whose entries are null falls back on the job-wide target: an extend whose
+// rule drops it is refused naming the job-wide field to set, and accepted with it.
+TEST(ComponentTargets, ExtendWithoutTheJobWideTargetANullEntryNeedsIsRefused) {
+  const Targets t{{0, 2e-3, 0}, {1e-2, 0, 0}, 0.0, 5e-2};  // component 2 relies on the job-wide rel_error
+  json stop = t.stop();
+  stop["max_samples"] = 1000;
+  const auto def = compile_job(powers_job({{"type", "uniform"}}, stop), JobLimits{});
+  const StopRule keep = def->stop_rule();
+  const json more = {{"max_samples", 5000}};
+  SpecReader body(more, "");
+  try {
+    parse_stop_rule(body, JobLimits{}, &keep);
+    ADD_FAILURE() << "accepted";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "/rel_error: component 2 has no error target: its entries are null and the rule has no job-wide "
+              "abs_error or rel_error (extend keeps the job's component targets and replaces its job-wide ones)");
+  }
+  const json with_rel = {{"max_samples", 5000}, {"rel_error", 2e-2}};
+  SpecReader ok(with_rel, "");
+  const StopRule extended = parse_stop_rule(ok, JobLimits{}, &keep);
+  EXPECT_EQ(component_rel_target(extended, 0), 1e-2) << "its own entry";
+  EXPECT_EQ(component_rel_target(extended, 2), 2e-2) << "the extend's job-wide rel_error";
+}
+
 }  // namespace
 }  // namespace tally
