@@ -178,8 +178,32 @@
     if (p && p.seconds > 60) {
       head.append(el('strong', { class: 'error-text' }, ` · predicted ${fmtDuration(p.seconds)} of compute`));
     }
-    return el('div', {}, head, table,
+    return el('div', {}, head, table, ...suggestionView(r.suggestion),
       el('details', {}, el('summary', {}, 'plan'), el('pre', {}, JSON.stringify(r.plan, null, 2))));
+  }
+
+  // The server's faster estimator for an integral that names none (validate's
+  // "suggestion", docs/api.md), as the CLI's "faster:" line, with a button that puts it
+  // into the spec and validates again.
+  function suggestionView(s) {
+    if (!s || typeof s !== 'object') return [];
+    const w = s.would_choose || {};
+    let text = `the auto estimator would choose ${w.estimator || '?'}${w.periodize ? ` (${w.periodize})` : ''}`;
+    if (typeof s.fewer_evaluations === 'number') {
+      text += `: about ${fmtCount(Math.round(s.fewer_evaluations))}× fewer integrand evaluations ` +
+        `(${fmtCount(Math.round(s.predicted_evaluations))} against the default's ` +
+        `${fmtCount(Math.round(s.default_predicted_evaluations))})`;
+    }
+    if (typeof s.predicted_seconds === 'number') text += `, about ${fmtDuration(s.predicted_seconds)} of compute`;
+    const use = el('button', { type: 'button', id: 'use-suggestion' }, 'use it');
+    use.addEventListener('click', () => {
+      let spec;
+      try { spec = JSON.parse($('spec').value); } catch (e) { showResult(el('pre', {}, `not JSON: ${e.message}`), true); return; }
+      spec.estimator = s.estimator;
+      $('spec').value = JSON.stringify(spec, null, 2);
+      validate();
+    });
+    return [el('p', { id: 'suggestion' }, el('strong', {}, 'faster: '), text, ' ', use)];
   }
 
   // Submit validates first (as `tally submit` does) and, when the pilot predicts more

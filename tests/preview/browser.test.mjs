@@ -73,6 +73,13 @@ const LONG_SPEC = {
   domain: { type: 'box', lower: [-1, -1], upper: [1, 1] }, stop: { max_samples: 1e11, time_budget_s: 3600 },
 };
 
+// A smooth 1-D integral with a tight target and no estimator: plain MC would need
+// billions of samples, so validate suggests the auto estimator (tests/e2e ValidateNames…).
+const SMOOTH_SPEC = {
+  kind: 'integrate', seed: 5, integrand: { expression: 'exp(-x*x)' },
+  domain: { type: 'box', lower: [0], upper: [1] }, stop: { rel_error: 1e-5 },
+};
+
 // A cluster's GET /v1/workers answer (server/cluster/cluster_http.cpp), for the page alone.
 const WORKERS = {
   executor: 'redis', redis: 'redis://10.0.0.5:6379', lease_seconds: 30, pools: { '': 2 },
@@ -306,6 +313,39 @@ describe('preview page', { concurrency: 1 }, () => {
       await page.click('#delete-btn');
       await waitFor(async () => (await page.$(`#jobs tr[data-id="${id}"]`)) === null, { what: 'the row to go' });
       assert.equal((await fetch(`${server.url}/v1/jobs/${id}`)).status, 404);
+    } finally {
+      await page.close();
+    }
+  });
+
+  test('validate names a faster estimator for a smooth integral; "use it" puts it into the spec', async () => {
+    const page = await browser.context.newPage();
+    const errors = [];
+    page.on('pageerror', (e) => errors.push(String(e)));
+    try {
+      await page.goto(`${server.url}/`);
+      await page.setViewportSize({ width: 390, height: 900 });
+      await page.fill('#spec', JSON.stringify(SMOOTH_SPEC, null, 2));
+      await page.click('#validate-btn');
+      await page.waitForSelector('#suggestion', { timeout: 60000 });
+      const text = await page.textContent('#suggestion');
+      const m = text.match(/would choose (\w+).*about ([\d.,]+)(k|M|G)?× fewer integrand evaluations/);
+      assert.ok(m, `the suggestion names an estimator and the saving: ${text}`);
+      assert.notEqual(m[1], 'uniform');
+      const ratio = Number(m[2].replace(/,/g, '')) * ({ k: 1e3, M: 1e6, G: 1e9 }[m[3]] || 1);
+      assert.ok(ratio > 100, `about ${ratio}x fewer evaluations (the server's e2e test: > 100)`);
+      const box = await page.evaluate(() => document.getElementById('suggestion').getBoundingClientRect().right);
+      assert.ok(box <= 390.5, `the suggestion fits a 390 px window (right edge ${box})`);
+
+      await page.click('#use-suggestion');
+      await waitFor(async () => JSON.parse(await page.inputValue('#spec')).estimator?.type === 'auto',
+        { what: 'the estimator in the spec' });
+      // The spec is validated again: it names its estimator now, so no suggestion is left.
+      await page.waitForFunction(() => document.getElementById('submit-result').textContent.includes('valid') &&
+        !document.getElementById('suggestion'), null, { timeout: 60000 });
+      const spec = JSON.parse(await page.inputValue('#spec'));
+      assert.deepEqual({ ...spec, estimator: undefined }, { ...SMOOTH_SPEC, estimator: undefined }, 'the rest is untouched');
+      assert.deepEqual(errors, []);
     } finally {
       await page.close();
     }
