@@ -8,6 +8,7 @@
 #include <limits>
 #include <string>
 #include <utility>
+#include <variant>
 #include <vector>
 
 #include "common/engine/component_targets.hpp"
@@ -274,54 +275,53 @@ TEST(ComponentTargets, PredictionIsTheFurthestComponentsNeed) {
   EXPECT_NEAR(p->samples_remaining, n * worst * worst - n, 1e-9 * n * worst * worst);
 }
 
+// The stop rule of a job with these targets and max_samples 1000, as extend keeps it.
+StopRule kept_rule(const Targets& t) {
+  json stop = t.stop();
+  stop["max_samples"] = 1000;
+  return compile_job(powers_job({{"type", "uniform"}}, stop), JobLimits{})->stop_rule();
+}
+
+// Reads an extend body with `keep` kept, as the extend route does: the rule, or the 422's text.
+std::variant<StopRule, std::string> extend_with(const StopRule& keep, const json& body) {
+  SpecReader reader(body, "");
+  try {
+    return parse_stop_rule(reader, JobLimits{}, &keep);
+  } catch (const SpecError& e) {
+    return std::string(e.what());
+  }
+}
+
 // The extend route reads its body with the job's rule kept: the targets stay, and the body
 // may not replace them.
 TEST(ComponentTargets, ExtendKeepsTheTargets) {
-  const Targets t{{0, 2e-3, 0}, {1e-2, 0, 2e-2}, 0.0, 0.0};
-  json stop = t.stop();
-  stop["max_samples"] = 1000;
-  const auto def = compile_job(powers_job({{"type", "uniform"}}, stop), JobLimits{});
-  const StopRule keep = def->stop_rule();
-  const json more = {{"max_samples", 5000}};
-  SpecReader body(more, "");
-  const StopRule extended = parse_stop_rule(body, JobLimits{}, &keep);
-  EXPECT_EQ(extended.max_samples, 5000u);
-  ASSERT_TRUE(extended.component_targets);
-  EXPECT_EQ(*extended.component_targets, *keep.component_targets);
-  const json other = {{"max_samples", 5000}, {"component_targets", {{"rel_error", {1, 1, 1}}}}};
-  SpecReader replace(other, "");
-  try {
-    parse_stop_rule(replace, JobLimits{}, &keep);
-    ADD_FAILURE() << "accepted";
-  } catch (const SpecError& e) {
-    EXPECT_EQ(std::string(e.what()),
-              "/component_targets: a job keeps its component targets; extend sets the job-wide ones");
-  }
+  const StopRule keep = kept_rule({{0, 2e-3, 0}, {1e-2, 0, 2e-2}, 0.0, 0.0});
+  const auto extended = extend_with(keep, {{"max_samples", 5000}});
+  ASSERT_TRUE(std::holds_alternative<StopRule>(extended)) << std::get<std::string>(extended);
+  EXPECT_EQ(std::get<StopRule>(extended).max_samples, 5000u);
+  ASSERT_TRUE(std::get<StopRule>(extended).component_targets);
+  EXPECT_EQ(*std::get<StopRule>(extended).component_targets, *keep.component_targets);
+  const auto replaced =
+      extend_with(keep, {{"max_samples", 5000}, {"component_targets", {{"rel_error", {1, 1, 1}}}}});
+  ASSERT_TRUE(std::holds_alternative<std::string>(replaced)) << "accepted";
+  EXPECT_EQ(std::get<std::string>(replaced),
+            "/component_targets: a job keeps its component targets; extend sets the job-wide ones");
 }
 
 // A component whose entries are null falls back on the job-wide target: an extend whose
 // rule drops it is refused naming the job-wide field to set, and accepted with it.
 TEST(ComponentTargets, ExtendWithoutTheJobWideTargetANullEntryNeedsIsRefused) {
-  const Targets t{{0, 2e-3, 0}, {1e-2, 0, 0}, 0.0, 5e-2};  // component 2 relies on the job-wide rel_error
-  json stop = t.stop();
-  stop["max_samples"] = 1000;
-  const auto def = compile_job(powers_job({{"type", "uniform"}}, stop), JobLimits{});
-  const StopRule keep = def->stop_rule();
-  const json more = {{"max_samples", 5000}};
-  SpecReader body(more, "");
-  try {
-    parse_stop_rule(body, JobLimits{}, &keep);
-    ADD_FAILURE() << "accepted";
-  } catch (const SpecError& e) {
-    EXPECT_EQ(std::string(e.what()),
-              "/rel_error: component 2 has no error target: its entries are null and the rule has no job-wide "
-              "abs_error or rel_error (extend keeps the job's component targets and replaces its job-wide ones)");
-  }
-  const json with_rel = {{"max_samples", 5000}, {"rel_error", 2e-2}};
-  SpecReader ok(with_rel, "");
-  const StopRule extended = parse_stop_rule(ok, JobLimits{}, &keep);
-  EXPECT_EQ(component_rel_target(extended, 0), 1e-2) << "its own entry";
-  EXPECT_EQ(component_rel_target(extended, 2), 2e-2) << "the extend's job-wide rel_error";
+  // Component 2 relies on the job-wide rel_error.
+  const StopRule keep = kept_rule({{0, 2e-3, 0}, {1e-2, 0, 0}, 0.0, 5e-2});
+  const auto refused = extend_with(keep, {{"max_samples", 5000}});
+  ASSERT_TRUE(std::holds_alternative<std::string>(refused)) << "accepted";
+  EXPECT_EQ(std::get<std::string>(refused),
+            "/rel_error: component 2 has no error target: its entries are null and the rule has no job-wide "
+            "abs_error or rel_error (extend keeps the job's component targets and replaces its job-wide ones)");
+  const auto extended = extend_with(keep, {{"max_samples", 5000}, {"rel_error", 2e-2}});
+  ASSERT_TRUE(std::holds_alternative<StopRule>(extended)) << std::get<std::string>(extended);
+  EXPECT_EQ(component_rel_target(std::get<StopRule>(extended), 0), 1e-2) << "its own entry";
+  EXPECT_EQ(component_rel_target(std::get<StopRule>(extended), 2), 2e-2) << "the extend's job-wide rel_error";
 }
 
 }  // namespace

@@ -242,18 +242,31 @@ TEST(JobStore, MemoryStoreBehavesLikeSqlite) {
   EXPECT_EQ(store->load_all().size(), 1u);
 }
 
+// `size` bytes whose value drifts with the position ((i * mul) >> shift), so a piece
+// read back in the wrong place or order differs.
+std::string patterned_bytes(size_t size, size_t mul, int shift) {
+  std::string out(size, '\0');
+  for (size_t i = 0; i < size; ++i) out[i] = static_cast<char>((i * mul) >> shift);
+  return out;
+}
+
+// The two stores every store test below must pass: SQLite in `dir`, and memory.
+std::vector<std::unique_ptr<JobStore>> both_stores(const TempDir& dir) {
+  std::vector<std::unique_ptr<JobStore>> stores;
+  stores.push_back(open_sqlite_store(dir.path.string()));
+  stores.push_back(make_memory_store());
+  return stores;
+}
+
 // A checkpoint larger than one piece (SQLite refuses a blob over 1e9 bytes; a 1080p
 // image's checkpoint is 1.2 GB, and its final save failed with "string or blob too
 // big") is streamed in pieces and read back whole, by both stores; a new one replaces
 // every piece of the old; removing the job removes its pieces.
 TEST(JobStore, CheckpointOverOnePieceStreamsInAndReadsBack) {
   const size_t size = 2 * kCheckpointPieceBytes + 5;
-  std::string expected(size, '\0');
-  for (size_t i = 0; i < size; ++i) expected[i] = static_cast<char>((i * 131) >> 3);
+  const std::string expected = patterned_bytes(size, 131, 3);
   TempDir dir;
-  std::vector<std::unique_ptr<JobStore>> stores;
-  stores.push_back(open_sqlite_store(dir.path.string()));
-  stores.push_back(make_memory_store());
+  std::vector<std::unique_ptr<JobStore>> stores = both_stores(dir);
   for (auto& store : stores) {
     StoredJob j;
     j.id = "big";
@@ -300,12 +313,9 @@ TEST(JobStore, CheckpointOverOnePieceStreamsInAndReadsBack) {
 // file is left behind.
 TEST(JobStore, OtherSavesDoNotWaitForAStreamedCheckpointsEncoding) {
   const size_t size = kCheckpointPieceBytes + 7;
-  std::string expected(size, '\0');
-  for (size_t i = 0; i < size; ++i) expected[i] = static_cast<char>((i * 37) >> 2);
+  const std::string expected = patterned_bytes(size, 37, 2);
   TempDir dir;
-  std::vector<std::unique_ptr<JobStore>> stores;
-  stores.push_back(open_sqlite_store(dir.path.string()));
-  stores.push_back(make_memory_store());
+  std::vector<std::unique_ptr<JobStore>> stores = both_stores(dir);
   for (auto& store : stores) {
     std::promise<void> half_way, go_on;
     std::shared_future<void> go = go_on.get_future().share();
