@@ -4,6 +4,7 @@
 // regime: d 8-32, 5 and 7 digits) runs only when named.
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <cstring>
 #include <exception>
@@ -31,8 +32,14 @@ int main(int argc, char** argv) {
     } else if (sections.count(a) != 0) {
       chosen.push_back(a);
     } else {
-      fmt::print(stderr, "usage: tally-study [--out DIR] [--quick] [--threads N] [{}]...\n",
-                 fmt::join(order, "|"));
+      std::vector<std::string> on_demand;  // run only when named
+      for (const auto& [name, run] : sections) {
+        if (std::find(order.begin(), order.end(), name) == order.end()) on_demand.push_back(name);
+      }
+      fmt::print(stderr,
+                 "usage: tally-study [--out DIR] [--quick] [--threads N] [{}]...\n"
+                 "  default: all of {}; run only when named: {}\n",
+                 fmt::join(order, "|"), fmt::join(order, " "), fmt::join(on_demand, " "));
       return 2;
     }
   }

@@ -16,14 +16,16 @@ inline constexpr size_t kIntegrandBatch = 256;
 // What an integrand is, for plans and results (common/protocol writes it as JSON).
 // Fields not set are absent.
 struct IntegrandInfo {
-  std::string builtin;                    // "unit_disk" | "inv_sqrt" | "genz"; empty for expressions
-  std::optional<std::string> expression;  // a scalar user expression
-  std::vector<std::string> expressions;   // a vector of user expressions
-  std::string family;                     // genz: one family ...
-  std::vector<std::string> families;      // ... or several (a vector integrand)
-  std::vector<double> a, u;               // genz parameters
+  // Every member has a default initializer: describe() sets only the ones that apply, by
+  // designated initializer (GCC 12's -Wmissing-field-initializers names the rest otherwise).
+  std::string builtin{};                    // "unit_disk" | "inv_sqrt" | "genz"; empty for expressions
+  std::optional<std::string> expression{};  // a scalar user expression
+  std::vector<std::string> expressions{};   // a vector of user expressions
+  std::string family{};                     // genz: one family ...
+  std::vector<std::string> families{};      // ... or several (a vector integrand)
+  std::vector<double> a{}, u{};             // genz parameters
   // A parameterized expression (`expression` is its template): name, one value per component.
-  std::vector<std::pair<std::string, std::vector<double>>> parameters;
+  std::vector<std::pair<std::string, std::vector<double>>> parameters{};
 };
 
 class Integrand {

@@ -15,6 +15,11 @@ namespace {
 constexpr float kFloatInf = std::numeric_limits<float>::infinity();
 
 float to_f(double x) { return static_cast<float>(x); }
+// Embree's single-precision origin and direction as the double-precision vectors the
+// shapes' exact intersection works in.
+Vec3 to_vec3(float x, float y, float z) {
+  return {static_cast<double>(x), static_cast<double>(y), static_cast<double>(z)};
+}
 
 // Ray-sphere in double (Hearn & Baker's form: discriminant from the distance of the
 // centre to the line, then the stable quadratic root). Returns t or +inf.
@@ -68,8 +73,8 @@ void user_intersect(const RTCIntersectFunctionNArguments* args) {
   if (args->N != 1 || !args->valid[0]) return;
   const Shape& s = *static_cast<const Shape*>(args->geometryUserPtr);
   auto* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);
-  const Vec3 o{rh->ray.org_x, rh->ray.org_y, rh->ray.org_z};
-  const Vec3 d{rh->ray.dir_x, rh->ray.dir_y, rh->ray.dir_z};
+  const Vec3 o = to_vec3(rh->ray.org_x, rh->ray.org_y, rh->ray.org_z);
+  const Vec3 d = to_vec3(rh->ray.dir_x, rh->ray.dir_y, rh->ray.dir_z);
   const double t = user_hit_t(s, o, d, static_cast<double>(rh->ray.tnear), static_cast<double>(rh->ray.tfar));
   if (!std::isfinite(t)) return;
   const float tf = to_f(t);
@@ -89,8 +94,8 @@ void user_occluded(const RTCOccludedFunctionNArguments* args) {
   if (args->N != 1 || !args->valid[0]) return;
   const Shape& s = *static_cast<const Shape*>(args->geometryUserPtr);
   auto* ray = reinterpret_cast<RTCRay*>(args->ray);
-  const Vec3 o{ray->org_x, ray->org_y, ray->org_z};
-  const Vec3 d{ray->dir_x, ray->dir_y, ray->dir_z};
+  const Vec3 o = to_vec3(ray->org_x, ray->org_y, ray->org_z);
+  const Vec3 d = to_vec3(ray->dir_x, ray->dir_y, ray->dir_z);
   const double t = user_hit_t(s, o, d, static_cast<double>(ray->tnear), static_cast<double>(ray->tfar));
   if (std::isfinite(t)) ray->tfar = -kFloatInf;
 }
