@@ -9,11 +9,14 @@
 //   TALLY_HARD_DIMS=8,12,16,32  TALLY_HARD_TARGETS=5e-6,5e-8  TALLY_STUDY_INSTANCES=3
 //   TALLY_HARD_SECONDS=10 (cap per method and instance)  TALLY_STUDY_FAMILIES=name,...
 //   TALLY_HARD_METHODS=tally,gsl_plain,gsl_miser,gsl_vegas,hcubature,pcubature
+// SciPy's qmc_quad runs on the same instances afterwards: bench/peers/scipy_peer.py DIR --hard
+// (reads DIR/hard_instances.json, written below; writes DIR/hard_scipy.csv).
 #include <fmt/format.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <fstream>
 #include <map>
 #include <sstream>
 
@@ -66,6 +69,7 @@ void run_hard_study(const Options& o) {
                                "reported_half_width", "seconds", "evaluations", "converged", "correct", "covered",
                                "note"});
   std::map<std::string, Row> summary;  // "family d target method"
+  json inst = json::array();           // for bench/peers/scipy_peer.py --hard (SciPy's qmc_quad)
   for (size_t fi = 0; fi < genz_family_names().size(); ++fi) {
     const auto f = static_cast<GenzFamily>(fi);
     if (!family_selected(f)) continue;
@@ -80,6 +84,8 @@ void run_hard_study(const Options& o) {
         for (int k = 0; k < instances; ++k) {
           const GenzParams p = genz_random_instance(f, d, static_cast<uint64_t>(k + 1));
           const double exact = genz_exact(p);
+          inst.push_back({{"family", fam}, {"family_index", fi}, {"d", d}, {"target", target}, {"instance", k},
+                          {"a", p.a}, {"u", p.u}, {"exact", exact}});
           auto record = [&](const std::string& method, double est, double hw, double secs, uint64_t evals, bool conv,
                             const std::string& note) {
             const double err = std::fabs(est - exact);
@@ -129,6 +135,8 @@ void run_hard_study(const Options& o) {
       }
     }
   }
+  std::ofstream(o.out / "hard_instances.json")
+      << json{{"max_seconds", cap}, {"max_evaluations", uint64_t{1} << 34}, {"instances", inst}}.dump(1);
   // The first figures: per family, dimension, target and method, the fraction that reached
   // the target (converged by its own rule and correct), the median time of those, and the
   // fraction whose reported half-width covered the error.
