@@ -177,8 +177,7 @@ void run_peer_study(const Options& o) {
       for (int k = 0; k < instances; ++k) {
         const GenzParams p = genz_random_instance(f, d, static_cast<uint64_t>(k + 1));
         const double exact = genz_exact(p);
-        inst.push_back({{"family", fam}, {"family_index", fi}, {"d", d}, {"instance", k}, {"a", p.a}, {"u", p.u},
-                        {"exact", exact}});
+        inst.push_back(scipy_instance(p, k, exact));
         auto record = [&](const std::string& method, double est, double hw, double secs, uint64_t evals, bool conv,
                           const std::string& note) {
           const double err = std::fabs(est - exact);

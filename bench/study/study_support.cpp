@@ -54,6 +54,16 @@ SeedStats over_seeds(const std::function<json(uint64_t seed)>& spec_of, double e
   return s;
 }
 
+json scipy_instance(const GenzParams& p, int instance, double exact) {
+  return {{"family", std::string(genz_family_name(p.family))},
+          {"family_index", static_cast<int>(p.family)},
+          {"d", p.a.size()},
+          {"instance", instance},
+          {"a", p.a},
+          {"u", p.u},
+          {"exact", exact}};
+}
+
 json genz_spec(const GenzParams& p, const json& estimator, const json& stop, uint64_t seed) {
   return {{"kind", "integrate"},
           {"seed", seed},

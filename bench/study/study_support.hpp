@@ -62,6 +62,10 @@ SeedStats over_seeds(const std::function<json(uint64_t seed)>& spec_of, double e
 // The same Genz instance as the peers' scalar integrand (p must outlive it).
 peers::GenzScalar peer_integrand(const GenzParams& p);
 
+// One Genz instance as bench/peers/scipy_peer.py reads it (instances.json,
+// hard_instances.json): family name and index, d, instance number, a, u, the exact value.
+json scipy_instance(const GenzParams& p, int instance, double exact);
+
 // An integrate job over [0,1]^d with a Genz built-in.
 json genz_spec(const GenzParams& p, const json& estimator, const json& stop, uint64_t seed);
 

@@ -128,21 +128,28 @@
     $('spec').value = await res.text();
   }
 
-  function specText() {
-    const text = $('spec').value.trim();
-    JSON.parse(text);  // a clear message before the server is asked
-    return text;
-  }
-
   function showResult(node, isError) {
     const box = $('submit-result');
     box.replaceChildren(node);
     box.className = isError ? 'error-text' : '';
   }
 
+  // The form's spec, parsed: a clear message before the server is asked. Null (and the
+  // parser's message shown) when it is not JSON.
+  function readSpec() {
+    const text = $('spec').value.trim();
+    try {
+      return { text, spec: JSON.parse(text) };
+    } catch (e) {
+      showResult(el('pre', {}, `not JSON: ${e.message}`), true);
+      return null;
+    }
+  }
+
   async function validate() {
-    let text;
-    try { text = specText(); } catch (e) { showResult(el('pre', {}, `not JSON: ${e.message}`), true); return; }
+    const read = readSpec();
+    if (!read) return;
+    const { text } = read;
     showResult(el('p', { class: 'muted' }, 'validating (short pilot run)…'));
     try {
       const r = await api('POST', '/v1/jobs/validate', text);
@@ -197,10 +204,9 @@
     if (typeof s.predicted_seconds === 'number') text += `, about ${fmtDuration(s.predicted_seconds)} of compute`;
     const use = el('button', { type: 'button', id: 'use-suggestion' }, 'use it');
     use.addEventListener('click', () => {
-      let spec;
-      try { spec = JSON.parse($('spec').value); } catch (e) { showResult(el('pre', {}, `not JSON: ${e.message}`), true); return; }
-      spec.estimator = s.estimator;
-      $('spec').value = JSON.stringify(spec, null, 2);
+      const read = readSpec();
+      if (!read) return;
+      $('spec').value = JSON.stringify({ ...read.spec, estimator: s.estimator }, null, 2);
       validate();
     });
     return [el('p', { id: 'suggestion' }, el('strong', {}, 'faster: '), text, ' ', use)];
@@ -213,8 +219,9 @@
 
   async function submit(ev) {
     ev.preventDefault();
-    let text;
-    try { text = specText(); } catch (e) { showResult(el('pre', {}, `not JSON: ${e.message}`), true); return; }
+    const read = readSpec();
+    if (!read) return;
+    const { text } = read;
     askToSubmit(null);
     showResult(el('p', { class: 'muted' }, 'checking the cost (short pilot run)…'));
     let v = null;
