@@ -35,6 +35,21 @@ TEST(ComponentTargetsHttp, BadTargetsAre422NamingTheField) {
                         R"({"max_samples": 2000, "component_targets": {"rel_error": [1, 1, 1]}})");
   EXPECT_EQ(r.status, 422) << r.body;
   EXPECT_EQ(json::parse(r.body).value("pointer", ""), "/component_targets") << r.body;
+
+  // A null entry falls back on the job-wide rel_error: an extend that drops it is a 422
+  // naming /rel_error, the job stays as it was, and the same extend with it is accepted.
+  json nulls = spec;
+  nulls["stop"]["component_targets"]["rel_error"] = {1e-2, nullptr, 4e-2};
+  nulls["stop"]["rel_error"] = 5e-2;
+  const std::string nid = h.submit(nulls);
+  ASSERT_TRUE(h.wait_state(nid, "succeeded"));
+  const auto dropped = h.call("POST", "/v1/jobs/" + nid + "/extend", R"({"max_samples": 2000})");
+  EXPECT_EQ(dropped.status, 422) << dropped.body;
+  EXPECT_EQ(json::parse(dropped.body).value("pointer", ""), "/rel_error") << dropped.body;
+  const auto after = h.call("GET", "/v1/jobs/" + nid);
+  EXPECT_EQ(json::parse(after.body).value("state", ""), "succeeded") << after.body;
+  const auto kept = h.call("POST", "/v1/jobs/" + nid + "/extend", R"({"max_samples": 2000, "rel_error": 0.05})");
+  EXPECT_EQ(kept.status, 202) << kept.body;
 }
 
 }  // namespace
