@@ -2,12 +2,17 @@
 // The automatic estimator choice (`"estimator": {"type": "auto"}`, issue 31): a short
 // pilot of every candidate (plain Monte Carlo, scrambled Sobol', the CBC lattice with
 // baker's transform and without) on the job's own integrand, from a stream of its own.
-// Each randomized-QMC candidate runs 8 randomizations at two point-set sizes; the sd of
-// one randomization at both sizes gives its rate (sd ~ points^-rate, clamped to [0.5,
-// 1.5]), which predicts the evaluations each needs to reach the target half-width at the
-// best point-set size in 2^10..2^16 (at least 16 randomizations). The candidate with the
-// fewest predicted evaluations wins. Cost is counted in evaluations, not seconds, so the
-// choice is the same on every machine and every compile of the spec (workers, resume).
+// Each randomized-QMC candidate runs 8 randomizations at 2^10 and 2^13 points; the sd
+// of one randomization at the two largest sizes gives its rate (sd ~ points^-rate,
+// clamped to [0.5, 1.5]), which predicts the evaluations each needs to reach the target
+// half-width at its best point-set size (at least 16 randomizations): 2^10..2^20 Sobol'
+// points, 2^10..2^16 lattice points, never more than 2^24 coordinates in one set. When
+// the cheapest prediction is at least 4 times what a third size costs, every usable
+// candidate also runs 2^16 points (or the sweep bound) and is predicted again from 2^13
+// and 2^16: a rate fitted on small sets is often wrong far beyond them. The candidate
+// with the fewest predicted evaluations wins. Cost is counted in evaluations, not
+// seconds, so the choice is the same on every machine and every compile of the spec
+// (workers, resume).
 #include <cstdint>
 
 #include "common/integrate/estimators.hpp"

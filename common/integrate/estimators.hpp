@@ -45,6 +45,11 @@ std::shared_ptr<const Kernel> make_tabulated_importance_kernel(IntegrationProble
 std::shared_ptr<const Kernel> make_cosine_importance_kernel(IntegrationProblem p);
 std::shared_ptr<const Kernel> make_stratified_kernel(IntegrationProblem p, uint32_t strata_per_dim,
                                                      uint32_t stratified_dims);
+// One sample of a sweep estimator (qmc, lattice, stratified) is one whole point set,
+// computed by one block: its coordinates are bounded so that cancel and shutdown (which
+// act between blocks) stay prompt. The largest Sobol' set is 2^20 points.
+inline constexpr uint64_t kMaxSweepCoordinates = uint64_t{1} << 24;
+inline constexpr uint32_t kMaxQmcPoints = uint32_t{1} << 20;
 // owen = false: affine matrix scramble (fast, default); true: nested uniform scramble.
 std::shared_ptr<const Kernel> make_qmc_kernel(IntegrationProblem p, uint32_t points, bool owen = false);
 // rule.z has one entry per uniform of the domain; per: the periodizing transform.

@@ -23,9 +23,11 @@ struct DensityPlan {
 struct AutoCandidate {
   std::string estimator;     // "uniform" | "qmc" | "lattice"
   std::string periodize;     // lattice: "baker" | "none"; empty otherwise
-  uint64_t pilot_points_small = 0, pilot_points_large = 0;  // points per sample in the pilot (1 for uniform)
-  double sd_small = 0.0, sd_large = 0.0;  // sd of one sample at those sizes (non-finite: the pilot failed)
-  double rate = 0.5;          // fitted: the sd of the estimate falls as evaluations^-rate
+  // Points per sample at each pilot size, ascending (uniform: {1}), and the sd of one
+  // sample at each (non-finite: the pilot failed).
+  std::vector<uint64_t> pilot_points;
+  std::vector<double> pilot_sd;
+  double rate = 0.5;          // fitted from the two largest sizes: the sd falls as evaluations^-rate
   uint64_t points = 1;        // points per sample it would run with
   double predicted_evaluations = 0.0;  // to the target (infinite: unusable)
 };

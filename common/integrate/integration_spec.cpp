@@ -28,10 +28,6 @@ using nlohmann::json;
 
 namespace {
 
-constexpr uint64_t kMaxSweepCoordinates = uint64_t{1} << 24;
-// The fast CBC construction runs when the spec compiles: O(s n log n) with FFTs of
-// length ~n, 0.3 s of CPU for n = 65521 and s = 32 (LatticeRule.FastCbcTimeAtTheLargestSize).
-constexpr uint64_t kMaxLatticePoints = uint64_t{1} << 16;
 
 
 struct ParsedIntegrand {
@@ -381,7 +377,7 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
     c.kernel = make_stratified_kernel(prob, k, s);
     c.sweep = true;
   } else if (type == "qmc") {
-    const uint32_t points = static_cast<uint32_t>(r.integer_or("points", 1024, 1, 1u << 20));
+    const uint32_t points = static_cast<uint32_t>(r.integer_or("points", 1024, 1, kMaxQmcPoints));
     if (D.uniforms() > 1024) throw SpecError(pointer, "qmc supports at most 1024 dimensions");
     // One sample is one whole point set, computed by one block: bound its work so
     // cancel and shutdown (which act between blocks) stay prompt.

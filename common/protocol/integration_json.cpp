@@ -54,9 +54,11 @@ json domain_json(const DomainInfo& info) {
 json auto_selection_json(const AutoSelection& a) {
   json cands = json::array();
   for (const AutoCandidate& c : a.candidates) {
+    json pilot_sd = json::array();
+    for (double sd : c.pilot_sd) pilot_sd.push_back(finite_or_null(sd));
     json e = {{"estimator", c.estimator},
-              {"pilot_points", {c.pilot_points_small, c.pilot_points_large}},
-              {"pilot_sd", {finite_or_null(c.sd_small), finite_or_null(c.sd_large)}},
+              {"pilot_points", c.pilot_points},
+              {"pilot_sd", pilot_sd},
               {"rate", c.rate},
               {"points_per_sample", c.points},
               {"predicted_evaluations", finite_or_null(c.predicted_evaluations)}};
