@@ -10,10 +10,13 @@
 // answers a submit only from a job of the current version: after an upgrade that
 // changed results, older finished jobs are still readable but answer no new submit.
 // Version 0 means "unknown": state written before the version was recorded.
+//
+// History: 1, the first recorded; 2, the automatic estimator's choice (Sobol' sets to
+// 2^20 points, a third pilot size for large jobs) changed what an "auto" spec computes.
 #include <cstdint>
 
 namespace tally {
 
-inline constexpr uint32_t kResultsVersion = 1;
+inline constexpr uint32_t kResultsVersion = 2;
 
 }  // namespace tally
