@@ -7,7 +7,9 @@
 #include <limits>
 #include <map>
 
+#include "common/engine/component_targets.hpp"
 #include "common/engine/kernel.hpp"
+#include "common/engine/stop_rule.hpp"
 #include "common/integrate/lattice_rule.hpp"
 #include "common/rng/counter_rng.hpp"
 #include "common/stats/confidence.hpp"
@@ -24,65 +26,106 @@ constexpr uint64_t kRefinePoints = uint64_t{1} << 16;
 constexpr double kRefineRatio = 4.0;  // the refinement costs at most 1/4 of the job it plans
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
+// One pilot run: per component, the mean and the sd of one sample (non-finite sd: the
+// run failed).
 struct PilotRun {
-  double mean = 0.0, sd = kInf;
+  std::vector<double> mean, sd;
   uint64_t evaluations = 0;
 };
 
-PilotRun pilot(const Kernel& k, uint64_t samples, uint64_t points) {
+PilotRun pilot(const Kernel& k, uint64_t samples, uint64_t points, size_t components) {
   Block b;
   b.sample_count = samples;
   BlockResult out;
   k.run_block(b, out);
   PilotRun r;
   r.evaluations = samples * points;
-  if (out.fault || out.tallies.empty() || out.tallies[0].n != samples) return r;  // unusable
-  r.mean = out.tallies[0].mean;
-  r.sd = std::sqrt(std::max(0.0, out.tallies[0].variance()));
+  r.mean.assign(components, 0.0);
+  r.sd.assign(components, kInf);
+  if (out.fault || out.tallies.size() < components) return r;  // unusable
+  for (size_t j = 0; j < components; ++j) {
+    if (out.tallies[j].n != samples) continue;
+    r.mean[j] = out.tallies[j].mean;
+    r.sd[j] = std::sqrt(std::max(0.0, out.tallies[j].variance()));
+  }
   return r;
 }
 
 std::string count_text(double v) { return std::isfinite(v) ? fmt::format("{:.3g}", v) : "never"; }
 
-// The evaluations candidate c needs to reach half-width eps at its best point-set size,
-// from the sd at its largest pilot size and the rate between its two largest; sets
-// c.rate, c.points and c.predicted_evaluations.
-void predict(AutoCandidate& c, uint32_t uniforms, double eps, double t) {
-  const size_t m = c.pilot_sd.size();
-  if (m == 0 || !std::all_of(c.pilot_sd.begin(), c.pilot_sd.end(), [](double v) { return std::isfinite(v); })) {
-    c.predicted_evaluations = kInf;
-    return;
-  }
-  const double sd_last = c.pilot_sd[m - 1];
-  if (c.estimator == "uniform") {
-    c.rate = 0.5;
-    c.points = 1;
-    const double n = std::ceil(std::pow(t * sd_last / eps, 2.0));
-    c.predicted_evaluations = std::max<double>(static_cast<double>(kMinRandomizations), n);
-    return;
-  }
-  const double sd_prev = c.pilot_sd[m - 2];
-  const double ratio = static_cast<double>(c.pilot_points[m - 1]) / static_cast<double>(c.pilot_points[m - 2]);
-  double rate = 1.5;  // sd 0 at the large size: as fast as the clamp allows
-  if (sd_last > 0.0 && sd_prev > 0.0) rate = std::log(sd_prev / sd_last) / std::log(ratio);
-  c.rate = std::clamp(rate, 0.5, 1.5);
-  double best = kInf;
-  // Sobol' sets grow to the sweep bound (kMaxQmcPoints, kMaxSweepCoordinates); lattices
-  // stop at kMaxLatticePoints, where their CBC construction already takes 0.3 s.
-  const uint64_t max_points = c.estimator == "qmc" ? kMaxQmcPoints : kMaxLatticePoints;
-  for (uint64_t want = uint64_t{1} << 10; want <= max_points; want *= 2) {
-    if (want * uniforms > kMaxSweepCoordinates) break;  // the sweep estimators' point-set bound
-    const uint64_t points = c.estimator == "qmc" ? want : largest_prime_at_most(static_cast<uint32_t>(want));
-    const double sd =
-        sd_last * std::pow(static_cast<double>(points) / static_cast<double>(c.pilot_points[m - 1]), -c.rate);
-    const double k = std::max<double>(static_cast<double>(kMinRandomizations), std::ceil(std::pow(t * sd / eps, 2.0)));
-    const double evals = k * static_cast<double>(points);
-    if (evals < best) {
-      best = evals;
-      c.points = points;
+// A candidate's pilot: points per sample at each size run, and per size the sd of one
+// sample of each component.
+struct Pilot {
+  std::vector<uint64_t> points;
+  std::vector<std::vector<double>> sd;
+};
+
+// The evaluations candidate c needs for every component j to reach half-width eps[j] at
+// its best point-set size, from each component's sd at the largest pilot size and its
+// rate between the two largest; the component that needs the most randomizations sets
+// the cost. Sets c's rate, points, predicted_evaluations, limiting_component and its
+// pilot_points / pilot_sd (those of the limiting component).
+void predict(AutoCandidate& c, const Pilot& p, const std::vector<double>& eps, uint32_t uniforms, double t) {
+  const size_t sizes = p.points.size(), m = eps.size();
+  c.pilot_points = p.points;
+  c.predicted_evaluations = kInf;
+  for (const auto& row : p.sd) {
+    if (!std::all_of(row.begin(), row.end(), [](double v) { return std::isfinite(v); })) {
+      c.pilot_sd.clear();
+      for (const auto& r : p.sd) c.pilot_sd.push_back(r[0]);
+      return;
     }
   }
-  c.predicted_evaluations = best;
+  std::vector<double> rate(m, 0.5);
+  if (c.estimator != "uniform") {
+    const double ratio = static_cast<double>(p.points[sizes - 1]) / static_cast<double>(p.points[sizes - 2]);
+    for (size_t j = 0; j < m; ++j) {
+      const double last = p.sd[sizes - 1][j], prev = p.sd[sizes - 2][j];
+      double r = 1.5;  // sd 0 at the large size: as fast as the clamp allows
+      if (last > 0.0 && prev > 0.0) r = std::log(prev / last) / std::log(ratio);
+      rate[j] = std::clamp(r, 0.5, 1.5);
+    }
+  }
+  // Randomizations (uniform: points) component j needs with `points` per sample, before
+  // the floor of kMinRandomizations.
+  const auto needed = [&](size_t j, uint64_t points) {
+    const double sd = p.sd[sizes - 1][j] *
+                      std::pow(static_cast<double>(points) / static_cast<double>(p.points[sizes - 1]), -rate[j]);
+    return std::pow(t * sd / eps[j], 2.0);
+  };
+  std::vector<uint64_t> sizes_to_try;
+  if (c.estimator == "uniform") {
+    sizes_to_try.push_back(1);
+  } else {
+    // Sobol' sets grow to the sweep bound (kMaxQmcPoints, kMaxSweepCoordinates); lattices
+    // stop at kMaxLatticePoints, where their CBC construction already takes 0.3 s.
+    const uint64_t max_points = c.estimator == "qmc" ? kMaxQmcPoints : kMaxLatticePoints;
+    for (uint64_t want = uint64_t{1} << 10; want <= max_points; want *= 2) {
+      if (want * uniforms > kMaxSweepCoordinates) break;  // the sweep estimators' point-set bound
+      sizes_to_try.push_back(c.estimator == "qmc" ? want : largest_prime_at_most(static_cast<uint32_t>(want)));
+    }
+  }
+  for (uint64_t points : sizes_to_try) {
+    double most = -1.0;
+    size_t worst = 0;
+    for (size_t j = 0; j < m; ++j) {
+      const double kj = needed(j, points);
+      if (kj > most) {
+        most = kj;
+        worst = j;
+      }
+    }
+    const double k = std::max<double>(static_cast<double>(kMinRandomizations), std::ceil(most));
+    const double evals = k * static_cast<double>(points);
+    if (evals < c.predicted_evaluations) {
+      c.predicted_evaluations = evals;
+      c.points = points;
+      c.limiting_component = worst;
+    }
+  }
+  c.rate = rate[c.limiting_component];
+  c.pilot_sd.clear();
+  for (const auto& row : p.sd) c.pilot_sd.push_back(row[c.limiting_component]);
 }
 
 double fewest(const std::vector<AutoCandidate>& cs) {
@@ -93,27 +136,49 @@ double fewest(const std::vector<AutoCandidate>& cs) {
 
 }  // namespace
 
-AutoSelection select_estimator(const IntegrationProblem& problem, const AutoTarget& target) {
+AutoSelection select_estimator(const IntegrationProblem& problem, const StopRule& stop) {
   IntegrationProblem pp = problem;
   pp.seed = mix64(problem.seed ^ 0x61757430706c6f74ULL);  // the pilot's own stream ("auto0plot")
+  pp.covariance = false;  // the pilot needs each component's spread, not the pairs'
   const uint32_t U = problem.domain->uniforms();
+  const size_t m = problem.integrand->components();
   AutoSelection sel;
+  sel.components = m;
 
-  // Uniform: the sd of one point.
-  AutoCandidate uni;
-  uni.estimator = "uniform";
-  const PilotRun u = pilot(*make_uniform_kernel(pp), kPilotUniformPoints, 1);
-  uni.pilot_points = {1};
-  uni.pilot_sd = {u.sd};
-  sel.pilot_evaluations += u.evaluations;
-  sel.candidates.push_back(uni);
+  // Per component, the mean of the run with the smallest standard error so far (the
+  // relative targets are taken against it).
+  std::vector<double> best_mean(m, 0.0), best_se(m, kInf);
+  const auto keep_best = [&](const PilotRun& r, uint64_t samples) {
+    for (size_t j = 0; j < m; ++j) {
+      const double se = r.sd[j] / std::sqrt(static_cast<double>(samples));
+      if (std::isfinite(se) && se < best_se[j]) {
+        best_se[j] = se;
+        best_mean[j] = r.mean[j];
+      }
+    }
+  };
 
-  // Randomized QMC: 8 randomizations at each pilot size. A candidate's kernel at a size
-  // (lattice rules are built once per size and shared by both periodizations).
-  double best_mean = u.mean, best_se = u.sd / std::sqrt(static_cast<double>(kPilotUniformPoints));
+  // Uniform: the sd of one point. A vector integrand's runs on a one-point scrambled
+  // Sobol' set (a uniform point; the uniform kernel keeps component 0 only).
+  std::vector<Pilot> pilots(1);
+  {
+    const auto k = m == 1 ? make_uniform_kernel(pp) : make_qmc_kernel(pp, 1);
+    const PilotRun u = pilot(*k, kPilotUniformPoints, 1, m);
+    sel.pilot_evaluations += u.evaluations;
+    pilots[0].points = {1};
+    pilots[0].sd = {u.sd};
+    keep_best(u, kPilotUniformPoints);
+    AutoCandidate uni;
+    uni.estimator = "uniform";
+    sel.candidates.push_back(uni);
+  }
+
+  // Randomized QMC: 8 randomizations at each pilot size. Lattice rules are built once per
+  // size and shared by both periodizations.
   const std::vector<double> weights(U, kDefaultLatticeWeight);
   std::map<uint32_t, LatticeRule> rules;
-  const auto run_at = [&](AutoCandidate& c, uint64_t want) {
+  const auto run_at = [&](size_t i, uint64_t want) {
+    const AutoCandidate& c = sel.candidates[i];
     std::shared_ptr<const Kernel> k;
     uint64_t points = want;
     if (c.estimator == "qmc") {
@@ -125,35 +190,36 @@ AutoSelection select_estimator(const IntegrationProblem& problem, const AutoTarg
       points = n;
       k = make_lattice_kernel(pp, it->second, c.periodize == "baker" ? Periodization::baker : Periodization::none);
     }
-    const PilotRun r = pilot(*k, kPilotShifts, points);
+    const PilotRun r = pilot(*k, kPilotShifts, points, m);
     sel.pilot_evaluations += r.evaluations;
-    c.pilot_points.push_back(points);
-    c.pilot_sd.push_back(r.sd);
-    const double se = r.sd / std::sqrt(static_cast<double>(kPilotShifts));
-    if (std::isfinite(se) && se < best_se) {
-      best_se = se;
-      best_mean = r.mean;
-    }
+    pilots[i].points.push_back(points);
+    pilots[i].sd.push_back(r.sd);
+    keep_best(r, kPilotShifts);
   };
   const std::vector<std::pair<std::string, std::string>> rqmc = {{"qmc", ""}, {"lattice", "baker"}, {"lattice", "none"}};
   for (const auto& [name, periodize] : rqmc) {
     AutoCandidate c;
     c.estimator = name;
     c.periodize = periodize;
-    run_at(c, kSmall);
-    run_at(c, kLarge);
-    sel.candidates.push_back(std::move(c));
+    sel.candidates.push_back(c);
+    pilots.emplace_back();
+    run_at(sel.candidates.size() - 1, kSmall);
+    run_at(sel.candidates.size() - 1, kLarge);
   }
 
-  // The target half-width: the looser of the two (the job stops when either is met).
-  double eps = 0.0;
-  if (target.abs_error > 0.0) eps = target.abs_error;
-  if (target.rel_error > 0.0) eps = std::max(eps, target.rel_error * std::fabs(best_mean));
-  if (!(eps > 0.0)) eps = 1e-4 * std::fabs(best_mean);
-  if (!(eps > 0.0)) eps = 1e-4;  // an integral of 0: an absolute nominal target
-  sel.target_half_width = eps;
-  const double t = critical_value(target.confidence, kMinRandomizations);
-  for (AutoCandidate& c : sel.candidates) predict(c, U, eps, t);
+  // Each component's target half-width: the looser of its two (it meets when either is
+  // met); with neither, 1e-4 relative (or absolute, for an integral of 0).
+  std::vector<double> eps(m, 0.0);
+  for (size_t j = 0; j < m; ++j) {
+    const double abs_target = component_abs_target(stop, j), rel_target = component_rel_target(stop, j);
+    double e = abs_target > 0.0 ? abs_target : 0.0;
+    if (rel_target > 0.0) e = std::max(e, rel_target * std::fabs(best_mean[j]));
+    if (!(e > 0.0)) e = 1e-4 * std::fabs(best_mean[j]);
+    if (!(e > 0.0)) e = 1e-4;
+    eps[j] = e;
+  }
+  const double t = critical_value(stop.confidence, kMinRandomizations);
+  for (size_t i = 0; i < sel.candidates.size(); ++i) predict(sel.candidates[i], pilots[i], eps, U, t);
 
   // A rate fitted between 2^10 and 2^13 points can be far off at 2^16 and beyond (the
   // Genz gaussian at d = 12: 1.41 fitted, the lattice ran out of time). When the job will
@@ -168,10 +234,10 @@ AutoSelection select_estimator(const IntegrationProblem& problem, const AutoTarg
       }
     }
     if (refine_cost > 0.0 && fewest(sel.candidates) >= kRefineRatio * refine_cost) {
-      for (AutoCandidate& c : sel.candidates) {
-        if (c.estimator == "uniform" || !std::isfinite(c.predicted_evaluations)) continue;
-        run_at(c, third);
-        predict(c, U, eps, t);
+      for (size_t i = 1; i < sel.candidates.size(); ++i) {
+        if (!std::isfinite(sel.candidates[i].predicted_evaluations)) continue;
+        run_at(i, third);
+        predict(sel.candidates[i], pilots[i], eps, U, t);
       }
     }
   }
@@ -192,11 +258,14 @@ AutoSelection select_estimator(const IntegrationProblem& problem, const AutoTarg
                           count_text(c.predicted_evaluations));
   }
   const std::string label = w.estimator + (w.periodize.empty() ? "" : fmt::format(" ({})", w.periodize));
+  sel.target_half_width = eps[w.limiting_component];
+  const std::string whose =
+      m == 1 ? "its" : fmt::format("component {}'s (the one that needs the most randomizations)", w.limiting_component);
   sel.reason = fmt::format(
-      "{} with {} points per sample: its pilot spread falls as evaluations^-{:.2f}, so it needs about {} "
+      "{} with {} points per sample: {} pilot spread falls as evaluations^-{:.2f}, so it needs about {} "
       "evaluations to reach +-{:.3g} at {:g}%, against {}; pilot: {} evaluations",
-      label, w.points, w.rate, count_text(w.predicted_evaluations), eps, 100.0 * target.confidence, others,
-      sel.pilot_evaluations);
+      label, w.points, whose, w.rate, count_text(w.predicted_evaluations), sel.target_half_width,
+      100.0 * stop.confidence, others, sel.pilot_evaluations);
   return sel;
 }
 

@@ -10,7 +10,10 @@
 // the cheapest prediction is at least 4 times what a third size costs, every usable
 // candidate also runs 2^16 points (or the sweep bound) and is predicted again from 2^13
 // and 2^16: a rate fitted on small sets is often wrong far beyond them. The candidate
-// with the fewest predicted evaluations wins. Cost is counted in evaluations, not
+// with the fewest predicted evaluations wins. A vector integrand (every component on
+// the same points) is predicted per component, against its own target (the stop rule's
+// component_targets, else the job-wide one): a point-set size costs what its neediest
+// component needs, and that component is named. Cost is counted in evaluations, not
 // seconds, so the choice is the same on every machine and every compile of the spec
 // (workers, resume).
 #include <cstdint>
@@ -20,13 +23,10 @@
 
 namespace tally {
 
-struct AutoTarget {
-  double abs_error = 0.0;  // 0: none
-  double rel_error = 0.0;  // 0: none; with neither, a nominal 1e-4 relative is used
-  double confidence = 0.95;
-};
+struct StopRule;
 
-// Deterministic in (problem, target). Scalar integrands only.
-AutoSelection select_estimator(const IntegrationProblem& problem, const AutoTarget& target);
+// Deterministic in (problem, stop): the targets are the rule's abs_error / rel_error (and a
+// vector integrand's component_targets) at its confidence.
+AutoSelection select_estimator(const IntegrationProblem& problem, const StopRule& stop);
 
 }  // namespace tally

@@ -29,6 +29,9 @@ struct AutoCandidate {
   std::vector<double> pilot_sd;
   double rate = 0.5;          // fitted from the two largest sizes: the sd falls as evaluations^-rate
   uint64_t points = 1;        // points per sample it would run with
+  // A vector integrand: the component that needs the most randomizations at `points`
+  // (its pilot_sd and rate are the ones shown); 0 for a scalar one.
+  size_t limiting_component = 0;
   double predicted_evaluations = 0.0;  // to the target (infinite: unusable)
 };
 
@@ -36,8 +39,9 @@ struct AutoCandidate {
 struct AutoSelection {
   std::vector<AutoCandidate> candidates;
   size_t chosen = 0;
-  uint64_t pilot_evaluations = 0;
-  double target_half_width = 0.0;  // the absolute half-width the prediction aimed at
+  size_t components = 1;  // of the integrand the pilot ran
+  uint64_t pilot_evaluations = 0;  // points evaluated (each point evaluates every component)
+  double target_half_width = 0.0;  // the absolute half-width the prediction aimed at (the limiting component's)
   std::string reason;              // one sentence, for people
 };
 

@@ -296,9 +296,10 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
                       fmt::format("{} needs an interval or box domain, not {}", what, D.type()));
     }
   };
-  if (vector && type != "uniform" && type != "vegas" && type != "cubature" && type != "qmc" && type != "lattice") {
-    throw SpecError(r.pointer_of("type"), fmt::format("vector integrands support the uniform, qmc, lattice, vegas "
-                                                      "and cubature estimators, not {}", type));
+  if (vector && type != "uniform" && type != "vegas" && type != "cubature" && type != "qmc" && type != "lattice" &&
+      type != "auto") {
+    throw SpecError(r.pointer_of("type"), fmt::format("vector integrands support the uniform, qmc, lattice, auto, "
+                                                      "vegas and cubature estimators, not {}", type));
   }
   const size_t m = prob.integrand->components();
   if (type == "vegas" && m > kMaxVegasComponents) {
@@ -407,17 +408,13 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
     const std::string per = r.enumeration_or("periodize", "baker", {"none", "baker", "cubic"});
     use_lattice(c, prob, n, weights, per);
   } else if (type == "auto") {
-    if (vector) {
-      throw SpecError(r.pointer_of("type"), "auto supports scalar integrands (one expression or built-in)");
-    }
+    if (vector) need_box("auto with a vector integrand");
     if (D.uniforms() > 1024) throw SpecError(r.pointer_of("type"), "auto supports at most 1024 dimensions");
-    AutoTarget t;
-    t.abs_error = stop.abs_error;
-    t.rel_error = stop.rel_error;
-    t.confidence = stop.confidence;
-    AutoSelection sel = select_estimator(prob, t);
+    AutoSelection sel = select_estimator(prob, stop);
     const AutoCandidate& w = sel.candidates[sel.chosen];
-    if (w.estimator == "uniform") {
+    if (w.estimator == "uniform" && vector) {
+      frozen_uniform(r.pointer_of("type"));
+    } else if (w.estimator == "uniform") {
       c.kernel = make_uniform_kernel(prob);
     } else if (w.estimator == "qmc") {
       use_qmc(c, prob, static_cast<uint32_t>(w.points), "affine");

@@ -63,6 +63,7 @@ json auto_selection_json(const AutoSelection& a) {
               {"points_per_sample", c.points},
               {"predicted_evaluations", finite_or_null(c.predicted_evaluations)}};
     if (!c.periodize.empty()) e["periodize"] = c.periodize;
+    if (a.components > 1) e["limiting_component"] = c.limiting_component;
     cands.push_back(std::move(e));
   }
   return {{"chosen", a.chosen},

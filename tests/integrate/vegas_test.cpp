@@ -302,7 +302,7 @@ TEST(VectorIntegrand, BadSpecsNameTheField) {
   };
   EXPECT_EQ(pointer_of(vector_spec({{"expressions", {kE1, "x0 +"}}}, {{"type", "vegas"}})), "/integrand/expressions/1");
   EXPECT_EQ(pointer_of(vector_spec({{"expressions", json::array()}}, {{"type", "vegas"}})), "/integrand/expressions");
-  EXPECT_EQ(pointer_of(vector_spec({{"expressions", {kE1, kE2}}}, {{"type", "auto"}})), "/estimator/type");
+  EXPECT_EQ(pointer_of(vector_spec({{"expressions", {kE1, kE2}}}, {{"type", "stratified"}})), "/estimator/type");
 }
 
 }  // namespace
