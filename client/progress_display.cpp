@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <cstdlib>
 
 namespace tally {
@@ -12,7 +13,7 @@ namespace tally {
 using nlohmann::json;
 
 namespace {
-double num(const json& j, const char* key, double fallback = NAN) {
+double num(const json& j, const char* key, double fallback = std::numeric_limits<double>::quiet_NaN()) {
   const auto it = j.find(key);
   return it != j.end() && it->is_number() ? it->get<double>() : fallback;
 }

@@ -292,7 +292,8 @@ std::vector<Shape> load_obj(const std::string& relative, const std::string& poin
   const auto& attrib = reader.GetAttrib();
   const size_t nv = attrib.vertices.size() / 3;
   auto vertex = [&](size_t i) {
-    return Vec3{attrib.vertices[3 * i], attrib.vertices[3 * i + 1], attrib.vertices[3 * i + 2]};
+    return Vec3{static_cast<double>(attrib.vertices[3 * i]), static_cast<double>(attrib.vertices[3 * i + 1]),
+                static_cast<double>(attrib.vertices[3 * i + 2])};
   };
   // Faces grouped by OBJ material (-1: none), in order of first use.
   std::vector<int> group_ids;
@@ -376,7 +377,7 @@ std::vector<Shape> load_obj(const std::string& relative, const std::string& poin
           if (fresh) {
             charge_vertices(1);
             s.vertices.push_back(vertex(key.first));
-            s.uvs.push_back({attrib.texcoords[2 * static_cast<size_t>(ti)],
+            s.uvs.push_back({static_cast<double>(attrib.texcoords[2 * static_cast<size_t>(ti)]),
                              1.0 - static_cast<double>(attrib.texcoords[2 * static_cast<size_t>(ti) + 1])});
           }
           groups[g][f][k] = it->second;

@@ -6,6 +6,7 @@
 
 #include <ctime>
 #include <cmath>
+#include <limits>
 #include <cstdio>
 #include <numeric>
 #include <random>
@@ -77,7 +78,7 @@ TEST(LatticeRule, WorstCaseErrorFallsWithNAndBeatsRandomVectors) {
   for (size_t s : {8u, 16u}) {
     const std::vector<double> w(s, 0.1);
     std::vector<double> lx, ly;
-    double prev = INFINITY;
+    double prev = std::numeric_limits<double>::infinity();
     for (uint32_t n : ns) {
       const LatticeRule r = cbc_lattice_rule(n, w);
       EXPECT_LT(r.worst_case_error, prev) << "s = " << s << ", n = " << n;
@@ -103,7 +104,7 @@ TEST(LatticeRule, WorstCaseErrorFallsWithNAndBeatsRandomVectors) {
     const double cbc = cbc_lattice_rule(n, w).worst_case_error;
     std::mt19937_64 g(7);
     std::uniform_int_distribution<uint32_t> pick(1, n - 1);
-    double best_random = INFINITY;
+    double best_random = std::numeric_limits<double>::infinity();
     for (int t = 0; t < 100; ++t) {
       std::vector<uint32_t> z(s);
       for (auto& zj : z) zj = pick(g);
