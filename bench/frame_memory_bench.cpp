@@ -198,7 +198,7 @@ int main(int argc, char** argv) {
   // The state estimate as the limits compute it (32-pixel tiles, K = 8).
   const auto state = [&](Size s) {
     auto job = compile_lighting_job(frame_spec(s.w, s.h, spp), unlimited_state());
-    return job_state_bytes(job->kernel()->channel_count(), job->kernel()->partition_count());
+    return job_state_bytes(job->kernel()->channel_count(), job->kernel()->partition_count(), job->kernel()->sum_count());
   };
   const uint64_t ss = state(small), sl = state(large);
   std::printf("tally job state (job_state_bytes): %.1f MB, %.1f MB: %.1f bytes/pixel\n", ss / 1e6, sl / 1e6,

@@ -119,7 +119,8 @@ int run(const RunOptions& o) {
   lo.cancel = &g_interrupted;
   if (o.progress) {
     lo.on_pass = [&](const JobRunner& r) {
-      const Estimate e = r.estimate(0);
+      // Channel 0, or the headline of a kernel without tallies (an image's sums).
+      const Estimate e = r.state().channels.empty() ? r.headline() : r.estimate(0);
       fmt::print(stderr, "pass {:>3}  n = {:<12} mean = {:.10g} ± {:.3g}  {:.3g} samples/s\n",
                  r.state().passes, r.state().samples, e.mean, e.std_error, r.samples_per_second());
     };

@@ -19,7 +19,8 @@ constexpr char kMagic[8] = {'T', 'A', 'L', 'L', 'Y', 'C', 'K', '1'};
 // Version 3 stores the counters with their names (kernels declare their own); versions
 // 1 and 2 stored a fixed list of counters, named below.
 // Version 4 adds JobState::results_version; earlier versions read as 0 (unknown).
-constexpr uint32_t kVersion = 4;
+// Version 5 adds JobState::sums (after the channels); earlier versions read none.
+constexpr uint32_t kVersion = 5;
 
 // The counters of versions 1 and 2, in their order (the engine's enum of that time).
 constexpr std::string_view kLegacyCounterNames[] = {
@@ -40,8 +41,10 @@ namespace {
 // hashed on the way (the checksum that ends a checkpoint covers every byte before it).
 class PieceWriter {
  public:
-  PieceWriter(const CheckpointSink& sink, size_t piece) : sink_(sink), piece_(std::max<size_t>(piece, 1)) {
-    w_.reserve(std::min<size_t>(piece_, size_t{1} << 26) + 4096);
+  // `expected`: about the bytes the whole checkpoint takes (no more is reserved).
+  PieceWriter(const CheckpointSink& sink, size_t piece, uint64_t expected)
+      : sink_(sink), piece_(std::max<size_t>(piece, 1)) {
+    w_.reserve(static_cast<size_t>(std::min<uint64_t>({piece_, uint64_t{1} << 26, expected})) + 4096);
   }
   ByteWriter& w() { return w_; }
   // Hands on the whole pieces written so far; call after each item.
@@ -80,7 +83,7 @@ class PieceWriter {
 }  // namespace
 
 uint64_t write_checkpoint(const JobState& s, const CheckpointSink& sink, size_t piece_bytes) {
-  PieceWriter out(sink, piece_bytes);
+  PieceWriter out(sink, piece_bytes, checkpoint_size_hint(s));
   ByteWriter& w = out.w();
   w.raw(std::string_view(kMagic, sizeof kMagic));
   w.u64(kVersion);
@@ -94,6 +97,11 @@ uint64_t write_checkpoint(const JobState& s, const CheckpointSink& sink, size_t 
   w.u64(s.channels.size());
   for (const Tally& t : s.channels) {
     w.tally(t);
+    out.pass_on();
+  }
+  w.u64(s.sums.size());
+  for (double v : s.sums) {
+    w.f64(v);
     out.pass_on();
   }
   TALLY_CHECK_LE(s.counters.values.size(), s.counter_names.size());  // every counter has a name
@@ -123,7 +131,7 @@ uint64_t write_checkpoint(const JobState& s, const CheckpointSink& sink, size_t 
 uint64_t checkpoint_size_hint(const JobState& s) {
   uint64_t names = 0;
   for (const std::string& n : s.counter_names) names += 16 + n.size();
-  return 64 + 8 * s.partition_samples.size() + 24 * s.channels.size() + 32 * s.trace.size() +
+  return 72 + 8 * s.partition_samples.size() + 24 * s.channels.size() + 8 * s.sums.size() + 32 * s.trace.size() +
          8 * s.tail.heap().size() + s.kernel_state.size() + names + 1024;
 }
 
@@ -155,6 +163,10 @@ JobState decode_checkpoint(std::string_view bytes) {
   for (auto& v : s.partition_samples) v = r.u64();
   s.channels.resize(r.count(24));
   for (Tally& t : s.channels) t = r.tally();
+  if (version >= 5) {
+    s.sums.resize(r.count(8));
+    for (double& v : s.sums) v = r.f64();
+  }
   if (version >= 3) {
     const uint64_t nc = r.count(16);  // a name's length and a value
     if (nc > Counters::kMaxCounters) throw CheckpointError(fmt::format("checkpoint has {} counters", nc));

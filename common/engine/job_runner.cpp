@@ -69,6 +69,7 @@ void adopt_counter_layout(JobState& s, const std::vector<std::string>& names) {
 JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCaps caps)
     : kernel_(std::move(kernel)), rule_(rule), caps_(caps) {
   state_.channels.assign(kernel_->channel_count(), Tally{});
+  state_.sums.assign(kernel_->sum_count(), 0.0);
   state_.partition_samples.assign(kernel_->partition_count(), 0);
   state_.counter_names = names_of(*kernel_);
   state_.counters.values.assign(state_.counter_names.size(), 0);
@@ -78,12 +79,19 @@ JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCap
 JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCaps caps,
                      JobState restored)
     : kernel_(std::move(kernel)), rule_(rule), caps_(caps), state_(std::move(restored)) {
-  if (state_.channels.size() != kernel_->channel_count() ||
-      state_.partition_samples.size() != kernel_->partition_count()) {
+  const auto fits = [&] {
+    return state_.channels.size() == kernel_->channel_count() && state_.sums.size() == kernel_->sum_count() &&
+           state_.partition_samples.size() == kernel_->partition_count();
+  };
+  if (!fits() && kernel_->upgrade_state(state_) && !fits()) {
+    throw std::logic_error("Kernel::upgrade_state left a state that does not fit the kernel");
+  }
+  if (!fits()) {
     throw std::invalid_argument(fmt::format(
-        "checkpoint does not match the job: {} channels / {} partitions, expected {} / {}",
-        state_.channels.size(), state_.partition_samples.size(), kernel_->channel_count(),
-        kernel_->partition_count()));
+        "checkpoint does not match the job: {} channels / {} sums / {} partitions, expected {} / {} / {} (it was "
+        "written by results version {}; this build is version {})",
+        state_.channels.size(), state_.sums.size(), state_.partition_samples.size(), kernel_->channel_count(),
+        kernel_->sum_count(), kernel_->partition_count(), state_.results_version, kResultsVersion));
   }
   adopt_counter_layout(state_, names_of(*kernel_));
   summarize_error();
@@ -207,6 +215,9 @@ void JobRunner::commit_groups(std::vector<BlockResult>&& given, double wall_seco
       state_.channels.at(r.first_channel + c).merge(r.tallies[c]);
     }
     std::vector<Tally>().swap(r.tallies);
+    TALLY_CHECK_LE(uint64_t{r.first_sum} + r.sums.size(), state_.sums.size());
+    for (size_t c = 0; c < r.sums.size(); ++c) state_.sums[r.first_sum + c] += r.sums[c];
+    std::vector<double>().swap(r.sums);
     state_.counters.merge(r.counters);
     state_.tail.merge(r.tail);
     state_.weights.merge(r.weights);

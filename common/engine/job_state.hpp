@@ -28,6 +28,9 @@ struct JobState {
   uint64_t samples = 0;  // samples per channel the schedule has completed
   std::vector<uint64_t> partition_samples;
   std::vector<Tally> channels;
+  // Sum channels (Kernel::sum_count): sums of samples whose counts the kernel derives
+  // from partition_samples.
+  std::vector<double> sums;
   Counters counters;  // indexed like counter_names
   // The kernel's counter names (Kernel::counter_names), kept with the values so that a
   // checkpoint says what it counted: a resumed job maps them by name.
@@ -50,15 +53,17 @@ struct JobState {
 // Bytes a job's state takes in memory while it runs, the one estimate both the spec
 // readers (against JobLimits::max_state_bytes) and the server's admission (against its
 // memory budget) use: the runner's JobState plus one more copy in flight (a pass's
-// block results, a snapshot or a checkpoint being written), each a Tally per channel
-// and a sample count per partition. Saturates at UINT64_MAX.
-inline uint64_t job_state_bytes(uint64_t channels, uint64_t partitions) {
+// block results, a snapshot or a checkpoint being written), each a Tally per channel,
+// a double per sum channel and a sample count per partition. Saturates at UINT64_MAX.
+inline uint64_t job_state_bytes(uint64_t channels, uint64_t partitions, uint64_t sums = 0) {
   constexpr uint64_t kCopies = 2;
   constexpr uint64_t kMax = std::numeric_limits<uint64_t>::max();
-  if (channels > kMax / (kCopies * 2 * sizeof(Tally)) || partitions > kMax / (kCopies * 2 * sizeof(uint64_t))) {
+  constexpr uint64_t kPart = kMax / 4;  // each term below this: their sum cannot wrap
+  if (channels > kPart / (kCopies * sizeof(Tally)) || partitions > kPart / (kCopies * sizeof(uint64_t)) ||
+      sums > kPart / (kCopies * sizeof(double))) {
     return kMax;
   }
-  return kCopies * (channels * sizeof(Tally) + partitions * sizeof(uint64_t));
+  return kCopies * (channels * sizeof(Tally) + sums * sizeof(double) + partitions * sizeof(uint64_t));
 }
 
 }  // namespace tally

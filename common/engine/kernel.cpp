@@ -30,6 +30,9 @@ void combine_results(BlockResult& acc, const BlockResult& next) {
   TALLY_CHECK_EQ(acc.tallies.size(), next.tallies.size());
   TALLY_CHECK_MSG(acc.aux.empty() && next.aux.empty(), "results with kernel accumulators (aux) are never combined");
   for (size_t c = 0; c < acc.tallies.size(); ++c) acc.tallies[c].merge(next.tallies[c]);
+  TALLY_CHECK_EQ(acc.first_sum, next.first_sum);
+  TALLY_CHECK_EQ(acc.sums.size(), next.sums.size());
+  for (size_t c = 0; c < acc.sums.size(); ++c) acc.sums[c] += next.sums[c];
   acc.counters.merge(next.counters);
   acc.tail.merge(next.tail);
   acc.weights.merge(next.weights);

@@ -34,6 +34,10 @@ struct BlockResult {
   uint64_t block_index = 0;
   uint32_t first_channel = 0;
   std::vector<Tally> tallies;  // channels [first_channel, first_channel + size)
+  // Sum channels [first_sum, first_sum + size) (Kernel::sum_count): each the plain sum of
+  // the block's samples of that channel, added in sample order.
+  uint32_t first_sum = 0;
+  std::vector<double> sums;
   Counters counters;
   TailTracker tail{32};  // largest |values| of the headline channel
   WeightStats weights;
@@ -105,6 +109,16 @@ class Kernel {
  public:
   virtual ~Kernel() = default;
   virtual size_t channel_count() const = 0;
+  // Sum channels: a double per channel (JobState::sums) where a tally takes 24 bytes, for
+  // kernels whose channels of one partition all receive the same number of samples, a
+  // number the kernel derives from JobState::partition_samples (e.g. an image's
+  // randomized-QMC replicates: every pixel of a tile gets the same points). The engine
+  // only adds them, in block order. Default: none.
+  virtual size_t sum_count() const { return 0; }
+  // A state in an older layout of this kernel's (from a checkpoint an earlier build
+  // wrote), converted in place to the current one (channel_count, sum_count); false if
+  // `state` is in no layout it knows. Default: false.
+  virtual bool upgrade_state(JobState& /*state*/) const { return false; }
   virtual uint32_t partition_count() const { return 1; }
   virtual PassSchedule schedule() const { return {}; }
   // Partitions that get samples in the next pass (adaptive sampling skips converged

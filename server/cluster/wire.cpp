@@ -15,8 +15,9 @@ namespace {
 
 // 2: BlockResult::aux (adaptive kernels); 3: as many counters as the kernel declares
 // (Kernel::counter_names), no longer a fixed list; 4: compact tallies (below); 5: a
-// tally equal to the one before it is one byte.
-constexpr unsigned char kResultVersion = 5;
+// tally equal to the one before it is one byte; 6: sum channels (BlockResult::sums, raw
+// doubles after aux).
+constexpr unsigned char kResultVersion = 6;
 
 using Writer = ByteWriter;
 
@@ -176,6 +177,9 @@ std::string encode_result(const BlockResult& res) {
   if (res.fault) w.fault(*res.fault);
   w.u64(res.aux.size());
   for (double v : res.aux) w.f64(v);
+  w.u64(res.first_sum);
+  w.u64(res.sums.size());
+  for (double v : res.sums) w.f64(v);
   out += w.str();
   return out;
 }
@@ -202,6 +206,11 @@ BlockResult decode_result(std::string_view bytes) {
   if (r.u8() != 0) res.fault = r.fault();
   res.aux.resize(r.count(8));
   for (double& v : res.aux) v = r.f64();
+  const uint64_t fs = r.u64();
+  if (fs > UINT32_MAX) throw WireError("first_sum out of range");
+  res.first_sum = static_cast<uint32_t>(fs);
+  res.sums.resize(r.count(8));
+  for (double& v : res.sums) v = r.f64();
   if (!r.done()) throw WireError("trailing bytes after a result");
   return res;
 }

@@ -218,7 +218,9 @@ void InProcessExecutor::worker_loop() {
         // now (combine_groups' order, so the same bits) and free it.
         if (i > grp.first && grp.first >= begin && results[i].aux.empty() && results[grp.first].aux.empty() &&
             results[i].first_channel == results[grp.first].first_channel &&
-            results[i].tallies.size() == results[grp.first].tallies.size()) {
+            results[i].tallies.size() == results[grp.first].tallies.size() &&
+            results[i].first_sum == results[grp.first].first_sum &&
+            results[i].sums.size() == results[grp.first].sums.size()) {
           combine_results(results[grp.first], results[i]);
           results[i] = BlockResult{};
           folded[i] = 1;

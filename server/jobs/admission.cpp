@@ -27,7 +27,7 @@ bool goes_before(const Job& a, const Job& b, const std::map<std::string, uint64_
 
 uint64_t Admission::state_bytes(const JobDefinition& def) {
   const Kernel& k = *def.kernel();
-  return job_state_bytes(k.channel_count(), k.partition_count());
+  return job_state_bytes(k.channel_count(), k.partition_count(), k.sum_count());
 }
 
 uint64_t Admission::memory_bytes(const JobDefinition& def) { return state_bytes(def) + def.kernel()->resident_bytes(); }

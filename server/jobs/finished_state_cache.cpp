@@ -26,15 +26,18 @@ std::shared_ptr<const JobState> FinishedStateCache::load(const JobSnapshot& s) {
   try {
     cp = store_.load_checkpoint(s.id);
     if (!cp) return nullptr;
-    st = std::make_shared<const JobState>(decode_checkpoint(*cp));
+    JobState decoded = decode_checkpoint(*cp);
+    s.def->kernel()->upgrade_state(decoded);  // an older layout (false if it is current or unknown)
+    st = std::make_shared<const JobState>(std::move(decoded));
   } catch (const std::exception& e) {
     log::job(log::Level::warn, s.id, "reading the finished job's state from the store failed: {}", e.what());
     return nullptr;
   }
   const Kernel& k = *s.def->kernel();
-  if (st->channels.size() != k.channel_count() || st->partition_samples.size() != k.partition_count()) {
-    log::job(log::Level::warn, s.id, "the stored state does not match the job ({} channels, expected {})",
-             st->channels.size(), k.channel_count());
+  if (st->channels.size() != k.channel_count() || st->sums.size() != k.sum_count() ||
+      st->partition_samples.size() != k.partition_count()) {
+    log::job(log::Level::warn, s.id, "the stored state does not match the job ({} channels and {} sums, expected {} and {})",
+             st->channels.size(), st->sums.size(), k.channel_count(), k.sum_count());
     return nullptr;
   }
   const uint64_t bytes = Admission::state_bytes(*s.def) / 2;  // one copy, not the runner's two

@@ -14,6 +14,7 @@
 
 #include "cluster_process.hpp"
 #include "common/engine/pass_loop.hpp"
+#include "common/protocol/job_json.hpp"
 #include "common/protocol/job_kinds.hpp"
 #include "server_process.hpp"
 
@@ -37,10 +38,7 @@ inline json local_bits(const json& spec, uint64_t extend_to = 0, const JobLimits
     runner.extend(rule);
     run_local(runner, 2);
   }
-  const Tally& t = runner.state().channels.at(0);
-  return {{"n", t.n},
-          {"mean", fmt::format("{:016x}", std::bit_cast<uint64_t>(t.mean))},
-          {"m2", fmt::format("{:016x}", std::bit_cast<uint64_t>(t.m2))}};
+  return tally_bits_json(runner.state());  // what the status document's "bits" shows
 }
 
 inline std::vector<std::string> cluster_flags(const RedisServer& redis, double lease_s = 30) {

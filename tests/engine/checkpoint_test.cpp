@@ -5,6 +5,7 @@
 #include <bit>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <sstream>
@@ -27,6 +28,7 @@ JobState sample_state() {
   s.channels[0].m2 = 1.0 / 3.0;
   s.channels[2].n = 1;
   s.channels[2].mean = -0.0;
+  s.sums = {0.1 + 0.2, -0.0, 1e-310, -7.5};  // sum channels (an image's replicates)
   s.counter_names = {"evaluations", "shadow_rays"};  // a kernel's own counters
   s.counters.add(0, 999);
   s.counters.add(1, 5);
@@ -56,6 +58,10 @@ TEST(Checkpoint, RoundTripIsBitExact) {
     EXPECT_EQ(r.channels[i].n, s.channels[i].n);
     EXPECT_EQ(std::bit_cast<uint64_t>(r.channels[i].mean), std::bit_cast<uint64_t>(s.channels[i].mean));
     EXPECT_EQ(std::bit_cast<uint64_t>(r.channels[i].m2), std::bit_cast<uint64_t>(s.channels[i].m2));
+  }
+  ASSERT_EQ(r.sums.size(), s.sums.size());
+  for (size_t i = 0; i < s.sums.size(); ++i) {
+    EXPECT_EQ(std::bit_cast<uint64_t>(r.sums[i]), std::bit_cast<uint64_t>(s.sums[i])) << i;
   }
   EXPECT_EQ(r.counters, s.counters);
   EXPECT_EQ(r.counter_names, s.counter_names);
@@ -106,6 +112,28 @@ uint64_t named(const JobState& s, const std::string& name) {
 
 // Version 2 (a fixed list of 14 counters) still reads: every counter under the name
 // it had in that list.
+// The fuzz target's seeds (tests/fuzz/corpus/checkpoint) all decode, and one is of the
+// current version, sum channels included, and re-encodes to exactly its own bytes.
+TEST(Checkpoint, FuzzSeedsDecodeAndOneIsCurrent) {
+  const std::filesystem::path dir = std::filesystem::path(TALLY_SOURCE_DIR) / "tests/fuzz/corpus/checkpoint";
+  size_t current = 0;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    std::ifstream in(e.path(), std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    try {
+      const JobState s = decode_checkpoint(bytes);
+      if (encode_checkpoint(s) == bytes) {
+        ++current;
+        EXPECT_EQ(s.sums.size(), 4u) << e.path();
+        EXPECT_EQ(std::bit_cast<uint64_t>(s.sums[1]), std::bit_cast<uint64_t>(-0.0));
+      }
+    } catch (const CheckpointError& err) {
+      ADD_FAILURE() << e.path() << ": " << err.what();
+    }
+  }
+  EXPECT_EQ(current, 1u);
+}
+
 TEST(Checkpoint, VersionTwoStillReads) {
   const std::string v2 = read_v2_fixture();
   ASSERT_EQ(v2.size(), 424u);
@@ -136,10 +164,11 @@ TEST(Checkpoint, VersionTwoStillReads) {
   // Written before results were versioned: its version is unknown (0), so the result
   // cache never answers a submit from it.
   EXPECT_EQ(r.results_version, 0u);
-  // Re-encoded, it is a version-4 checkpoint that reads back the same, version 0 kept.
-  const std::string v4 = encode_checkpoint(r);
-  EXPECT_EQ(v4[8], 4);
-  const JobState again = decode_checkpoint(v4);
+  EXPECT_TRUE(r.sums.empty());  // before version 5: no sum channels
+  // Re-encoded, it is a version-5 checkpoint that reads back the same, version 0 kept.
+  const std::string v5 = encode_checkpoint(r);
+  EXPECT_EQ(v5[8], 5);
+  const JobState again = decode_checkpoint(v5);
   EXPECT_EQ(again.counter_names, r.counter_names);
   EXPECT_EQ(again.counters, r.counters);
   EXPECT_EQ(again.results_version, 0u);
@@ -158,7 +187,7 @@ TEST(Checkpoint, VersionOneStillReads) {
   EXPECT_EQ(named(r, "shadow_rays"), 5u);
   EXPECT_TRUE(r.kernel_state.empty());
   EXPECT_EQ(r.results_version, 0u);
-  body[8] = 5;
+  body[8] = 6;
   EXPECT_THROW(decode_checkpoint(with_checksum(body)), CheckpointError);  // unknown version
 }
 

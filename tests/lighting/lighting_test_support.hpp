@@ -8,6 +8,7 @@
 #include <fstream>
 #include <memory>
 #include <string>
+#include <vector>
 #include <nlohmann/json.hpp>
 
 #include "common/engine/job_definition.hpp"
@@ -65,13 +66,22 @@ struct AssetSandbox {
   }
 };
 
-// Channels of `a` and `b` whose count, mean or M2 differ in any bit (0: bit-identical;
-// different channel counts count every channel of the longer one).
+// Sums whose bits differ (0: bit-identical; different lengths count every sum of the
+// longer one).
+inline size_t differing_sums(const std::vector<double>& a, const std::vector<double>& b) {
+  if (a.size() != b.size()) return std::max(a.size(), b.size());
+  size_t differ = 0;
+  for (size_t i = 0; i < a.size(); ++i) differ += std::memcmp(&a[i], &b[i], sizeof(double)) != 0 ? 1 : 0;
+  return differ;
+}
+
+// Channels (tallies and sums) of `a` and `b` whose count, mean, M2 or sum differ in any
+// bit (0: bit-identical; different channel counts count every channel of the longer one).
 inline size_t differing_channels(const JobRun& a, const JobRun& b) {
   const auto& ca = a.runner->state().channels;
   const auto& cb = b.runner->state().channels;
   if (ca.size() != cb.size()) return std::max(ca.size(), cb.size());
-  size_t differ = 0;
+  size_t differ = differing_sums(a.runner->state().sums, b.runner->state().sums);
   for (size_t i = 0; i < ca.size(); ++i) {
     if (ca[i].n != cb[i].n || std::memcmp(&ca[i].mean, &cb[i].mean, sizeof(double)) != 0 ||
         std::memcmp(&ca[i].m2, &cb[i].m2, sizeof(double)) != 0) {
@@ -79,6 +89,14 @@ inline size_t differing_channels(const JobRun& a, const JobRun& b) {
     }
   }
   return differ;
+}
+
+// The sum of every tally's mean and every sum channel: above 0 when an image got light.
+inline double state_total(const JobRun& r) {
+  double total = 0;
+  for (const Tally& t : r.runner->state().channels) total += t.mean;
+  for (double v : r.runner->state().sums) total += v;
+  return total;
 }
 
 // Specs without "sampler" run with independent samples here: these tests assert
