@@ -15,8 +15,8 @@ namespace {
 
 // 2: BlockResult::aux (adaptive kernels); 3: as many counters as the kernel declares
 // (Kernel::counter_names), no longer a fixed list; 4: compact tallies (below); 5: a
-// tally equal to the one before it is one byte; 6: sum channels (BlockResult::sums, raw
-// doubles after aux).
+// tally equal to the one before it is one byte; 6: sum channels (BlockResult::sums, after
+// aux, compact as below).
 constexpr unsigned char kResultVersion = 6;
 
 using Writer = ByteWriter;
@@ -129,6 +129,55 @@ size_t get_tallies(std::string_view in, std::vector<Tally>& tallies) {
   return static_cast<size_t>(p - in.data());
 }
 
+// Sum channels: a tag byte each, kSumZero (the bits of +0.0: a black pixel), kSumRepeat
+// (the sum before it again, bit for bit: a grey pixel's G and B) or kSumLiteral followed
+// by the 8 bytes of its bits. Bit-exact, like the tallies.
+constexpr unsigned char kSumZero = 0, kSumRepeat = 1, kSumLiteral = 2;
+
+void put_sums(std::string& out, const std::vector<double>& sums) {
+  const size_t start = out.size();
+  out.resize(start + sums.size() * 9);
+  char* p = out.data() + start;
+  uint64_t prev = 0;
+  for (size_t i = 0; i < sums.size(); ++i) {
+    const uint64_t v = std::bit_cast<uint64_t>(sums[i]);
+    if (v == 0) {
+      *p++ = static_cast<char>(kSumZero);
+    } else if (i > 0 && v == prev) {
+      *p++ = static_cast<char>(kSumRepeat);
+    } else {
+      *p++ = static_cast<char>(kSumLiteral);
+      p = put_le(p, v);
+    }
+    prev = v;
+  }
+  out.resize(static_cast<size_t>(p - out.data()));
+}
+
+// Reads `sums.size()` compact sums from the front of `in`; returns the bytes used.
+size_t get_sums(std::string_view in, std::vector<double>& sums) {
+  const char* p = in.data();
+  const char* const end = p + in.size();
+  auto truncated = [&] { return WireError(fmt::format("result is truncated in sum data at byte {}", p - in.data())); };
+  for (size_t i = 0; i < sums.size(); ++i) {
+    if (p == end) throw truncated();
+    const auto tag = static_cast<unsigned char>(*p++);
+    if (tag == kSumZero) {
+      sums[i] = 0.0;
+    } else if (tag == kSumRepeat) {
+      if (i == 0) throw WireError("result: the first sum repeats the one before it");
+      sums[i] = sums[i - 1];
+    } else if (tag == kSumLiteral) {
+      if (end - p < 8) throw truncated();
+      sums[i] = std::bit_cast<double>(get_le(p));
+      p += 8;
+    } else {
+      throw WireError(fmt::format("result: sum tag byte {:#04x} is not defined", tag));
+    }
+  }
+  return static_cast<size_t>(p - in.data());
+}
+
 }  // namespace
 
 std::string encode_block(const Block& b) {
@@ -179,8 +228,8 @@ std::string encode_result(const BlockResult& res) {
   for (double v : res.aux) w.f64(v);
   w.u64(res.first_sum);
   w.u64(res.sums.size());
-  for (double v : res.sums) w.f64(v);
   out += w.str();
+  put_sums(out, res.sums);
   return out;
 }
 
@@ -196,7 +245,8 @@ BlockResult decode_result(std::string_view bytes) {
   res.first_channel = static_cast<uint32_t>(fc);
   res.tallies.resize(head.count(1));
   const size_t at = head.pos();
-  Reader r(bytes.substr(at + get_tallies(bytes.substr(at), res.tallies)));
+  const size_t body_at = at + get_tallies(bytes.substr(at), res.tallies);
+  Reader r(bytes.substr(body_at));
   const uint64_t nc = r.count(8);
   if (nc > Counters::kMaxCounters) throw WireError(fmt::format("{} counters (at most {})", nc, Counters::kMaxCounters));
   res.counters.values.resize(nc);
@@ -209,9 +259,11 @@ BlockResult decode_result(std::string_view bytes) {
   const uint64_t fs = r.u64();
   if (fs > UINT32_MAX) throw WireError("first_sum out of range");
   res.first_sum = static_cast<uint32_t>(fs);
-  res.sums.resize(r.count(8));
-  for (double& v : res.sums) v = r.f64();
-  if (!r.done()) throw WireError("trailing bytes after a result");
+  res.sums.resize(r.count(1));  // at least a tag byte each
+  const size_t at_sums = body_at + r.pos();
+  if (bytes.size() - at_sums != get_sums(bytes.substr(at_sums), res.sums)) {
+    throw WireError("trailing bytes after a result");
+  }
   return res;
 }
 

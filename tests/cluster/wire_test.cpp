@@ -27,7 +27,7 @@ TEST(ClusterWire, ResultRoundTripIsBitExact) {
   r.weights.add(4.0);
   r.aux = {1.5, -0.0, 1e-310};
   r.first_sum = 96;
-  r.sums = {0.1 + 0.2, -0.0, 1e-310, 0.0};
+  r.sums = {0.1 + 0.2, -0.0, 1e-310, 0.0, 0.0, 1e-310, 1e-310};  // -0.0 is a literal, +0.0 a tag
   r.fault = SampleFault{42, 1, std::numeric_limits<double>::infinity(), {0.5, -0.25}, "x0 = 0.5: inf"};
   const BlockResult d = decode_result(encode_result(r));
   EXPECT_EQ(d.block_index, 77u);
@@ -48,8 +48,10 @@ TEST(ClusterWire, ResultRoundTripIsBitExact) {
   ASSERT_EQ(d.aux.size(), 3u);
   for (size_t i = 0; i < 3; ++i) EXPECT_EQ(std::bit_cast<uint64_t>(d.aux[i]), std::bit_cast<uint64_t>(r.aux[i]));
   EXPECT_EQ(d.first_sum, 96u);
-  ASSERT_EQ(d.sums.size(), 4u);
-  for (size_t i = 0; i < 4; ++i) EXPECT_EQ(std::bit_cast<uint64_t>(d.sums[i]), std::bit_cast<uint64_t>(r.sums[i]));
+  ASSERT_EQ(d.sums.size(), r.sums.size());
+  for (size_t i = 0; i < r.sums.size(); ++i) {
+    EXPECT_EQ(std::bit_cast<uint64_t>(d.sums[i]), std::bit_cast<uint64_t>(r.sums[i])) << i;
+  }
   EXPECT_EQ(encode_result(d), encode_result(r));
 }
 
@@ -135,12 +137,18 @@ TEST(ClusterWire, CorruptInputIsRejected) {
     EXPECT_THROW(decode_result(std::string_view(bytes).substr(0, cut)), WireError) << cut;
   }
   EXPECT_THROW(decode_result(bytes + "x"), WireError);
-  // Sums whose count says more than the bytes hold, and a first_sum beyond 32 bits.
+  // Sums: every cut is refused, a repeat first, an undefined tag, a first_sum beyond 32 bits.
   BlockResult s;
-  s.sums = {1.0, 2.0};
+  s.sums = {1.0, 1.0, 0.0};  // literal, repeat, zero: 9 + 1 + 1 bytes
   std::string sums = encode_result(s);
-  for (size_t cut = 1; cut <= 16; ++cut) EXPECT_THROW(decode_result(sums.substr(0, sums.size() - cut)), WireError) << cut;
-  sums[sums.size() - 16 - 8 - 4] = 1;  // first_sum's fifth byte: 2^32
+  EXPECT_EQ(static_cast<unsigned char>(sums[sums.size() - 2]), 1u);  // the repeat tag
+  for (size_t cut = 1; cut <= 11; ++cut) EXPECT_THROW(decode_result(sums.substr(0, sums.size() - cut)), WireError) << cut;
+  std::string bad_sums = sums;
+  bad_sums[sums.size() - 11] = 1;  // the first sum's tag: a repeat of nothing
+  EXPECT_THROW(decode_result(bad_sums), WireError);
+  bad_sums[sums.size() - 11] = 3;  // not a tag
+  EXPECT_THROW(decode_result(bad_sums), WireError);
+  sums[sums.size() - 11 - 8 - 4] = 1;  // first_sum's fifth byte: 2^32
   EXPECT_THROW(decode_result(sums), WireError);
   // A count that overflows 64 bits in the varint, or in 63 + varint.
   BlockResult big;
