@@ -12,11 +12,13 @@
 // Version 0 means "unknown": state written before the version was recorded.
 //
 // History: 1, the first recorded; 2, the automatic estimator's choice (Sobol' sets to
-// 2^20 points, a third pilot size for large jobs) changed what an "auto" spec computes.
+// 2^20 points, a third pilot size for large jobs) changed what an "auto" spec computes;
+// 3, an image with replicates keeps a sum per replicate channel (a replicate's mean is
+// its sum over its count, not a running mean; a non-finite sample counts as 0).
 #include <cstdint>
 
 namespace tally {
 
-inline constexpr uint32_t kResultsVersion = 2;
+inline constexpr uint32_t kResultsVersion = 3;
 
 }  // namespace tally

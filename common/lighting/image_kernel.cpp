@@ -99,7 +99,48 @@ size_t ImageKernel::pixel_channel(int x, int y) const {
 }
 
 ReplicatedEstimate ImageKernel::pixel_estimate(const JobState& state, size_t ch, size_t c) const {
-  return combine_replicates(&state.channels[ch + c], 3, k_);
+  // The tile whose channel range holds `ch`.
+  const auto it = std::upper_bound(tile_first_.begin(), tile_first_.end(), ch);
+  return estimate_in(state, static_cast<uint32_t>(it - tile_first_.begin() - 1), ch, c);
+}
+
+ReplicatedEstimate ImageKernel::estimate_in(const JobState& state, uint32_t tile, size_t ch, size_t c) const {
+  if (k_ <= 1) return combine_replicates(&state.channels[ch + c], 3, k_);
+  // Replicate r's mean is its sum over its count; the estimate and its error are those of
+  // combine_replicates.
+  ReplicatedEstimate e;
+  e.n = state.partition_samples[tile];
+  e.critical_n = k_;
+  const double* sum = &state.sums[ch + c];
+  if (e.n < k_) {  // early on (a sample limit under K): the pooled mean, no error bar yet
+    double total = 0.0;
+    for (uint32_t r = 0; r < e.n; ++r) total += sum[3 * static_cast<size_t>(r)];
+    e.mean = e.n > 0 ? total / static_cast<double>(e.n) : 0.0;
+    return e;
+  }
+  double total = 0.0;
+  for (uint32_t r = 0; r < k_; ++r) total += sum[3 * static_cast<size_t>(r)] / replicate_count(e.n, r);
+  e.mean = total / k_;
+  double ss = 0.0;
+  for (uint32_t r = 0; r < k_; ++r) {
+    const double d = sum[3 * static_cast<size_t>(r)] / replicate_count(e.n, r) - e.mean;
+    ss += d * d;
+  }
+  e.std_error = std::sqrt(ss / (static_cast<double>(k_) * (k_ - 1)));
+  return e;
+}
+
+bool ImageKernel::upgrade_state(JobState& state) const {
+  if (k_ <= 1 || !state.sums.empty() || state.channels.size() != pixel_channels() ||
+      state.partition_samples.size() != tile_count()) {
+    return false;
+  }
+  state.sums.resize(state.channels.size());
+  for (size_t i = 0; i < state.channels.size(); ++i) {
+    state.sums[i] = state.channels[i].mean * static_cast<double>(state.channels[i].n);
+  }
+  std::vector<Tally>().swap(state.channels);
+  return true;
 }
 
 void ImageKernel::run_block(const Block& block, BlockResult& out) const {
@@ -109,10 +150,17 @@ void ImageKernel::run_block(const Block& block, BlockResult& out) const {
 template <class Sample>
 void ImageKernel::run_pixels(const Block& block, BlockResult& out) const {
   const TileRect r = tile_rect(block.partition);
-  out.first_channel = static_cast<uint32_t>(tile_first_[block.partition]);
-  out.tallies.assign(3 * static_cast<size_t>(k_) * static_cast<size_t>(r.w) * static_cast<size_t>(r.h), Tally{});
+  const size_t tile_channels = 3 * static_cast<size_t>(k_) * static_cast<size_t>(r.w) * static_cast<size_t>(r.h);
+  const bool sums = k_ > 1;
+  if (sums) {
+    out.first_sum = static_cast<uint32_t>(tile_first_[block.partition]);
+    out.sums.assign(tile_channels, 0.0);
+  } else {
+    out.first_channel = static_cast<uint32_t>(tile_first_[block.partition]);
+    out.tallies.assign(tile_channels, Tally{});
+  }
   const PathTracer& tracer = *scene_->tracer;
-  ReplicateRgbSamples v(k_, block.sample_count);
+  ReplicateRgbSamples v(sums ? 0 : k_, sums ? 0 : block.sample_count);
   ReplicateStreams streams(k_);
   const double inv_w = 1.0 / width_, inv_h = 1.0 / height_;
   for (int y = r.y; y < r.y + r.h; ++y) {
@@ -120,6 +168,9 @@ void ImageKernel::run_pixels(const Block& block, BlockResult& out) const {
       if (block_abandoned()) return;  // its result is dropped (block_abandon.hpp)
       const uint64_t key = stream_key(seed_, static_cast<uint64_t>(y) * static_cast<uint64_t>(width_) + static_cast<uint64_t>(x));
       streams.start(key);
+      const size_t base =
+          3 * static_cast<size_t>(k_) * (static_cast<size_t>(y - r.y) * static_cast<size_t>(r.w) + static_cast<size_t>(x - r.x));
+      double* sum = sums ? &out.sums[base] : nullptr;
       v.clear();
       for (uint64_t i = block.first_sample; i < block.first_sample + block.sample_count; ++i) {
         const Sample rng = streams.sample<Sample>(i);
@@ -130,13 +181,18 @@ void ImageKernel::run_pixels(const Block& block, BlockResult& out) const {
         out.counters.add(LightingCounter::evaluations);
         if (!std::isfinite(L.x) || !std::isfinite(L.y) || !std::isfinite(L.z)) {
           out.counters.add(LightingCounter::nonfinite);
-          continue;
+          continue;  // a sum counts it as 0; a tally leaves it out
         }
-        v.add(streams.replicate(i), L.x, L.y, L.z);
+        if (sums) {
+          double* s = sum + 3 * static_cast<size_t>(streams.replicate(i));
+          s[0] += L.x;
+          s[1] += L.y;
+          s[2] += L.z;
+        } else {
+          v.add(streams.replicate(i), L.x, L.y, L.z);
+        }
       }
-      const size_t base =
-          3 * static_cast<size_t>(k_) * (static_cast<size_t>(y - r.y) * static_cast<size_t>(r.w) + static_cast<size_t>(x - r.x));
-      v.tally_into(&out.tallies[base]);
+      if (!sums) v.tally_into(&out.tallies[base]);
     }
   }
   if (auto err = take_embree_error()) {
@@ -149,18 +205,33 @@ void ImageKernel::run_pixels(const Block& block, BlockResult& out) const {
 }
 
 double ImageKernel::image_mean(const JobState& state) const {
-  // Replicates of a pixel are equal in size (or within one sample): the plain average.
+  // The plain average of the replicate means (an empty replicate counts as 0).
   double sum = 0;
-  for (const Tally& t : state.channels) sum += t.mean;
-  return state.channels.empty() ? 0.0 : sum / static_cast<double>(state.channels.size());
+  if (k_ <= 1) {
+    for (const Tally& t : state.channels) sum += t.mean;
+  } else {
+    for (uint32_t t = 0; t < tile_count(); ++t) {
+      const uint64_t n = state.partition_samples[t];
+      for (uint32_t r = 0; r < k_ && r < n; ++r) {  // replicate r of every pixel of the tile
+        double replicate_sum = 0;
+        for (size_t ch = tile_first_[t] + 3 * static_cast<size_t>(r); ch < tile_first_[t + 1]; ch += 3 * static_cast<size_t>(k_)) {
+          replicate_sum += state.sums[ch] + state.sums[ch + 1] + state.sums[ch + 2];
+        }
+        sum += replicate_sum / replicate_count(n, r);
+      }
+    }
+  }
+  const size_t n = pixel_channels();
+  return n == 0 ? 0.0 : sum / static_cast<double>(n);
 }
 
-double ImageKernel::pixel_rel_error(const JobState& state, size_t ch, double confidence, double delta) const {
+double ImageKernel::pixel_rel_error(const JobState& state, uint32_t tile, size_t ch, double confidence,
+                                    double delta) const {
   // The pixel's RGB average: half-width of its mean over |its mean| + delta.
   thread_local CriticalCache critical;
   double half = 0, mean = 0;
   for (size_t c = 0; c < 3; ++c) {
-    const ReplicatedEstimate e = pixel_estimate(state, ch, c);
+    const ReplicatedEstimate e = estimate_in(state, tile, ch, c);
     if (!e.has_error()) return std::numeric_limits<double>::infinity();
     half += critical(confidence, e.critical_n) * e.std_error;
     mean += std::fabs(e.mean);
@@ -175,7 +246,7 @@ std::vector<uint32_t> ImageKernel::active_partitions(const JobState& state) cons
   for (uint32_t t = 0; t < tile_count(); ++t) {
     bool need = state.partition_samples[t] < adaptive_->min_spp;
     for (size_t ch = tile_first_[t]; !need && ch < tile_first_[t + 1]; ch += 3 * static_cast<size_t>(k_)) {
-      need = pixel_rel_error(state, ch, 0.95, delta) > adaptive_->rel_error;
+      need = pixel_rel_error(state, t, ch, 0.95, delta) > adaptive_->rel_error;
     }
     if (need) active.push_back(t);
   }
@@ -190,15 +261,17 @@ ErrorSummary ImageKernel::error_summary(const JobState& state, double confidence
   double sum_h = 0, sum_r = 0;
   uint64_t n_min = std::numeric_limits<uint64_t>::max();
   size_t count = 0;
-  for (size_t ch = 0; ch < state.channels.size(); ch += 3 * static_cast<size_t>(k_)) {
-    for (size_t c = 0; c < 3; ++c) {
-      const ReplicatedEstimate e = pixel_estimate(state, ch, c);
-      if (!e.has_error()) return {inf, inf, std::numeric_limits<double>::quiet_NaN(), mean};
-      const double half = critical(confidence, e.critical_n) * e.std_error;
-      sum_h += half;
-      sum_r += half / (std::fabs(e.mean) + delta);
-      n_min = std::min(n_min, e.n);
-      ++count;
+  for (uint32_t t = 0; t < tile_count(); ++t) {
+    for (size_t ch = tile_first_[t]; ch < tile_first_[t + 1]; ch += 3 * static_cast<size_t>(k_)) {
+      for (size_t c = 0; c < 3; ++c) {
+        const ReplicatedEstimate e = estimate_in(state, t, ch, c);
+        if (!e.has_error()) return {inf, inf, std::numeric_limits<double>::quiet_NaN(), mean};
+        const double half = critical(confidence, e.critical_n) * e.std_error;
+        sum_h += half;
+        sum_r += half / (std::fabs(e.mean) + delta);
+        n_min = std::min(n_min, e.n);
+        ++count;
+      }
     }
   }
   if (count == 0) return {inf, inf, std::numeric_limits<double>::quiet_NaN(), mean};
@@ -221,12 +294,14 @@ std::optional<Headline> ImageKernel::headline(const JobState& state) const {
   // channels' squared standard errors over count^2.
   double sum = 0.0, var = 0.0;
   size_t count = 0;
-  for (size_t ch = 0; ch < state.channels.size(); ch += 3 * static_cast<size_t>(k_)) {
-    for (size_t c = 0; c < 3; ++c) {
-      const ReplicatedEstimate e = pixel_estimate(state, ch, c);
-      sum += e.mean;
-      if (e.has_error()) var += e.std_error * e.std_error;
-      ++count;
+  for (uint32_t t = 0; t < tile_count(); ++t) {
+    for (size_t ch = tile_first_[t]; ch < tile_first_[t + 1]; ch += 3 * static_cast<size_t>(k_)) {
+      for (size_t c = 0; c < 3; ++c) {
+        const ReplicatedEstimate e = estimate_in(state, t, ch, c);
+        sum += e.mean;
+        if (e.has_error()) var += e.std_error * e.std_error;
+        ++count;
+      }
     }
   }
   const double n = static_cast<double>(std::max<size_t>(1, count));
@@ -247,10 +322,12 @@ ImageSnapshot ImageKernel::snapshot(const JobState& state, const TileRect& rect)
   s.samples.resize(n);
   for (int y = 0; y < s.height; ++y) {
     for (int x = 0; x < s.width; ++x) {
-      const size_t ch = pixel_channel(s.x0 + x, s.y0 + y);
+      const int px = s.x0 + x, py = s.y0 + y;
+      const size_t ch = pixel_channel(px, py);
+      const auto tile = static_cast<uint32_t>((py / tile_) * tiles_x_ + px / tile_);
       const size_t i = static_cast<size_t>(y) * static_cast<size_t>(s.width) + static_cast<size_t>(x);
       for (size_t c = 0; c < 3; ++c) {
-        const ReplicatedEstimate e = pixel_estimate(state, ch, c);
+        const ReplicatedEstimate e = estimate_in(state, tile, ch, c);
         s.rgb[3 * i + c] = static_cast<float>(e.mean);
         s.stderr_rgb[3 * i + c] = e.has_error() ? static_cast<float>(e.std_error) : 0.0f;
         if (c == 0) s.samples[i] = static_cast<float>(e.n);

@@ -10,6 +10,13 @@
 // replicate-major (replicate r of channel c at pixel_channel + 3 r + c); sample i goes to
 // replicate i mod K. A pixel's value and standard error combine its replicates
 // (common/stats/replicates.hpp): every reader goes through pixel_estimate().
+// State: with K > 1 the channels are sum channels (Kernel::sum_count, 8 bytes each): a
+// tile's blocks cover samples [0, n) of each of its pixels (n = partition_samples[t]),
+// so replicate r of every pixel there has the same count (replicate_count), and its mean
+// is its sum over that count; only the spread of the K means makes the error bar, so
+// nothing else is kept. A non-finite sample value counts as 0 (and in the nonfinite
+// counter). With K = 1 (independent samples) the error bar is the samples' own variance:
+// the channels are tallies (24 bytes), and a non-finite value is left out.
 //
 // Error summary (what stop rules on images look at): per pixel, the half-width h of the
 // confidence interval of each channel, and r = h / (|mean| + delta) with
@@ -45,9 +52,11 @@ class ImageKernel final : public Kernel, public ImageSource {
               SamplerSettings sampler = {SamplerKind::independent, 1});
 
   // Kernel
-  size_t channel_count() const override {
-    return 3 * static_cast<size_t>(k_) * static_cast<size_t>(width_) * static_cast<size_t>(height_);
-  }
+  size_t channel_count() const override { return k_ > 1 ? 0 : pixel_channels(); }
+  size_t sum_count() const override { return k_ > 1 ? pixel_channels() : 0; }
+  // A K > 1 image of results version 2 or earlier (a tally per replicate channel): each
+  // sum becomes mean x count (a non-finite sample, left out then, counts as 0 now).
+  bool upgrade_state(JobState& state) const override;
   uint32_t partition_count() const override { return tile_count(); }
   PassSchedule schedule() const override;
   std::vector<uint32_t> active_partitions(const JobState& state) const override;
@@ -69,7 +78,11 @@ class ImageKernel final : public Kernel, public ImageSource {
   ImageSnapshot snapshot(const JobState& state, const TileRect& rect) const override;
   using ImageSource::snapshot;
 
-  size_t pixel_channel(int x, int y) const;  // first of the pixel's 3 K channels
+  size_t pixel_channel(int x, int y) const;  // first of the pixel's 3 K channels (or sums)
+  // 3 K per pixel: the tallies (K = 1) or sums (K > 1) of the whole image.
+  size_t pixel_channels() const {
+    return 3 * static_cast<size_t>(k_) * static_cast<size_t>(width_) * static_cast<size_t>(height_);
+  }
   int tile_size() const { return tile_; }
   uint32_t replicates() const { return k_; }
   const SamplerSettings& sampler() const { return sampler_; }
@@ -77,7 +90,14 @@ class ImageKernel final : public Kernel, public ImageSource {
   ReplicatedEstimate pixel_estimate(const JobState& state, size_t ch, size_t c) const;
 
  private:
-  double pixel_rel_error(const JobState& state, size_t ch, double z_conf, double delta) const;
+  // Samples replicate r of each pixel has when its tile has n: sample i goes to replicate
+  // i mod K, and a tile's blocks cover samples [0, n) of each of its pixels.
+  double replicate_count(uint64_t n, uint32_t r) const {
+    return static_cast<double>(n / k_ + (r < n % k_ ? 1 : 0));
+  }
+  // pixel_estimate of a pixel of tile `tile`.
+  ReplicatedEstimate estimate_in(const JobState& state, uint32_t tile, size_t ch, size_t c) const;
+  double pixel_rel_error(const JobState& state, uint32_t tile, size_t ch, double z_conf, double delta) const;
   template <class Sample>
   void run_pixels(const Block& block, BlockResult& out) const;
   double image_mean(const JobState& state) const;

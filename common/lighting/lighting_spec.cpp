@@ -150,7 +150,9 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
     const uint64_t w = static_cast<uint64_t>(scene.camera->width), h = static_cast<uint64_t>(scene.camera->height);
     const uint64_t ts = static_cast<uint64_t>(tile_size);
     const uint64_t tiles = ((w + ts - 1) / ts) * ((h + ts - 1) / ts);
-    const uint64_t need = job_state_bytes(3 * sampler.k() * w * h, tiles);
+    // K > 1: a sum (8 bytes) per replicate channel; K = 1: a tally (ImageKernel).
+    const uint64_t per_pixel = 3 * sampler.k();
+    const uint64_t need = sampler.k() > 1 ? job_state_bytes(0, tiles, per_pixel * w * h) : job_state_bytes(per_pixel * w * h, tiles);
     if (need > limits.max_state_bytes) {
       throw StateLimitError("/scene/camera/resolution",
                       fmt::format("{}x{} pixels x 3 colours x {} replicates need {} bytes of job state; the limit is {} "
@@ -216,7 +218,7 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
   }
   auto k = std::make_shared<ImageKernel>(cs, PathSettings{strategies[0], max_depth, rr}, seed, tile_size, max_pass_spp,
                                          adaptive, sampler);
-  lp.channels = k->channel_count();
+  lp.channels = k->channel_count() + k->sum_count();
   lp.channel_layout = kImageChannelLayout;
   lp.image_size = LightingImagePlan{k->width(), k->height(), tile_size, k->tile_count()};
   lp.pass_schedule = k->schedule();

@@ -283,8 +283,8 @@ TEST(QmcDeterminism, ImageBitIdenticalOneVsTwoThreads) {
   const JobRun a = run_spec(cornell_qmc_spec(), 1);
   const JobRun b = run_spec(cornell_qmc_spec(), 2);
   EXPECT_EQ(a.runner->state().samples, 40u);
-  EXPECT_EQ(a.runner->state().channels.size(), 24u * 20u * 3u * kDefaultReplicates);
-  EXPECT_TRUE(a.runner->state().channels == b.runner->state().channels);
+  EXPECT_EQ(a.runner->state().sums.size(), 24u * 20u * 3u * kDefaultReplicates);
+  EXPECT_EQ(differing_channels(a, b), 0u);
   EXPECT_TRUE(a.runner->state().counters == b.runner->state().counters);
 }
 
@@ -307,7 +307,84 @@ TEST(QmcDeterminism, ResumeFromCheckpointIsBitIdentical) {
     run_local(resumed, 2);
     EXPECT_EQ(resumed.state().samples, whole.runner->state().samples);
     EXPECT_TRUE(resumed.state().channels == whole.runner->state().channels);
+    EXPECT_EQ(differing_sums(resumed.state().sums, whole.runner->state().sums), 0u);
     EXPECT_TRUE(resumed.state().counters == whole.runner->state().counters);
+  }
+}
+
+// Results version 2 and earlier kept a tally (n, mean, M2) per replicate channel of an
+// image; this build keeps a sum. Such a checkpoint resumes: each sum becomes mean x n,
+// and the job finishes with the image of an uninterrupted run up to that rounding. A
+// state that fits neither layout is refused naming both sizes and the version.
+TEST(QmcDeterminism, ImageCheckpointOfTheTallyLayoutResumes) {
+  const json spec = cornell_qmc_spec();
+  const JobRun whole = run_spec(spec, 2);
+  auto job = compile_lighting_job(spec, JobLimits{});
+  const auto* img = dynamic_cast<const ImageKernel*>(job->image());
+  ASSERT_NE(img, nullptr);
+  const uint32_t k = img->replicates();
+  JobRunner first(job->kernel(), job->stop_rule(), JobCaps{});
+  std::atomic<bool> stop{false};
+  LocalRunOptions o;
+  o.threads = 1;
+  o.cancel = &stop;
+  o.on_pass = [&](const JobRunner& r) {
+    if (r.state().passes == 3) stop = true;
+  };
+  run_local(first, o);
+  ASSERT_EQ(first.state().passes, 3u);
+  const JobState& now = first.state();
+  ASSERT_EQ(now.sums.size(), img->sum_count());
+  // The same state in the old layout: replicate r of a pixel of tile t held
+  // partition_samples[t] / K samples.
+  JobState old = now;
+  old.sums.clear();
+  old.channels.resize(now.sums.size());
+  const int ts = img->tile_size(), tiles_x = (img->width() + ts - 1) / ts;
+  for (int y = 0; y < img->height(); ++y) {
+    for (int x = 0; x < img->width(); ++x) {
+      const uint64_t per = now.partition_samples[static_cast<size_t>((y / ts) * tiles_x + x / ts)] / k;
+      ASSERT_GT(per, 0u);
+      for (size_t c = img->pixel_channel(x, y), e = c + 3 * k; c < e; ++c) {
+        old.channels[c] = Tally{per, now.sums[c] / static_cast<double>(per), 0.0};
+      }
+    }
+  }
+  old.results_version = 2;
+  JobRunner resumed(job->kernel(), job->stop_rule(), JobCaps{}, decode_checkpoint(encode_checkpoint(old)));
+  EXPECT_TRUE(resumed.state().channels.empty());
+  ASSERT_EQ(resumed.state().sums.size(), now.sums.size());
+  for (size_t c = 0; c < now.sums.size(); ++c) {
+    ASSERT_NEAR(resumed.state().sums[c], now.sums[c], 4e-16 * std::fabs(now.sums[c])) << c;
+  }
+  run_local(resumed, 2);
+  ASSERT_EQ(resumed.state().samples, whole.runner->state().samples);
+  const JobState& a = resumed.state();
+  const JobState& b = whole.runner->state();
+  for (int y = 0; y < img->height(); ++y) {
+    for (int x = 0; x < img->width(); ++x) {
+      for (size_t c = 0; c < 3; ++c) {
+        const ReplicatedEstimate ea = img->pixel_estimate(a, img->pixel_channel(x, y), c);
+        const ReplicatedEstimate eb = img->pixel_estimate(b, img->pixel_channel(x, y), c);
+        ASSERT_EQ(ea.n, eb.n);
+        ASSERT_NEAR(ea.mean, eb.mean, 1e-12 * (std::fabs(eb.mean) + 1e-9)) << x << " " << y;
+        ASSERT_NEAR(ea.std_error, eb.std_error, 1e-9 * (eb.std_error + 1e-9)) << x << " " << y;
+      }
+    }
+  }
+  // Neither layout: refused, naming the sizes and the version that wrote it.
+  JobState wrong = now;
+  wrong.sums.pop_back();
+  wrong.results_version = 2;
+  try {
+    JobRunner r(job->kernel(), job->stop_rule(), JobCaps{}, wrong);
+    FAIL() << "a state of the wrong size was resumed";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_EQ(std::string(e.what()),
+              fmt::format("checkpoint does not match the job: 0 channels / {} sums / {} partitions, expected 0 / {} / {} "
+                          "(it was written by results version 2; this build is version {})",
+                          now.sums.size() - 1, now.partition_samples.size(), now.sums.size(),
+                          now.partition_samples.size(), kResultsVersion));
   }
 }
 
@@ -335,7 +412,7 @@ TEST(QmcSpec, SamplerIsCheckedAndReported) {
   const auto job = compile_lighting_job(spec, JobLimits{});
   EXPECT_EQ(plan_json(*job)["sampler"]["type"], "sobol");
   EXPECT_EQ(plan_json(*job)["sampler"]["replicates"], 4);
-  EXPECT_EQ(job->kernel()->channel_count(), 24u * 20u * 3u * 4u);
+  EXPECT_EQ(job->kernel()->sum_count(), 24u * 20u * 3u * 4u);
   // The default is sobol with kDefaultReplicates.
   spec.erase("sampler");
   spec.erase("replicates");

@@ -24,30 +24,53 @@ json frame_spec(int w, int h) { return scenes::frame_spec(w, h, 8); }
 constexpr uint64_t kHalfOf24GB = 12ULL << 30;
 
 TEST(StateLimit, FullHdAndFourKFitHalfOf24GB) {
-  // 3 colours x 8 replicates x 24-byte tallies + 8 bytes a 32-pixel tile, twice.
-  EXPECT_EQ(job_state_bytes(uint64_t{3} * 8 * 1920 * 1080, 60 * 34), 2388819840ULL);
-  EXPECT_EQ(job_state_bytes(uint64_t{3} * 8 * 3840 * 2160, 120 * 68), 9555279360ULL);
+  // 3 colours x 8 replicates x 8-byte sums + 8 bytes a 32-pixel tile, twice.
+  EXPECT_EQ(job_state_bytes(0, 60 * 34, uint64_t{3} * 8 * 1920 * 1080), 796295040ULL);
+  EXPECT_EQ(job_state_bytes(0, 120 * 68, uint64_t{3} * 8 * 3840 * 2160), 3185180160ULL);
   JobLimits limits;
   limits.max_state_bytes = kHalfOf24GB;
   for (const auto& [w, h] : {std::pair{1920, 1080}, std::pair{3840, 2160}}) {
     const auto def = compile_lighting_job(frame_spec(w, h), limits);
-    EXPECT_EQ(def->kernel()->channel_count(), uint64_t{3} * 8 * w * h);
+    EXPECT_EQ(def->kernel()->channel_count(), 0u);
+    EXPECT_EQ(def->kernel()->sum_count(), uint64_t{3} * 8 * w * h);
   }
+}
+
+TEST(StateLimit, IndependentSamplesKeepATallyPerChannel) {
+  // K = 1: the error bar is the samples' own variance, so a pixel keeps 3 tallies of 24
+  // bytes: 2 x (3 x 24 x 3840 x 2160 + 8 x 120 x 68).
+  json spec = frame_spec(3840, 2160);
+  spec["sampler"] = "independent";
+  JobLimits limits;
+  limits.max_state_bytes = 1194524160ULL - 1;
+  try {
+    compile_lighting_job(spec, limits);
+    FAIL() << "a 4K frame over the state limit was accepted";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.pointer(), "/scene/camera/resolution");
+    EXPECT_EQ(e.detail(),
+              "3840x2160 pixels x 3 colours x 1 replicates need 1194524160 bytes of job state; the limit is "
+              "1194524159 bytes");
+  }
+  limits.max_state_bytes = 1194524160ULL;
+  const auto def = compile_lighting_job(spec, limits);
+  EXPECT_EQ(def->kernel()->channel_count(), uint64_t{3} * 3840 * 2160);
+  EXPECT_EQ(def->kernel()->sum_count(), 0u);
 }
 
 TEST(StateLimit, FrameOverTheLimitNamesResolutionAndBytes) {
   JobLimits limits;
-  limits.max_state_bytes = 9555279360ULL - 1;  // one byte short of the 4K frame's state
+  limits.max_state_bytes = 3185180160ULL - 1;  // one byte short of the 4K frame's state
   try {
     compile_lighting_job(frame_spec(3840, 2160), limits);
     FAIL() << "a 4K frame over the state limit was accepted";
   } catch (const SpecError& e) {
     EXPECT_EQ(e.pointer(), "/scene/camera/resolution");
     EXPECT_EQ(e.detail(),
-              "3840x2160 pixels x 3 colours x 8 replicates need 9555279360 bytes of job state; the limit is "
-              "9555279359 bytes");
+              "3840x2160 pixels x 3 colours x 8 replicates need 3185180160 bytes of job state; the limit is "
+              "3185180159 bytes");
   }
-  limits.max_state_bytes = 9555279360ULL;  // exactly at the limit is fine
+  limits.max_state_bytes = 3185180160ULL;  // exactly at the limit is fine
   EXPECT_NO_THROW(compile_lighting_job(frame_spec(3840, 2160), limits));
 }
 

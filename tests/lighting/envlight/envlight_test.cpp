@@ -315,12 +315,12 @@ TEST(EnvLight, ConstantMapIsTheConstantSkyBitForBit) {
   const json sky = {{"type", "sky"}, {"radiance", {1.0, 0.5, 2.0}}};
   const JobRun a = run_spec(open_image_spec(map), 2, dir.limits());
   const JobRun b = run_spec(open_image_spec(sky), 2, dir.limits());
-  EXPECT_TRUE(a.runner->state().channels == b.runner->state().channels);
+  EXPECT_EQ(test::differing_channels(a, b), 0u);
   EXPECT_TRUE(a.runner->state().counters == b.runner->state().counters);
   EXPECT_GT(a.counter(LightingCounter::sky_lookups), 0u);
   const JobRun pa = run_spec(env_point_spec(map, {0, 0, 1}, {"mis", "light_area", "cosine_hemisphere"}, 2000), 1, dir.limits());
   const JobRun pb = run_spec(env_point_spec(sky, {0, 0, 1}, {"mis", "light_area", "cosine_hemisphere"}, 2000), 1, dir.limits());
-  EXPECT_TRUE(pa.runner->state().channels == pb.runner->state().channels);
+  EXPECT_EQ(test::differing_channels(pa, pb), 0u);
   EXPECT_NEAR(pa.channel(0).mean, 0.5 * 1.0, 1e-12);  // rho L, red
 }
 
@@ -450,8 +450,8 @@ TEST(EnvLight, BitIdenticalForAnyThreadCountAndPlanned) {
     const JobRun a = run_spec(spec, 1, dir.limits());
     const JobRun b = run_spec(spec, 2, dir.limits());
     const JobRun c = run_spec(spec, 3, dir.limits());
-    EXPECT_TRUE(a.runner->state().channels == b.runner->state().channels) << sampler;
-    EXPECT_TRUE(a.runner->state().channels == c.runner->state().channels) << sampler;
+    EXPECT_EQ(test::differing_channels(a, b), 0u) << sampler;
+    EXPECT_EQ(test::differing_channels(a, c), 0u) << sampler;
     EXPECT_TRUE(a.runner->state().counters == c.runner->state().counters) << sampler;
     EXPECT_GT(a.counter(LightingCounter::sky_lookups), 0u);
   }

@@ -125,7 +125,8 @@ json image_spec(const json& scene) {
 }
 
 void expect_bit_identical(const test::JobRun& a, const test::JobRun& b) {
-  EXPECT_EQ(test::differing_channels(a, b), 0u) << "of " << a.runner->state().channels.size() << " channels";
+  EXPECT_EQ(test::differing_channels(a, b), 0u)
+      << "of " << a.runner->state().channels.size() + a.runner->state().sums.size() << " channels";
   EXPECT_EQ(plan_json(*a.job), plan_json(*b.job));
 }
 
@@ -141,9 +142,7 @@ TEST(Gltf, RendersBitIdenticalToTheSameJsonScene) {
   from_json["material_model"] = "gltf_reference";
   const test::JobRun ref = test::run_spec(image_spec(from_json), 1, dir.limits());
   // Something was rendered: every pixel has samples and the image is not black.
-  double sum = 0;
-  for (const Tally& t : ref.runner->state().channels) sum += t.mean;
-  ASSERT_GT(sum, 0.0);
+  ASSERT_GT(test::state_total(ref), 0.0);
   for (const std::string& file : std::vector<std::string>{"box.gltf", "box.glb"}) {
     json shape = gltf_shape(file);
     shape["camera"] = "main";
@@ -403,6 +402,10 @@ TEST(GltfExample, TheDemoSceneLoadsAndCompiles) {
   for (const Tally& t : one.runner->state().channels) {
     bad += (std::isfinite(t.mean) && t.mean >= 0) ? 0 : 1;
     sum += t.mean;
+  }
+  for (double v : one.runner->state().sums) {
+    bad += (std::isfinite(v) && v >= 0) ? 0 : 1;
+    sum += v;
   }
   EXPECT_EQ(bad, 0u);
   EXPECT_GT(sum, 0.0);
