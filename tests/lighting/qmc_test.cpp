@@ -288,19 +288,24 @@ TEST(QmcDeterminism, ImageBitIdenticalOneVsTwoThreads) {
   EXPECT_TRUE(a.runner->state().counters == b.runner->state().counters);
 }
 
+// Runs `runner` on one thread and stops it after `passes` passes (a checkpoint's moment).
+void run_passes(JobRunner& runner, uint64_t passes) {
+  std::atomic<bool> stop{false};
+  LocalRunOptions o;
+  o.threads = 1;
+  o.cancel = &stop;
+  o.on_pass = [&](const JobRunner& r) {
+    if (r.state().passes == passes) stop = true;
+  };
+  run_local(runner, o);
+}
+
 TEST(QmcDeterminism, ResumeFromCheckpointIsBitIdentical) {
   for (const json& spec : {cornell_qmc_spec(), point_query_spec(3, 4096, {"mis", "light_area"}, json::object())}) {
     const JobRun whole = run_spec(spec, 2);
     auto job = compile_lighting_job(spec, JobLimits{});
     JobRunner first(job->kernel(), job->stop_rule(), JobCaps{});
-    std::atomic<bool> stop{false};
-    LocalRunOptions o;
-    o.threads = 1;
-    o.cancel = &stop;
-    o.on_pass = [&](const JobRunner& r) {
-      if (r.state().passes == 2) stop = true;
-    };
-    run_local(first, o);
+    run_passes(first, 2);
     ASSERT_EQ(first.state().passes, 2u);
     ASSERT_LT(first.state().samples, whole.runner->state().samples);
     JobRunner resumed(job->kernel(), job->stop_rule(), JobCaps{}, decode_checkpoint(encode_checkpoint(first.state())));
@@ -324,14 +329,7 @@ TEST(QmcDeterminism, ImageCheckpointOfTheTallyLayoutResumes) {
   ASSERT_NE(img, nullptr);
   const uint32_t k = img->replicates();
   JobRunner first(job->kernel(), job->stop_rule(), JobCaps{});
-  std::atomic<bool> stop{false};
-  LocalRunOptions o;
-  o.threads = 1;
-  o.cancel = &stop;
-  o.on_pass = [&](const JobRunner& r) {
-    if (r.state().passes == 3) stop = true;
-  };
-  run_local(first, o);
+  run_passes(first, 3);
   ASSERT_EQ(first.state().passes, 3u);
   const JobState& now = first.state();
   ASSERT_EQ(now.sums.size(), img->sum_count());
