@@ -9,23 +9,29 @@
 
 namespace tally {
 
-bool run_blocks(const Kernel& kernel, const std::vector<Block>& blocks, unsigned threads,
-                std::vector<BlockResult>& results, const std::atomic<bool>* cancel,
+bool run_groups(const Kernel& kernel, const std::vector<Block>& blocks, const std::vector<ResultGroup>& groups,
+                unsigned threads, std::vector<BlockResult>& results, const std::atomic<bool>* cancel,
                 std::string_view pass_input) {
   results.clear();
-  results.resize(blocks.size());
+  results.resize(groups.size());
   std::atomic<size_t> next{0};
   auto work = [&] {
     ScopedBlockAbandon scope(cancel);  // a cancelled pass is dropped: blocks may stop early
+    BlockResult out;
     for (;;) {
-      if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) return;
-      const size_t i = next.fetch_add(1, std::memory_order_relaxed);
-      if (i >= blocks.size()) return;
-      results[i].block_index = blocks[i].index;
-      kernel.run_block_with(blocks[i], pass_input, results[i]);
+      const size_t g = next.fetch_add(1, std::memory_order_relaxed);
+      if (g >= groups.size()) return;
+      for (size_t i = groups[g].first; i < groups[g].first + groups[g].count; ++i) {
+        if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) return;
+        BlockResult& dst = i == groups[g].first ? results[g] : out;
+        dst = BlockResult{};
+        dst.block_index = blocks[i].index;
+        kernel.run_block_with(blocks[i], pass_input, dst);
+        if (i != groups[g].first) combine_results(results[g], out);
+      }
     }
   };
-  threads = std::max(1u, std::min<unsigned>(threads, static_cast<unsigned>(blocks.size())));
+  threads = std::max(1u, std::min<unsigned>(threads, static_cast<unsigned>(groups.size())));
   if (threads == 1) {
     work();
   } else {
@@ -43,12 +49,14 @@ bool run_local(JobRunner& runner, const LocalRunOptions& options) {
     const std::vector<Block> blocks = runner.plan_pass();
     if (blocks.empty()) break;
     const auto t0 = std::chrono::steady_clock::now();
-    if (!run_blocks(runner.kernel(), blocks, options.threads, results, options.cancel, runner.pass_input())) {
+    // One result per result group, combined as computed (run_groups).
+    if (!run_groups(runner.kernel(), blocks, runner.result_groups(), options.threads, results, options.cancel,
+                    runner.pass_input())) {
       runner.cancel();
       return false;
     }
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    runner.commit_pass(std::move(results), dt);
+    runner.commit_groups(std::move(results), dt);
     results = {};
     if (options.on_pass) options.on_pass(runner);
   }

@@ -12,11 +12,13 @@
 
 namespace tally {
 
-// Runs `blocks` on `threads` threads; result i belongs to block i. Returns false if
-// `cancel` was raised before all blocks ran (the results are then incomplete).
-// `pass_input`: JobRunner::pass_input() of the pass the blocks belong to.
-bool run_blocks(const Kernel& kernel, const std::vector<Block>& blocks, unsigned threads,
-                std::vector<BlockResult>& results, const std::atomic<bool>* cancel = nullptr,
+// Runs `blocks` by result group (`groups`: JobRunner::result_groups) on `threads` threads:
+// a thread takes a whole group and combines each of its blocks into the group's first as
+// it computes them (combine_results, block order: the bits of combine_groups), so a pass
+// holds one result per group, not per block. Result g belongs to group g. Returns false
+// if `cancel` was raised before all groups ran.
+bool run_groups(const Kernel& kernel, const std::vector<Block>& blocks, const std::vector<ResultGroup>& groups,
+                unsigned threads, std::vector<BlockResult>& results, const std::atomic<bool>* cancel = nullptr,
                 std::string_view pass_input = {});
 
 struct LocalRunOptions {
