@@ -118,16 +118,7 @@ ReplicatedEstimate ImageKernel::estimate_in(const JobState& state, uint32_t tile
     e.mean = e.n > 0 ? total / static_cast<double>(e.n) : 0.0;
     return e;
   }
-  double total = 0.0;
-  for (uint32_t r = 0; r < k_; ++r) total += sum[3 * static_cast<size_t>(r)] / replicate_count(e.n, r);
-  e.mean = total / k_;
-  double ss = 0.0;
-  for (uint32_t r = 0; r < k_; ++r) {
-    const double d = sum[3 * static_cast<size_t>(r)] / replicate_count(e.n, r) - e.mean;
-    ss += d * d;
-  }
-  e.std_error = std::sqrt(ss / (static_cast<double>(k_) * (k_ - 1)));
-  return e;
+  return replicate_spread(k_, e.n, [&](uint32_t r) { return sum[3 * static_cast<size_t>(r)] / replicate_count(e.n, r); });
 }
 
 bool ImageKernel::upgrade_state(JobState& state) const {

@@ -36,6 +36,27 @@ struct ReplicatedEstimate {
   double half_width(double confidence) const { return critical_value(confidence, critical_n) * std_error; }
 };
 
+// The estimate of K > 1 replicates whose means are all known: their average, and the
+// standard error from their spread (K - 1 dof). `mean_of(r)` is replicate r's mean; `n`
+// the samples in all. The one rule for tallies (combine_replicates) and for sum channels
+// (ImageKernel).
+template <class MeanOf>
+ReplicatedEstimate replicate_spread(uint32_t replicates, uint64_t n, MeanOf mean_of) {
+  ReplicatedEstimate e;
+  e.n = n;
+  e.critical_n = replicates;
+  double sum = 0.0;
+  for (uint32_t r = 0; r < replicates; ++r) sum += mean_of(r);
+  e.mean = sum / replicates;
+  double ss = 0.0;
+  for (uint32_t r = 0; r < replicates; ++r) {
+    const double d = mean_of(r) - e.mean;
+    ss += d * d;
+  }
+  e.std_error = std::sqrt(ss / (static_cast<double>(replicates) * (replicates - 1)));
+  return e;
+}
+
 // Replicate r of the channel is tallies[r * stride].
 inline ReplicatedEstimate combine_replicates(const Tally* tallies, size_t stride, uint32_t replicates) noexcept {
   ReplicatedEstimate e;
@@ -47,13 +68,10 @@ inline ReplicatedEstimate combine_replicates(const Tally* tallies, size_t stride
     if (t.n > 1) e.std_error = t.std_error();
     return e;
   }
-  double sum = 0.0;
   bool all = true;
   for (uint32_t r = 0; r < replicates; ++r) {
-    const Tally& t = tallies[r * stride];
-    sum += t.mean;
-    e.n += t.n;
-    all = all && t.n > 0;
+    e.n += tallies[r * stride].n;
+    all = all && tallies[r * stride].n > 0;
   }
   e.critical_n = replicates;
   if (!all) {  // early on: the pooled mean of what there is, no error bar yet
@@ -62,16 +80,7 @@ inline ReplicatedEstimate combine_replicates(const Tally* tallies, size_t stride
     e.mean = pooled.mean;
     return e;
   }
-  e.mean = sum / replicates;
-  {
-    double ss = 0.0;
-    for (uint32_t r = 0; r < replicates; ++r) {
-      const double d = tallies[r * stride].mean - e.mean;
-      ss += d * d;
-    }
-    e.std_error = std::sqrt(ss / (static_cast<double>(replicates) * (replicates - 1)));
-  }
-  return e;
+  return replicate_spread(replicates, e.n, [&](uint32_t r) { return tallies[r * stride].mean; });
 }
 
 // One block's samples of one RGB pixel or point, kept by replicate until they are
