@@ -47,11 +47,24 @@ bool write_image(const JobDefinition& job, const JobRunner& runner, const std::s
     fmt::print(stderr, "tally run: --image: this job makes no image (its query is not \"type\": \"image\")\n");
     return false;
   }
+  const nlohmann::json meta = {{"samples", runner.state().samples}, {"passes", runner.state().passes}};
+  if (format == ImageFormat::exr) {
+    // Streamed from the state a strip of rows at a time: no copy of a 4K image.
+    try {
+      write_exr_file(*source, runner.state(), meta, path);
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "tally run: cannot write {}: {}\n", path, e.what());
+      return false;
+    }
+    std::error_code ec;
+    const auto size = std::filesystem::file_size(path, ec);
+    fmt::print(stderr, "wrote {} ({} bytes)\n", path, ec ? 0 : size);
+    return true;
+  }
   const ImageSnapshot snap = source->snapshot(runner.state());
   std::string bytes;
   try {
-    const nlohmann::json meta = {{"samples", runner.state().samples}, {"passes", runner.state().passes}};
-    bytes = format == ImageFormat::exr ? encode_exr(snap, meta) : encode_png(snap);
+    bytes = encode_png(snap);
   } catch (const std::exception& e) {
     fmt::print(stderr, "tally run: cannot encode {}: {}\n", path, e.what());
     return false;

@@ -140,6 +140,52 @@ std::string encode_exr(const ImageSnapshot& im, const nlohmann::json& metadata) 
   return out;
 }
 
+namespace {
+struct StripSource {
+  const ImageSource& source;
+  const JobState& state;
+  std::string error;  // why a strip could not be read
+};
+
+int fill_strip(void* context, int32_t y, int32_t rows, float* px) {
+  auto& s = *static_cast<StripSource*>(context);
+  try {
+    const ImageSnapshot snap = s.source.snapshot(s.state, TileRect{0, y, s.source.width(), rows});
+    check_snapshot(snap);
+    const size_t n = static_cast<size_t>(snap.width) * static_cast<size_t>(snap.height);
+    for (size_t i = 0; i < n; ++i) {
+      for (size_t c = 0; c < 3; ++c) {
+        px[7 * i + c] = snap.rgb[3 * i + c];
+        px[7 * i + 3 + c] = snap.stderr_rgb[3 * i + c];
+      }
+      px[7 * i + 6] = snap.samples[i];
+    }
+    return 0;
+  } catch (const std::exception& e) {
+    s.error = e.what();
+    return 1;
+  }
+}
+}  // namespace
+
+void write_exr_file(const ImageSource& source, const JobState& state, const nlohmann::json& metadata,
+                    const std::filesystem::path& path, int strip_rows) {
+  const tally_image_api& a = api();
+  const tally_image_view window{0, 0, source.width(), source.height(), source.width(), source.height(),
+                                nullptr, nullptr, nullptr};
+  const std::string meta = metadata.is_object() ? metadata.dump() : std::string("{}");
+  const std::filesystem::path part = path.string() + ".part";
+  StripSource strips{source, state, {}};
+  std::string error;
+  if (a.write_exr_file(&window, meta.c_str(), part.c_str(), strip_rows, &fill_strip, &strips, &append_to_string,
+                       &error) != 0) {
+    std::error_code ignored;
+    std::filesystem::remove(part, ignored);
+    throw std::runtime_error(strips.error.empty() ? error : error + ": " + strips.error);
+  }
+  std::filesystem::rename(part, path);
+}
+
 std::string encode_png(const ImageSnapshot& im) {
   check_snapshot(im);
   const tally_image_api& a = api();

@@ -31,6 +31,14 @@ class ImageModuleUnavailable : public std::runtime_error {
 // the data window. Throws ImageModuleUnavailable, or std::runtime_error when OpenImageIO fails.
 std::string encode_exr(const ImageSnapshot& image, const nlohmann::json& metadata);
 
+// The EXR encode_exr makes of `source`'s whole image of `state`, written to `path` a
+// strip of `strip_rows` rows at a time (ImageSource::snapshot of the strip): it holds
+// one strip, never a snapshot of the whole image (a 3840x2160 one is 232 MB) nor its
+// encoding. Written to `path` + ".part", renamed to `path` once complete. Throws like
+// encode_exr.
+void write_exr_file(const ImageSource& source, const JobState& state, const nlohmann::json& metadata,
+                    const std::filesystem::path& path, int strip_rows = 32);
+
 // 8-bit sRGB preview: each channel clamped to [0, 1], then the sRGB OETF, rounded.
 std::string encode_png(const ImageSnapshot& image);
 

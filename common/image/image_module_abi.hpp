@@ -29,6 +29,11 @@ struct tally_decoded_image {
 };
 typedef void (*tally_image_receiver)(void* context, const tally_decoded_image* image);
 
+// Fills `rows` rows of an image from row `y` (0: the top of the data window) into `px`:
+// 7 floats a pixel (R G B StdErr.R StdErr.G StdErr.B SampleCount), interleaved, row-major.
+// Returns 0, or non-zero to stop the write (the caller keeps its reason).
+typedef int (*tally_image_rows)(void* context, int32_t y, int32_t rows, float* px);
+
 // Every function returns 0 on success; otherwise it has written a message to `error`.
 struct tally_image_api {
   uint32_t abi_version;  // kTallyImageAbiVersion
@@ -45,6 +50,12 @@ struct tally_image_api {
   // decoding their pixels. Calls `receive` once on success.
   int (*decode)(const unsigned char* bytes, size_t size, const char* format, uint64_t max_pixels,
                 tally_image_receiver receive, void* receive_context, tally_image_sink error, void* error_context);
+  // The EXR encode_exr makes of `window` (its geometry; the pixel pointers are unused),
+  // written to the file `path` with its pixels fetched from `rows` a strip of `strip_rows`
+  // rows at a time: the module holds one strip, never the whole image. (ABI 3)
+  int (*write_exr_file)(const tally_image_view* window, const char* metadata_json, const char* path,
+                        int32_t strip_rows, tally_image_rows rows, void* rows_context, tally_image_sink error,
+                        void* error_context);
 };
 
 // The module's one exported symbol.
@@ -53,6 +64,6 @@ const tally_image_api* tally_image_module_api(void);
 }  // extern "C"
 
 namespace tally {
-inline constexpr uint32_t kTallyImageAbiVersion = 2;  // 2: decode
+inline constexpr uint32_t kTallyImageAbiVersion = 3;  // 2: decode; 3: write_exr_file
 inline constexpr const char* kTallyImageModuleSymbol = "tally_image_module_api";
 }  // namespace tally

@@ -4,6 +4,7 @@
 #include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 
+#include <algorithm>
 #include <exception>
 #include <nlohmann/json.hpp>
 #include <stdexcept>
@@ -49,21 +50,28 @@ std::vector<unsigned char> write_to_memory(const char* fake_name, const OIIO::Im
   return buffer;
 }
 
+// encode_exr's and write_exr_file's header: 7 float channels, the data window at the
+// view's place in the full image, zip compression, the metadata as attributes.
+OIIO::ImageSpec exr_spec(const tally_image_view* im, const char* metadata_json) {
+  OIIO::ImageSpec spec(im->width, im->height, 7, OIIO::TypeDesc::FLOAT);
+  spec.channelnames = {"R", "G", "B", "StdErr.R", "StdErr.G", "StdErr.B", "SampleCount"};
+  spec.alpha_channel = -1;
+  spec.x = im->x0;
+  spec.y = im->y0;
+  spec.full_x = 0;
+  spec.full_y = 0;
+  spec.full_width = im->full_width > 0 ? im->full_width : im->width;
+  spec.full_height = im->full_height > 0 ? im->full_height : im->height;
+  spec.attribute("compression", "zip");
+  add_metadata(spec, nlohmann::json::parse(metadata_json));
+  return spec;
+}
+
 int encode_exr(const tally_image_view* im, const char* metadata_json, tally_image_sink out, void* out_context,
                tally_image_sink error, void* error_context) {
   return guarded(
       [&] {
-        OIIO::ImageSpec spec(im->width, im->height, 7, OIIO::TypeDesc::FLOAT);
-        spec.channelnames = {"R", "G", "B", "StdErr.R", "StdErr.G", "StdErr.B", "SampleCount"};
-        spec.alpha_channel = -1;
-        spec.x = im->x0;
-        spec.y = im->y0;
-        spec.full_x = 0;
-        spec.full_y = 0;
-        spec.full_width = im->full_width > 0 ? im->full_width : im->width;
-        spec.full_height = im->full_height > 0 ? im->full_height : im->height;
-        spec.attribute("compression", "zip");
-        add_metadata(spec, nlohmann::json::parse(metadata_json));
+        const OIIO::ImageSpec spec = exr_spec(im, metadata_json);
         const size_t n = static_cast<size_t>(im->width) * static_cast<size_t>(im->height);
         std::vector<float> interleaved(7 * n);
         for (size_t i = 0; i < n; ++i) {
@@ -76,6 +84,28 @@ int encode_exr(const tally_image_view* im, const char* metadata_json, tally_imag
         }
         const auto bytes = write_to_memory("image.exr", spec, interleaved.data(), OIIO::TypeDesc::FLOAT);
         out(out_context, reinterpret_cast<const char*>(bytes.data()), bytes.size());
+      },
+      error, error_context);
+}
+
+int write_exr_file(const tally_image_view* im, const char* metadata_json, const char* path, int32_t strip_rows,
+                   tally_image_rows rows, void* rows_context, tally_image_sink error, void* error_context) {
+  return guarded(
+      [&] {
+        const OIIO::ImageSpec spec = exr_spec(im, metadata_json);
+        auto out = OIIO::ImageOutput::create("openexr");  // by format name: the path may end in anything (".part")
+        if (!out) throw std::runtime_error("OpenImageIO: no OpenEXR writer: " + OIIO::geterror());
+        if (!out->open(path, spec)) throw std::runtime_error("OpenImageIO open: " + out->geterror());
+        const int32_t strip = std::max<int32_t>(1, strip_rows);
+        std::vector<float> px(7 * static_cast<size_t>(im->width) * static_cast<size_t>(strip));
+        for (int32_t y = 0; y < im->height; y += strip) {
+          const int32_t n = std::min(strip, im->height - y);
+          if (rows(rows_context, y, n, px.data()) != 0) throw std::runtime_error("the image's rows could not be read");
+          if (!out->write_scanlines(spec.y + y, spec.y + y + n, 0, OIIO::TypeDesc::FLOAT, px.data())) {
+            throw std::runtime_error("OpenImageIO write: " + out->geterror());
+          }
+        }
+        if (!out->close()) throw std::runtime_error("OpenImageIO close: " + out->geterror());
       },
       error, error_context);
 }
@@ -131,7 +161,7 @@ int decode(const unsigned char* bytes, size_t size, const char* format, uint64_t
 }
 
 constexpr tally_image_api kApi{tally::kTallyImageAbiVersion, "OpenImageIO " OIIO_VERSION_STRING, &encode_exr,
-                               &encode_png_rgb8, &decode};
+                               &encode_png_rgb8, &decode, &write_exr_file};
 
 }  // namespace
 

@@ -17,6 +17,7 @@
 #include <png.h>
 #include <zlib.h>
 
+#include <algorithm>
 #include <cstring>
 #include <ctime>
 #include <exception>
@@ -61,35 +62,54 @@ std::string cap_date() {
   return buf;
 }
 
+const char* const kExrChannels[7] = {"R", "G", "B", "StdErr.R", "StdErr.G", "StdErr.B", "SampleCount"};
+
+// encode_exr's and write_exr_file's header, as the OpenImageIO module writes it.
+Imf::Header exr_header(const tally_image_view* im, const char* metadata_json) {
+  const int fw = im->full_width > 0 ? im->full_width : im->width;
+  const int fh = im->full_height > 0 ? im->full_height : im->height;
+  const Imath::Box2i display(Imath::V2i(0, 0), Imath::V2i(fw - 1, fh - 1));
+  const Imath::Box2i data(Imath::V2i(im->x0, im->y0), Imath::V2i(im->x0 + im->width - 1, im->y0 + im->height - 1));
+  Imf::Header header(display, data, 1.0f, Imath::V2f(0, 0), 1.0f, Imf::INCREASING_Y, Imf::ZIP_COMPRESSION);
+  Imf::addCapDate(header, cap_date());  // as OpenImageIO writes it
+  for (const char* n : kExrChannels) header.channels().insert(n, Imf::Channel(Imf::FLOAT));
+  // Attributes as the OpenImageIO module writes them: numbers as double, strings
+  // as strings, anything else as its JSON text.
+  const nlohmann::json metadata = nlohmann::json::parse(metadata_json);
+  for (auto it = metadata.begin(); it != metadata.end(); ++it) {
+    const std::string name = "tally:" + it.key();
+    const nlohmann::json& v = it.value();
+    if (v.is_number()) {
+      header.insert(name, Imf::DoubleAttribute(v.get<double>()));
+    } else if (v.is_string()) {
+      header.insert(name, Imf::StringAttribute(v.get<std::string>()));
+    } else {
+      header.insert(name, Imf::StringAttribute(v.dump()));
+    }
+  }
+  return header;
+}
+
+// A frame buffer over `px`, 7 interleaved floats a pixel, `width` a row, holding the rows
+// from data-window row `y` on (OpenEXR's convention: base = the address of pixel (0, 0)).
+Imf::FrameBuffer exr_frame(const tally_image_view* im, float* px, int32_t y) {
+  const size_t xs = 7 * sizeof(float), ys = xs * static_cast<size_t>(im->width);
+  const std::ptrdiff_t origin = static_cast<std::ptrdiff_t>(im->x0) * static_cast<std::ptrdiff_t>(xs) +
+                                static_cast<std::ptrdiff_t>(im->y0 + y) * static_cast<std::ptrdiff_t>(ys);
+  Imf::FrameBuffer fb;
+  for (size_t c = 0; c < 7; ++c) {
+    char* base = reinterpret_cast<char*>(px + c) - origin;
+    fb.insert(kExrChannels[c], Imf::Slice(Imf::FLOAT, base, xs, ys));
+  }
+  return fb;
+}
+
 int encode_exr(const tally_image_view* im, const char* metadata_json, tally_image_sink out, void* out_context,
                tally_image_sink error, void* error_context) {
   return guarded(
       [&] {
-        const int fw = im->full_width > 0 ? im->full_width : im->width;
-        const int fh = im->full_height > 0 ? im->full_height : im->height;
-        const Imath::Box2i display(Imath::V2i(0, 0), Imath::V2i(fw - 1, fh - 1));
-        const Imath::Box2i data(Imath::V2i(im->x0, im->y0),
-                                Imath::V2i(im->x0 + im->width - 1, im->y0 + im->height - 1));
-        Imf::Header header(display, data, 1.0f, Imath::V2f(0, 0), 1.0f, Imf::INCREASING_Y, Imf::ZIP_COMPRESSION);
-        Imf::addCapDate(header, cap_date());  // as OpenImageIO writes it
-        static const char* const names[7] = {"R", "G", "B", "StdErr.R", "StdErr.G", "StdErr.B", "SampleCount"};
-        for (const char* n : names) header.channels().insert(n, Imf::Channel(Imf::FLOAT));
-        // Attributes as the OpenImageIO module writes them: numbers as double, strings
-        // as strings, anything else as its JSON text.
-        const nlohmann::json metadata = nlohmann::json::parse(metadata_json);
-        for (auto it = metadata.begin(); it != metadata.end(); ++it) {
-          const std::string name = "tally:" + it.key();
-          const nlohmann::json& v = it.value();
-          if (v.is_number()) {
-            header.insert(name, Imf::DoubleAttribute(v.get<double>()));
-          } else if (v.is_string()) {
-            header.insert(name, Imf::StringAttribute(v.get<std::string>()));
-          } else {
-            header.insert(name, Imf::StringAttribute(v.dump()));
-          }
-        }
-        // The planes as one interleaved buffer, 7 floats a pixel, addressed in data-window
-        // coordinates (OpenEXR's convention: base = pointer to pixel (0, 0)).
+        const Imf::Header header = exr_header(im, metadata_json);
+        // The planes as one interleaved buffer, 7 floats a pixel.
         const size_t w = static_cast<size_t>(im->width), h = static_cast<size_t>(im->height);
         std::vector<float> px(7 * w * h);
         for (size_t i = 0; i < w * h; ++i) {
@@ -99,21 +119,31 @@ int encode_exr(const tally_image_view* im, const char* metadata_json, tally_imag
           }
           px[7 * i + 6] = im->samples[i];
         }
-        const size_t xs = 7 * sizeof(float), ys = xs * w;
-        const std::ptrdiff_t origin = static_cast<std::ptrdiff_t>(im->x0) * static_cast<std::ptrdiff_t>(xs) +
-                                      static_cast<std::ptrdiff_t>(im->y0) * static_cast<std::ptrdiff_t>(ys);
-        Imf::FrameBuffer fb;
-        for (size_t c = 0; c < 7; ++c) {
-          char* base = reinterpret_cast<char*>(px.data() + c) - origin;
-          fb.insert(names[c], Imf::Slice(Imf::FLOAT, base, xs, ys));
-        }
         MemoryStream stream;
         {
           Imf::OutputFile file(stream, header, 1);
-          file.setFrameBuffer(fb);
+          file.setFrameBuffer(exr_frame(im, px.data(), 0));
           file.writePixels(im->height);
         }
         out(out_context, stream.bytes.data(), stream.bytes.size());
+      },
+      error, error_context);
+}
+
+int write_exr_file(const tally_image_view* im, const char* metadata_json, const char* path, int32_t strip_rows,
+                   tally_image_rows rows, void* rows_context, tally_image_sink error, void* error_context) {
+  return guarded(
+      [&] {
+        const Imf::Header header = exr_header(im, metadata_json);
+        const int32_t strip = std::max<int32_t>(1, strip_rows);
+        std::vector<float> px(7 * static_cast<size_t>(im->width) * static_cast<size_t>(strip));
+        Imf::OutputFile file(path, header, 1);
+        for (int32_t y = 0; y < im->height; y += strip) {
+          const int32_t n = std::min(strip, im->height - y);
+          if (rows(rows_context, y, n, px.data()) != 0) throw std::runtime_error("the image's rows could not be read");
+          file.setFrameBuffer(exr_frame(im, px.data(), y));
+          file.writePixels(n);
+        }
       },
       error, error_context);
 }
@@ -268,7 +298,7 @@ int decode(const unsigned char* bytes, size_t size, const char* format, uint64_t
 }
 
 constexpr tally_image_api kApi{tally::kTallyImageAbiVersion, "OpenEXR " OPENEXR_VERSION_STRING " + libpng " PNG_LIBPNG_VER_STRING,
-                               &encode_exr, &encode_png_rgb8, &decode};
+                               &encode_exr, &encode_png_rgb8, &decode, &write_exr_file};
 
 }  // namespace
 

@@ -7,6 +7,10 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
+#include <unistd.h>
+
+#include "common/engine/job_state.hpp"
 #include "support/requested_image_module.hpp"
 
 namespace tally {
@@ -131,6 +135,67 @@ TEST(ImageIo, RejectsInconsistentSnapshot) {
   ImageSnapshot s = make_snapshot(3, 2);
   s.samples.pop_back();
   EXPECT_THROW(encode_exr(s, {}), std::runtime_error);
+}
+
+// An image served from a whole snapshot, a rectangle at a time (as ImageKernel serves
+// a job's state); `fail_at_row` >= 0: a request for a strip holding it throws.
+class SnapshotSource final : public ImageSource {
+ public:
+  SnapshotSource(ImageSnapshot whole, int fail_at_row = -1) : whole_(std::move(whole)), fail_(fail_at_row) {}
+  int width() const override { return whole_.width; }
+  int height() const override { return whole_.height; }
+  uint32_t tile_count() const override { return 1; }
+  TileRect tile_rect(uint32_t) const override { return {0, 0, whole_.width, whole_.height}; }
+  ImageSnapshot snapshot(const JobState&, const TileRect& r) const override {
+    if (fail_ >= r.y && fail_ < r.y + r.h) throw std::runtime_error("row " + std::to_string(fail_) + " is unreadable");
+    ImageSnapshot s;
+    s.x0 = r.x, s.y0 = r.y, s.width = r.w, s.height = r.h;
+    s.full_width = whole_.width, s.full_height = whole_.height;
+    for (int y = r.y; y < r.y + r.h; ++y) {
+      for (int x = r.x; x < r.x + r.w; ++x) {
+        const size_t i = static_cast<size_t>(y) * static_cast<size_t>(whole_.width) + static_cast<size_t>(x);
+        for (size_t c = 0; c < 3; ++c) {
+          s.rgb.push_back(whole_.rgb[3 * i + c]);
+          s.stderr_rgb.push_back(whole_.stderr_rgb[3 * i + c]);
+        }
+        s.samples.push_back(whole_.samples[i]);
+      }
+    }
+    return s;
+  }
+
+ private:
+  ImageSnapshot whole_;
+  int fail_;
+};
+
+std::string read_bytes(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+// write_exr_file streams strips of rows (3 here, the last one short) to the file: the
+// bytes are encode_exr's of the whole snapshot (its capDate aside), with either module.
+TEST(ImageIo, ExrFileWrittenByStripsIsEncodeExrsBytes) {
+  const auto dir = std::filesystem::temp_directory_path() / ("tally_exr_strips_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  const ImageSnapshot whole = make_snapshot(37, 20);
+  const nlohmann::json meta = {{"samples", 16}, {"estimator", "mis"}};
+  const SnapshotSource source(whole);
+  write_exr_file(source, JobState{}, meta, dir / "a.exr", 3);
+  EXPECT_FALSE(std::filesystem::exists(dir / "a.exr.part"));
+  EXPECT_EQ(without_cap_date(read_bytes(dir / "a.exr")), without_cap_date(encode_exr(whole, meta)));
+  // A strip that cannot be read: an error naming it, and no file, not a partial one.
+  const SnapshotSource broken(whole, 10);
+  try {
+    write_exr_file(broken, JobState{}, meta, dir / "b.exr", 3);
+    ADD_FAILURE() << "a failing strip was written";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("row 10 is unreadable"), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(std::filesystem::exists(dir / "b.exr"));
+  EXPECT_FALSE(std::filesystem::exists(dir / "b.exr.part"));
+  std::filesystem::remove_all(dir);
 }
 
 // image.<backend>_module: the module ctest asked for is the one loaded.
