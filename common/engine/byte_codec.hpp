@@ -35,6 +35,12 @@ class ByteWriter {
     out_.append(b, 8);
   }
   void f64(double v) { u64(std::bit_cast<uint64_t>(v)); }
+  void u32(uint32_t v) {
+    char b[4];
+    for (int i = 0; i < 4; ++i) b[i] = static_cast<char>((v >> (8 * i)) & 0xff);
+    out_.append(b, 4);
+  }
+  void f32(float v) { u32(std::bit_cast<uint32_t>(v)); }
   void raw(std::string_view s) { out_.append(s); }
   void bytes(std::string_view s) {  // length, then the bytes
     u64(s.size());
@@ -95,6 +101,16 @@ class ByteReader {
     return v;
   }
   double f64() { return std::bit_cast<double>(u64()); }
+  uint32_t u32() {
+    need(4);
+    uint32_t v = 0;
+    for (int i = 0; i < 4; ++i) {
+      v |= static_cast<uint32_t>(static_cast<unsigned char>(in_[pos_ + static_cast<size_t>(i)])) << (8 * i);
+    }
+    pos_ += 4;
+    return v;
+  }
+  float f32() { return std::bit_cast<float>(u32()); }
   // A count of items of at least `item_size` bytes each, checked against what is left.
   uint64_t count(size_t item_size) {
     const uint64_t n = u64();

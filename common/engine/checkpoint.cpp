@@ -20,7 +20,9 @@ constexpr char kMagic[8] = {'T', 'A', 'L', 'L', 'Y', 'C', 'K', '1'};
 // 1 and 2 stored a fixed list of counters, named below.
 // Version 4 adds JobState::results_version; earlier versions read as 0 (unknown).
 // Version 5 adds JobState::sums (after the channels); earlier versions read none.
-constexpr uint32_t kVersion = 5;
+// Version 6 stores the sums as 4-byte floats (JobState::sums); version 5's doubles read
+// rounded to float.
+constexpr uint32_t kVersion = 6;
 
 // The counters of versions 1 and 2, in their order (the engine's enum of that time).
 constexpr std::string_view kLegacyCounterNames[] = {
@@ -100,8 +102,8 @@ uint64_t write_checkpoint(const JobState& s, const CheckpointSink& sink, size_t 
     out.pass_on();
   }
   w.u64(s.sums.size());
-  for (double v : s.sums) {
-    w.f64(v);
+  for (float v : s.sums) {
+    w.f32(v);
     out.pass_on();
   }
   TALLY_CHECK_LE(s.counters.values.size(), s.counter_names.size());  // every counter has a name
@@ -131,7 +133,7 @@ uint64_t write_checkpoint(const JobState& s, const CheckpointSink& sink, size_t 
 uint64_t checkpoint_size_hint(const JobState& s) {
   uint64_t names = 0;
   for (const std::string& n : s.counter_names) names += 16 + n.size();
-  return 72 + 8 * s.partition_samples.size() + 24 * s.channels.size() + 8 * s.sums.size() + 32 * s.trace.size() +
+  return 72 + 8 * s.partition_samples.size() + 24 * s.channels.size() + 4 * s.sums.size() + 32 * s.trace.size() +
          8 * s.tail.heap().size() + s.kernel_state.size() + names + 1024;
 }
 
@@ -163,9 +165,12 @@ JobState decode_checkpoint(std::string_view bytes) {
   for (auto& v : s.partition_samples) v = r.u64();
   s.channels.resize(r.count(24));
   for (Tally& t : s.channels) t = r.tally();
-  if (version >= 5) {
+  if (version >= 6) {
+    s.sums.resize(r.count(4));
+    for (float& v : s.sums) v = r.f32();
+  } else if (version == 5) {
     s.sums.resize(r.count(8));
-    for (double& v : s.sums) v = r.f64();
+    for (float& v : s.sums) v = static_cast<float>(r.f64());
   }
   if (version >= 3) {
     const uint64_t nc = r.count(16);  // a name's length and a value

@@ -69,7 +69,7 @@ void adopt_counter_layout(JobState& s, const std::vector<std::string>& names) {
 JobRunner::JobRunner(std::shared_ptr<const Kernel> kernel, StopRule rule, JobCaps caps)
     : kernel_(std::move(kernel)), rule_(rule), caps_(caps) {
   state_.channels.assign(kernel_->channel_count(), Tally{});
-  state_.sums.assign(kernel_->sum_count(), 0.0);
+  state_.sums.assign(kernel_->sum_count(), 0.0f);
   state_.partition_samples.assign(kernel_->partition_count(), 0);
   state_.counter_names = names_of(*kernel_);
   state_.counters.values.assign(state_.counter_names.size(), 0);
@@ -179,7 +179,7 @@ std::optional<JobState> JobRunner::counts_after(const JobState& s, const std::ve
 
 std::optional<std::vector<Block>> JobRunner::plan_ahead(bool* followed) const {
   if (followed) *followed = false;
-  if (finished() || pending_.empty() || !kernel_->plans_from_counts()) return std::nullopt;
+  if (finished() || pending_.empty() || groups_merged() > 0 || !kernel_->plans_from_counts()) return std::nullopt;
   if (rule_.has_error_target() || rule_.time_budget_s > 0) return std::nullopt;
   // The counts the pending pass leaves (commit_pass adds exactly these).
   const std::optional<JobState> next = counts_after(state_, pending_, pending_samples_);
@@ -205,34 +205,56 @@ void JobRunner::commit_groups(std::vector<BlockResult>&& given, double wall_seco
   // (views, a checkpoint) has the state alone in memory.
   std::vector<BlockResult> results = std::move(given);
   TALLY_CHECK_EQ(results.size(), groups_.size());  // one result per result group
-  for (const BlockResult& r : results) {
-    TALLY_CHECK_LE(r.counters.values.size(), state_.counter_names.size());  // only ids the kernel declared
+  for (BlockResult& r : results) merge_group(std::move(r));
+  finish_pass(wall_seconds);
+}
+
+void JobRunner::merge_group(BlockResult&& given) {
+  TALLY_CHECK_MSG(groups_merged() < groups_.size(), "result group {} of a pass of {}", groups_merged(), groups_.size());
+  BlockResult r = std::move(given);
+  TALLY_CHECK_LE(r.counters.values.size(), state_.counter_names.size());  // only ids the kernel declared
+  if (kernel_->folds_passes()) {
+    held_.push_back(std::move(r));
+    return;
   }
-  kernel_->fold_pass(pass_input_, results, state_);
-  for (size_t i = 0; i < results.size(); ++i) {
-    BlockResult& r = results[i];
-    for (size_t c = 0; c < r.tallies.size(); ++c) {
-      state_.channels.at(r.first_channel + c).merge(r.tallies[c]);
-    }
-    std::vector<Tally>().swap(r.tallies);
-    TALLY_CHECK_LE(uint64_t{r.first_sum} + r.sums.size(), state_.sums.size());
-    for (size_t c = 0; c < r.sums.size(); ++c) state_.sums[r.first_sum + c] += r.sums[c];
-    std::vector<double>().swap(r.sums);
-    state_.counters.merge(r.counters);
-    state_.tail.merge(r.tail);
-    state_.weights.merge(r.weights);
-    if (r.fault && !state_.fault) state_.fault = std::move(r.fault);
-    const ResultGroup& g = groups_[i];
-    for (size_t b = g.first; b < g.first + g.count; ++b) {
-      state_.partition_samples[pending_[b].partition] += pending_[b].sample_count;
-    }
+  TALLY_CHECK_MSG(r.aux.empty(), "a result carries kernel accumulators (aux) but the kernel does not fold passes");
+  merge_result(r, merged_++);
+}
+
+void JobRunner::merge_result(BlockResult& r, size_t group) {
+  for (size_t c = 0; c < r.tallies.size(); ++c) {
+    state_.channels.at(r.first_channel + c).merge(r.tallies[c]);
   }
+  std::vector<Tally>().swap(r.tallies);
+  TALLY_CHECK_LE(uint64_t{r.first_sum} + r.sums.size(), state_.sums.size());
+  float* sums = state_.sums.data() + r.first_sum;  // added in double, rounded once (JobState::sums)
+  for (size_t c = 0; c < r.sums.size(); ++c) sums[c] = static_cast<float>(static_cast<double>(sums[c]) + r.sums[c]);
+  std::vector<double>().swap(r.sums);
+  state_.counters.merge(r.counters);
+  state_.tail.merge(r.tail);
+  state_.weights.merge(r.weights);
+  if (r.fault && !state_.fault) state_.fault = std::move(r.fault);
+  const ResultGroup& g = groups_[group];
+  for (size_t b = g.first; b < g.first + g.count; ++b) {
+    state_.partition_samples[pending_[b].partition] += pending_[b].sample_count;
+  }
+}
+
+void JobRunner::finish_pass(double wall_seconds) {
+  if (kernel_->folds_passes()) {
+    TALLY_CHECK_EQ(held_.size(), groups_.size());
+    kernel_->fold_pass(pass_input_, held_, state_);
+    for (BlockResult& r : held_) merge_result(r, merged_++);
+    std::vector<BlockResult>().swap(held_);
+  }
+  TALLY_CHECK_MSG(merged_ == groups_.size(), "finish_pass after {} of {} result groups", merged_, groups_.size());
   state_.samples += pending_samples_;
   state_.passes += 1;
   state_.compute_seconds += wall_seconds;
   pending_.clear();
   groups_.clear();
   pending_samples_ = 0;
+  merged_ = 0;
   summarize_error();
   push_trace();
   evaluate_stop();
@@ -279,6 +301,8 @@ void JobRunner::cancel() {
   if (!finished()) reason_ = StopReason::cancelled;
   pending_.clear();
   groups_.clear();
+  merged_ = 0;
+  held_.clear();
 }
 
 void JobRunner::fail(std::string message) {
@@ -286,6 +310,8 @@ void JobRunner::fail(std::string message) {
   error_ = std::move(message);
   pending_.clear();
   groups_.clear();
+  merged_ = 0;
+  held_.clear();
 }
 
 void JobRunner::extend(const StopRule& rule) {
@@ -294,6 +320,8 @@ void JobRunner::extend(const StopRule& rule) {
   reason_ = StopReason::none;
   pending_.clear();
   groups_.clear();
+  merged_ = 0;
+  held_.clear();
   summarize_error();  // the confidence may have changed
   evaluate_stop();
 }

@@ -69,9 +69,22 @@ class JobRunner {
   // `results[g]` is result group g's blocks combined in block order (combine_results),
   // wherever that happened: the same bits as commit_pass of the blocks' results.
   void commit_groups(std::vector<BlockResult>&& results, double wall_seconds);
+  // commit_groups streamed: result group g's combined result for g = 0, 1, ... in order,
+  // each merged into the state at once and freed (an image's pass never holds all its
+  // results: the in-process loop merges a group as soon as those before it are in), then
+  // finish_pass once every group is in: the same bits as commit_groups. Until then the
+  // state holds the groups merged so far with their partitions' samples counted (every
+  // tile of an image consistent); passes, samples, the trace and error() move at
+  // finish_pass. A kernel that folds passes (Kernel::folds_passes) has its results held
+  // until finish_pass. A cancel between them keeps what was merged.
+  void merge_group(BlockResult&& result);
+  void finish_pass(double wall_seconds);
+  // Result groups of the pass in flight merged (or held) so far.
+  size_t groups_merged() const { return merged_ + held_.size(); }
 
   bool finished() const { return reason_ != StopReason::none; }
   StopReason stop_reason() const { return reason_; }
+  // Ends the job; a pass in flight is dropped (groups it merged already stay merged).
   void cancel();
   void fail(std::string message);
   // Reopen with a new rule (more samples, a tighter target): `POST .../extend`.
@@ -111,6 +124,7 @@ class JobRunner {
   void evaluate_stop();
   void push_trace();
   void summarize_error() { error_summary_ = kernel_->error_summary(state_, rule_.confidence); }
+  void merge_result(BlockResult& r, size_t group);
 
   std::shared_ptr<const Kernel> kernel_;
   StopRule rule_;
@@ -123,6 +137,8 @@ class JobRunner {
   std::vector<ResultGroup> groups_;
   std::string pass_input_;
   uint64_t pending_samples_ = 0;
+  size_t merged_ = 0;               // groups of the pending pass merged (merge_group)
+  std::vector<BlockResult> held_;   // the pending pass's results, for a kernel that folds passes
 };
 
 }  // namespace tally

@@ -29,8 +29,11 @@ struct JobState {
   std::vector<uint64_t> partition_samples;
   std::vector<Tally> channels;
   // Sum channels (Kernel::sum_count): sums of samples whose counts the kernel derives
-  // from partition_samples.
-  std::vector<double> sums;
+  // from partition_samples, kept in single precision (an image's replicates: 4 bytes a
+  // channel). A result's sums are doubles, added in the sample order of its blocks; each
+  // merge adds one in double and rounds the total once (JobRunner::merge_group), so a
+  // sum carries one rounding of 2^-24 relative per merged result group, not per sample.
+  std::vector<float> sums;
   Counters counters;  // indexed like counter_names
   // The kernel's counter names (Kernel::counter_names), kept with the values so that a
   // checkpoint says what it counted: a resumed job maps them by name.
@@ -52,18 +55,19 @@ struct JobState {
 
 // Bytes a job's state takes in memory while it runs, the one estimate both the spec
 // readers (against JobLimits::max_state_bytes) and the server's admission (against its
-// memory budget) use: the runner's JobState plus one more copy in flight (a pass's
-// block results, a snapshot or a checkpoint being written), each a Tally per channel,
-// a double per sum channel and a sample count per partition. Saturates at UINT64_MAX.
+// memory budget) use: the runner's JobState (a Tally per channel, a float per sum
+// channel, a sample count per partition) plus one more copy in flight (a pass's results,
+// where a sum is a double, or a snapshot being written). Saturates at UINT64_MAX.
 inline uint64_t job_state_bytes(uint64_t channels, uint64_t partitions, uint64_t sums = 0) {
   constexpr uint64_t kCopies = 2;
+  constexpr uint64_t kSumBytes = sizeof(float) + sizeof(double);  // the state's, a result's
   constexpr uint64_t kMax = std::numeric_limits<uint64_t>::max();
   constexpr uint64_t kPart = kMax / 4;  // each term below this: their sum cannot wrap
   if (channels > kPart / (kCopies * sizeof(Tally)) || partitions > kPart / (kCopies * sizeof(uint64_t)) ||
-      sums > kPart / (kCopies * sizeof(double))) {
+      sums > kPart / kSumBytes) {
     return kMax;
   }
-  return kCopies * (channels * sizeof(Tally) + sums * sizeof(double) + partitions * sizeof(uint64_t));
+  return kCopies * (channels * sizeof(Tally) + partitions * sizeof(uint64_t)) + sums * kSumBytes;
 }
 
 }  // namespace tally

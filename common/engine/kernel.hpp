@@ -109,7 +109,7 @@ class Kernel {
  public:
   virtual ~Kernel() = default;
   virtual size_t channel_count() const = 0;
-  // Sum channels: a double per channel (JobState::sums) where a tally takes 24 bytes, for
+  // Sum channels: a float per channel (JobState::sums) where a tally takes 24 bytes, for
   // kernels whose channels of one partition all receive the same number of samples, a
   // number the kernel derives from JobState::partition_samples (e.g. an image's
   // randomized-QMC replicates: every pixel of a tile gets the same points). The engine
@@ -146,6 +146,10 @@ class Kernel {
   // Must be deterministic in (pass_input, results, state). Default: nothing.
   virtual void fold_pass(std::string_view /*pass_input*/, const std::vector<BlockResult>& /*results*/,
                          JobState& /*state*/) const {}
+  // True if fold_pass does anything: then the runner holds a pass's results until the
+  // last one is in (JobRunner::merge_group), since fold_pass reads them all before any
+  // merges. Default false: each result merges as it arrives.
+  virtual bool folds_passes() const { return false; }
   // The kernel's event counters, by id: BlockResult::counters and JobState::counters
   // are indexed by position in this list (the names appear in status documents and
   // checkpoints). Must not change over the kernel's life. Default: none.

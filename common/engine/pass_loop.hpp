@@ -12,14 +12,17 @@
 
 namespace tally {
 
-// Runs `blocks` by result group (`groups`: JobRunner::result_groups) on `threads` threads:
-// a thread takes a whole group and combines each of its blocks into the group's first as
-// it computes them (combine_results, block order: the bits of combine_groups), so a pass
-// holds one result per group, not per block. Result g belongs to group g. Returns false
-// if `cancel` was raised before all groups ran.
-bool run_groups(const Kernel& kernel, const std::vector<Block>& blocks, const std::vector<ResultGroup>& groups,
-                unsigned threads, std::vector<BlockResult>& results, const std::atomic<bool>* cancel = nullptr,
-                std::string_view pass_input = {});
+// Runs the pass `runner` has just planned (`blocks`: what plan_pass returned) on
+// `threads` threads and merges it, all but JobRunner::finish_pass: a thread takes a whole
+// result group, combines each of its blocks into the group's first as it computes them
+// (combine_results, block order), and finished groups merge into the runner in group
+// order (JobRunner::merge_group) as soon as those before them are in: the bits of
+// commit_pass. No thread starts a group more than 4 x threads past the first one not yet
+// merged, so a pass holds about that many group results beside the state, never a copy
+// of it. Returns false if `cancel` was raised before every group merged (groups merged
+// by then stay merged).
+bool run_pass(JobRunner& runner, const std::vector<Block>& blocks, unsigned threads,
+              const std::atomic<bool>* cancel = nullptr);
 
 struct LocalRunOptions {
   unsigned threads = 1;

@@ -14,11 +14,12 @@
 // History: 1, the first recorded; 2, the automatic estimator's choice (Sobol' sets to
 // 2^20 points, a third pilot size for large jobs) changed what an "auto" spec computes;
 // 3, an image with replicates keeps a sum per replicate channel (a replicate's mean is
-// its sum over its count, not a running mean; a non-finite sample counts as 0).
+// its sum over its count, not a running mean; a non-finite sample counts as 0); 4, those
+// sums are kept in single precision, rounded once per merged result group.
 #include <cstdint>
 
 namespace tally {
 
-inline constexpr uint32_t kResultsVersion = 3;
+inline constexpr uint32_t kResultsVersion = 4;
 
 }  // namespace tally

@@ -473,6 +473,7 @@ class VegasKernel final : public Kernel {
     }
   }
 
+  bool folds_passes() const override { return true; }
   void fold_pass(std::string_view input, const std::vector<BlockResult>& results, JobState& st) const override {
     State s;
     if (auto old = decode_state(st.kernel_state)) {

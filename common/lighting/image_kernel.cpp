@@ -111,14 +111,14 @@ ReplicatedEstimate ImageKernel::estimate_in(const JobState& state, uint32_t tile
   ReplicatedEstimate e;
   e.n = state.partition_samples[tile];
   e.critical_n = k_;
-  const double* sum = &state.sums[ch + c];
+  const float* sum = &state.sums[ch + c];
   if (e.n < k_) {  // early on (a sample limit under K): the pooled mean, no error bar yet
     double total = 0.0;
-    for (uint32_t r = 0; r < e.n; ++r) total += sum[3 * static_cast<size_t>(r)];
+    for (uint32_t r = 0; r < e.n; ++r) total += static_cast<double>(sum[3 * static_cast<size_t>(r)]);
     e.mean = e.n > 0 ? total / static_cast<double>(e.n) : 0.0;
     return e;
   }
-  return replicate_spread(k_, e.n, [&](uint32_t r) { return sum[3 * static_cast<size_t>(r)] / replicate_count(e.n, r); });
+  return replicate_spread(k_, e.n, [&](uint32_t r) { return static_cast<double>(sum[3 * static_cast<size_t>(r)]) / replicate_count(e.n, r); });
 }
 
 bool ImageKernel::upgrade_state(JobState& state) const {
@@ -128,7 +128,7 @@ bool ImageKernel::upgrade_state(JobState& state) const {
   }
   state.sums.resize(state.channels.size());
   for (size_t i = 0; i < state.channels.size(); ++i) {
-    state.sums[i] = state.channels[i].mean * static_cast<double>(state.channels[i].n);
+    state.sums[i] = static_cast<float>(state.channels[i].mean * static_cast<double>(state.channels[i].n));
   }
   std::vector<Tally>().swap(state.channels);
   return true;
@@ -206,7 +206,8 @@ double ImageKernel::image_mean(const JobState& state) const {
       for (uint32_t r = 0; r < k_ && r < n; ++r) {  // replicate r of every pixel of the tile
         double replicate_sum = 0;
         for (size_t ch = tile_first_[t] + 3 * static_cast<size_t>(r); ch < tile_first_[t + 1]; ch += 3 * static_cast<size_t>(k_)) {
-          replicate_sum += state.sums[ch] + state.sums[ch + 1] + state.sums[ch + 2];
+          replicate_sum += static_cast<double>(state.sums[ch]) + static_cast<double>(state.sums[ch + 1]) +
+                           static_cast<double>(state.sums[ch + 2]);
         }
         sum += replicate_sum / replicate_count(n, r);
       }

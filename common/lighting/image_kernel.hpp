@@ -10,7 +10,7 @@
 // replicate-major (replicate r of channel c at pixel_channel + 3 r + c); sample i goes to
 // replicate i mod K. A pixel's value and standard error combine its replicates
 // (common/stats/replicates.hpp): every reader goes through pixel_estimate().
-// State: with K > 1 the channels are sum channels (Kernel::sum_count, 8 bytes each): a
+// State: with K > 1 the channels are sum channels (Kernel::sum_count, 4 bytes each): a
 // tile's blocks cover samples [0, n) of each of its pixels (n = partition_samples[t]),
 // so replicate r of every pixel there has the same count (replicate_count), and its mean
 // is its sum over that count; only the spread of the K means makes the error bar, so

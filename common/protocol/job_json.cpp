@@ -49,18 +49,18 @@ json time_json(double t) {
 json tally_bits_json(const JobState& state) {
   if (state.channels.empty()) {
     // Sum channels (an image with replicates): the first one's bits, its tile's samples,
-    // and the FNV-1a of the first 65,536 sums' bits (little-endian): a whole first tile,
-    // which the first sum alone (often a black pixel's 0) would not tell apart.
+    // and the FNV-1a of the first 65,536 sums' bits (4 bytes each, little-endian): a whole
+    // first tile, which the first sum alone (often a black pixel's 0) would not tell apart.
     if (state.sums.empty() || state.partition_samples.empty()) return nullptr;
     uint64_t h = kFnv1a64Basis;
     for (size_t i = 0; i < std::min<size_t>(state.sums.size(), 65536); ++i) {
-      const uint64_t v = std::bit_cast<uint64_t>(state.sums[i]);
-      char le[8];
-      for (int b = 0; b < 8; ++b) le[b] = static_cast<char>((v >> (8 * b)) & 0xff);
-      h = fnv1a64_update(h, std::string_view(le, 8));
+      const uint32_t v = std::bit_cast<uint32_t>(state.sums[i]);
+      char le[4];
+      for (int b = 0; b < 4; ++b) le[b] = static_cast<char>((v >> (8 * b)) & 0xff);
+      h = fnv1a64_update(h, std::string_view(le, 4));
     }
     return {{"n", state.partition_samples[0]},
-            {"sum", fmt::format("{:016x}", std::bit_cast<uint64_t>(state.sums[0]))},
+            {"sum", fmt::format("{:08x}", std::bit_cast<uint32_t>(state.sums[0]))},
             {"sums_fnv1a", fmt::format("{:016x}", h)}};
   }
   const Tally& t = state.channels[0];

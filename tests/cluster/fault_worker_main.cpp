@@ -86,6 +86,7 @@ class FaultKernel final : public Kernel {
   void fold_pass(std::string_view input, const std::vector<BlockResult>& r, tally::JobState& s) const override {
     inner_->fold_pass(input, r, s);
   }
+  bool folds_passes() const override { return inner_->folds_passes(); }
   std::span<const std::string_view> counter_names() const override { return inner_->counter_names(); }
   std::vector<std::string> warnings(const tally::JobState& s) const override { return inner_->warnings(s); }
   tally::ErrorSummary error_summary(const tally::JobState& s, double c) const override {

@@ -28,16 +28,17 @@ TEST(FramesE2E, FullHdImageRunsWithDefaultLimits) {
   EXPECT_EQ(st.at("samples"), 8) << st.dump();
   EXPECT_EQ(st.at("passes"), 1) << st.dump();
   server.kill9();
-  // Its final state is stored in pieces: 1920 x 1080 x 24 sums of 8 bytes and the rest
+  // Its final state is stored in pieces: 1920 x 1080 x 24 sums of 4 bytes and the rest
   // (a frame's checkpoint may be over SQLite's 1e9-byte limit for one blob: a 4K frame's
-  // is 1.6e9 bytes; a save in one blob used to fail with "string or blob too big").
+  // was 1.6e9 bytes with 8-byte sums; a save in one blob used to fail with "string or
+  // blob too big"; it is stored in pieces whatever its size).
   SQLite::Database db((tmp.path / "data" / "tally.db").string(), SQLite::OPEN_READONLY);
   SQLite::Statement q(db, "SELECT count(*), SUM(length(bytes)) FROM checkpoint_pieces WHERE id = ?");
   q.bind(1, id);
   ASSERT_TRUE(q.executeStep());
   EXPECT_GT(q.getColumn(0).getInt64(), 1);
-  EXPECT_GT(q.getColumn(1).getInt64(), int64_t{1920} * 1080 * 24 * 8);
-  EXPECT_LT(q.getColumn(1).getInt64(), int64_t{1920} * 1080 * 24 * 8 + (1 << 20));
+  EXPECT_GT(q.getColumn(1).getInt64(), int64_t{1920} * 1080 * 24 * 4);
+  EXPECT_LT(q.getColumn(1).getInt64(), int64_t{1920} * 1080 * 24 * 4 + (1 << 20));
 }
 
 TEST(FramesE2E, FrameOverMaxStateBytesIs422WithTheBytes) {
@@ -50,9 +51,10 @@ TEST(FramesE2E, FrameOverMaxStateBytesIs422WithTheBytes) {
   EXPECT_EQ(r.header("Content-Type"), "application/problem+json");
   const json p = json::parse(r.body);
   EXPECT_EQ(p.at("pointer"), "/scene/camera/resolution") << r.body;
-  // 2 x (3 x 8 x 1920 x 1080 sums of 8 bytes + 60 x 34 tiles' counts of 8 bytes).
+  // 3 x 8 x 1920 x 1080 sums of 4 + 8 bytes (the state's and a pass's results') + 2 x 60
+  // x 34 tiles' counts of 8 bytes.
   EXPECT_EQ(p.at("detail"),
-            "1920x1080 pixels x 3 colours x 8 replicates need 796295040 bytes of job state; the limit is 536870912 "
+            "1920x1080 pixels x 3 colours x 8 replicates need 597229440 bytes of job state; the limit is 536870912 "
             "bytes")
       << r.body;
   EXPECT_EQ(get_json(c, "/v1/jobs").at("jobs").size(), 0u);

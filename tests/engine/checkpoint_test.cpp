@@ -28,7 +28,7 @@ JobState sample_state() {
   s.channels[0].m2 = 1.0 / 3.0;
   s.channels[2].n = 1;
   s.channels[2].mean = -0.0;
-  s.sums = {0.1 + 0.2, -0.0, 1e-310, -7.5};  // sum channels (an image's replicates)
+  s.sums = {0.1f + 0.2f, -0.0f, 1e-40f, -7.5f};  // sum channels (an image's replicates; 1e-40f is subnormal)
   s.counter_names = {"evaluations", "shadow_rays"};  // a kernel's own counters
   s.counters.add(0, 999);
   s.counters.add(1, 5);
@@ -61,7 +61,7 @@ TEST(Checkpoint, RoundTripIsBitExact) {
   }
   ASSERT_EQ(r.sums.size(), s.sums.size());
   for (size_t i = 0; i < s.sums.size(); ++i) {
-    EXPECT_EQ(std::bit_cast<uint64_t>(r.sums[i]), std::bit_cast<uint64_t>(s.sums[i])) << i;
+    EXPECT_EQ(std::bit_cast<uint32_t>(r.sums[i]), std::bit_cast<uint32_t>(s.sums[i])) << i;
   }
   EXPECT_EQ(r.counters, s.counters);
   EXPECT_EQ(r.counter_names, s.counter_names);
@@ -125,7 +125,7 @@ TEST(Checkpoint, FuzzSeedsDecodeAndOneIsCurrent) {
       if (encode_checkpoint(s) == bytes) {
         ++current;
         EXPECT_EQ(s.sums.size(), 4u) << e.path();
-        EXPECT_EQ(std::bit_cast<uint64_t>(s.sums[1]), std::bit_cast<uint64_t>(-0.0));
+        EXPECT_EQ(std::bit_cast<uint32_t>(s.sums[1]), std::bit_cast<uint32_t>(-0.0f));
       }
     } catch (const CheckpointError& err) {
       ADD_FAILURE() << e.path() << ": " << err.what();
@@ -165,13 +165,32 @@ TEST(Checkpoint, VersionTwoStillReads) {
   // cache never answers a submit from it.
   EXPECT_EQ(r.results_version, 0u);
   EXPECT_TRUE(r.sums.empty());  // before version 5: no sum channels
-  // Re-encoded, it is a version-5 checkpoint that reads back the same, version 0 kept.
-  const std::string v5 = encode_checkpoint(r);
-  EXPECT_EQ(v5[8], 5);
-  const JobState again = decode_checkpoint(v5);
+  // Re-encoded, it is a version-6 checkpoint that reads back the same, version 0 kept.
+  const std::string v6 = encode_checkpoint(r);
+  EXPECT_EQ(v6[8], 6);
+  const JobState again = decode_checkpoint(v6);
   EXPECT_EQ(again.counter_names, r.counter_names);
   EXPECT_EQ(again.counters, r.counters);
   EXPECT_EQ(again.results_version, 0u);
+}
+
+// Version 5 stored the sums as doubles; they read rounded to the float this build keeps
+// (a subnormal double below the float range reads as 0), the rest of the state as written.
+TEST(Checkpoint, VersionFiveSumsReadRoundedToFloat) {
+  const std::filesystem::path p = std::filesystem::path(TALLY_SOURCE_DIR) / "tests/fuzz/corpus/checkpoint/state4_v5_sums";
+  std::ifstream in(p, std::ios::binary);
+  const std::string v5((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_EQ(v5[8], 5);
+  const JobState s = decode_checkpoint(v5);
+  ASSERT_EQ(s.sums.size(), 4u);
+  EXPECT_EQ(s.sums[0], 0.5f);
+  EXPECT_EQ(std::bit_cast<uint32_t>(s.sums[1]), std::bit_cast<uint32_t>(-0.0f));
+  EXPECT_EQ(std::bit_cast<uint32_t>(s.sums[2]), 0u);  // 1e-310
+  EXPECT_EQ(s.sums[3], 7.25f);
+  EXPECT_EQ(s.partition_samples.size(), 2u);
+  const std::string v6 = encode_checkpoint(s);
+  EXPECT_EQ(v6[8], 6);
+  EXPECT_EQ(v6.size(), v5.size() - 4 * 4) << "4 bytes a sum, not 8";
 }
 
 // Version 1 (before JobState::kernel_state) still reads, with no kernel state: the

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <bit>
 #include <cmath>
 
@@ -229,6 +230,102 @@ TEST(JobRunner, ResultsCombinedWhereTheBlocksRanGiveTheSameBits) {
   EXPECT_EQ(t.n, per_block.n);
   EXPECT_NEAR(t.mean, per_block.mean, 1e-12 * std::fabs(t.mean));
   EXPECT_FALSE(t == per_block) << "groups of 3 combine before they merge";
+}
+
+// merge_group, group by group in order, then finish_pass: the bits of commit_groups. In
+// between, the state holds the merged groups with their partitions' samples counted,
+// and the pass's totals (passes, samples) wait for finish_pass. run_local merges that
+// way from 1 and from 3 threads to the same bits.
+TEST(JobRunner, GroupsMergedOneByOneGiveCommitGroupsBits) {
+  auto kernel = std::make_shared<GroupedTiles>();
+  StopRule rule;
+  rule.max_samples = 9000;
+  JobRunner a(kernel, rule, JobCaps{}), b(kernel, rule, JobCaps{});
+  bool checked_midway = false;
+  for (std::vector<Block> pass = a.plan_pass(); !pass.empty(); pass = a.plan_pass()) {
+    ASSERT_EQ(b.plan_pass(), pass);
+    std::vector<BlockResult> per_block = run_blocks(*kernel, pass);
+    std::vector<BlockResult> grouped = combine_groups(std::move(per_block), a.result_groups());
+    std::vector<BlockResult> copy = grouped;
+    const std::vector<ResultGroup> groups = b.result_groups();
+    a.commit_groups(std::move(grouped), 0.01);
+    const JobState before = b.state();
+    for (size_t g = 0; g < copy.size(); ++g) {
+      b.merge_group(std::move(copy[g]));
+      EXPECT_EQ(b.groups_merged(), g + 1);
+      if (g == 0 && groups.size() > 1 && !checked_midway) {
+        checked_midway = true;
+        const uint32_t p = pass[groups[0].first].partition;
+        uint64_t n = 0;
+        for (size_t i = 0; i < groups[0].count; ++i) n += pass[groups[0].first + i].sample_count;
+        EXPECT_EQ(b.state().partition_samples[p], before.partition_samples[p] + n) << "counted with its group";
+        EXPECT_EQ(b.state().samples, before.samples) << "the pass's total moves at finish_pass";
+        EXPECT_EQ(b.state().passes, before.passes);
+      }
+    }
+    b.finish_pass(0.01);
+  }
+  EXPECT_TRUE(checked_midway);
+  EXPECT_EQ(encode_checkpoint(a.state()), encode_checkpoint(b.state())) << "bit-identical states";
+  JobRunner one(kernel, rule, JobCaps{}), three(kernel, rule, JobCaps{});
+  run_local(one, 1);
+  run_local(three, 3);
+  // The trace records compute time; everything else is the same bits.
+  JobState x = one.state(), y = three.state(), z = a.state();
+  x.trace.clear(), y.trace.clear(), z.trace.clear();
+  x.compute_seconds = y.compute_seconds = z.compute_seconds = 0;
+  EXPECT_EQ(encode_checkpoint(x), encode_checkpoint(z));
+  EXPECT_EQ(encode_checkpoint(y), encode_checkpoint(z));
+}
+
+// A cancel raised while a pass runs: run_pass returns false, the groups merged by then
+// stay merged with their counts (every partition consistent), the rest are dropped.
+TEST(JobRunner, CancelledPassKeepsWhatItMergedConsistent) {
+  auto kernel = std::make_shared<GroupedTiles>();
+  StopRule rule;
+  rule.max_samples = 9000;
+  JobRunner r(kernel, rule, JobCaps{});
+  const std::vector<Block> pass = r.plan_pass();
+  std::atomic<bool> cancel{true};
+  EXPECT_FALSE(run_pass(r, pass, 2, &cancel));
+  r.cancel();
+  EXPECT_EQ(r.stop_reason(), StopReason::cancelled);
+  for (uint32_t p = 0; p < 3; ++p) {
+    EXPECT_EQ(r.state().channels[2 * p].n, r.state().partition_samples[p]) << p;
+  }
+}
+
+// Sum channels are floats in the state and doubles in a result: each merge adds in
+// double and rounds once (JobState::sums), so m merges are within m roundings of 2^-24
+// of the exact sum, however many samples each holds. 4000 passes of 1000 samples of
+// 0.1: a float accumulated sample by sample would be off by about 3%; this is within
+// 4000 x 2^-24 (2.4e-4) and in practice far closer.
+class TenthsInSums final : public Kernel {
+ public:
+  size_t channel_count() const override { return 0; }
+  size_t sum_count() const override { return 1; }
+  PassSchedule schedule() const override { return {1000, 1000, 1000}; }
+  void run_block(const Block& b, BlockResult& out) const override {
+    double s = 0;
+    for (uint64_t i = 0; i < b.sample_count; ++i) s += 0.1;
+    out.sums = {s};
+  }
+  ErrorSummary error_summary(const JobState&, double) const override { return {}; }
+  std::vector<ComponentError> component_errors(const JobState&, double) const override { return {}; }
+};
+
+TEST(JobRunner, SumChannelsRoundOncePerMerge) {
+  StopRule rule;
+  rule.max_samples = 4'000'000;
+  JobRunner r(std::make_shared<TenthsInSums>(), rule, JobCaps{});
+  run_local(r, 1);
+  ASSERT_EQ(r.state().passes, 4000u);
+  const double exact = 0.1 * 4e6;
+  const double rel = std::fabs(static_cast<double>(r.state().sums[0]) - exact) / exact;
+  EXPECT_LE(rel, 4000 * std::ldexp(1.0, -24)) << rel;
+  float naive = 0;
+  for (int i = 0; i < 4'000'000; ++i) naive += 0.1f;
+  EXPECT_GT(std::fabs(static_cast<double>(naive) - exact) / exact, 100 * rel) << "what the double results avoid";
 }
 
 // error() is computed once per state and rule, not per call: it must equal the kernel's

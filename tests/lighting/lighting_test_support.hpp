@@ -68,10 +68,10 @@ struct AssetSandbox {
 
 // Sums whose bits differ (0: bit-identical; different lengths count every sum of the
 // longer one).
-inline size_t differing_sums(const std::vector<double>& a, const std::vector<double>& b) {
+inline size_t differing_sums(const std::vector<float>& a, const std::vector<float>& b) {
   if (a.size() != b.size()) return std::max(a.size(), b.size());
   size_t differ = 0;
-  for (size_t i = 0; i < a.size(); ++i) differ += std::memcmp(&a[i], &b[i], sizeof(double)) != 0 ? 1 : 0;
+  for (size_t i = 0; i < a.size(); ++i) differ += std::memcmp(&a[i], &b[i], sizeof(float)) != 0 ? 1 : 0;
   return differ;
 }
 

@@ -156,7 +156,7 @@ TEST(Memory, OverBudgetRefusalCompilesTheSpecOnce) {
   } catch (const SpecError& e) {
     EXPECT_EQ(e.pointer(), "/scene/camera/resolution");
     EXPECT_EQ(e.detail(),
-              "512x512 pixels x 3 colours x 8 replicates need 100667392 bytes of job state; the limit is 67108864 "
+              "512x512 pixels x 3 colours x 8 replicates need 75501568 bytes of job state; the limit is 67108864 "
               "bytes, the server's memory budget (--memory-budget)");
   }
   EXPECT_EQ(compiles, 1);
