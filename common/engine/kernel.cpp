@@ -115,8 +115,9 @@ ErrorSummary worst_channel_summary(std::span<const Tally> channels, double confi
   return worst;
 }
 
-std::optional<std::string> nonfinite_warning(uint64_t count) {
+std::optional<std::string> nonfinite_warning(uint64_t count, bool counted_as_zero) {
   if (count == 0) return std::nullopt;
+  if (counted_as_zero) return fmt::format("{} non-finite sample values were counted as 0", count);
   return fmt::format("{} non-finite sample values were excluded", count);
 }
 

@@ -171,6 +171,8 @@ class Kernel {
 };
 
 // "N non-finite sample values were excluded", for kernels that count them; nullopt for 0.
-std::optional<std::string> nonfinite_warning(uint64_t count);
+// `counted_as_zero`: the kernel added them to sum channels as 0 instead (a sum keeps no
+// per-sample count to leave them out of), and the warning says so.
+std::optional<std::string> nonfinite_warning(uint64_t count, bool counted_as_zero = false);
 
 }  // namespace tally

@@ -16,7 +16,11 @@ std::span<const std::string_view> lighting_counter_names() { return kNames; }
 
 std::vector<std::string> lighting_counter_warnings(const JobState& state) {
   std::vector<std::string> w;
-  if (auto nf = nonfinite_warning(state.counters[LightingCounter::nonfinite])) w.push_back(std::move(*nf));
+  // An image with replicates keeps sum channels, where such a sample counts as 0
+  // (image_kernel.hpp); tallies leave it out.
+  if (auto nf = nonfinite_warning(state.counters[LightingCounter::nonfinite], !state.sums.empty())) {
+    w.push_back(std::move(*nf));
+  }
   return w;
 }
 

@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "common/lighting/lighting_counters.hpp"
 #include "common/lighting/scene_json.hpp"
 #include "common/lighting/asset_resolver.hpp"
 #include "common/spec/spec_reader.hpp"
@@ -112,6 +113,19 @@ std::string spec_error_pointer(const json& spec, const JobLimits& limits = {}) {
     return e.pointer();
   }
   return "<no error>";
+}
+
+// The warning says what became of non-finite samples: left out of a tally, counted as
+// 0 in an image's replicate sums.
+TEST(Numerics, NonfiniteWarningSaysWhereTheSamplesWent) {
+  JobState s;
+  s.counter_names.assign(lighting_counter_names().begin(), lighting_counter_names().end());
+  s.counters.values.assign(s.counter_names.size(), 0);
+  EXPECT_TRUE(lighting_counter_warnings(s).empty());
+  s.counters.add(static_cast<size_t>(LightingCounter::nonfinite), 3);
+  EXPECT_EQ(lighting_counter_warnings(s), std::vector<std::string>{"3 non-finite sample values were excluded"});
+  s.sums.assign(24, 0.0f);
+  EXPECT_EQ(lighting_counter_warnings(s), std::vector<std::string>{"3 non-finite sample values were counted as 0"});
 }
 
 TEST(Spec, ErrorsNameTheField) {
