@@ -1,5 +1,6 @@
 #include "client/run_command.hpp"
 
+#include <sys/resource.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -158,6 +159,10 @@ int run(const RunOptions& o) {
                      ? (runner.target_met() ? " (error target met)" : " (error target NOT met)")
                      : "");
       for (const auto& w : runner.warnings()) fmt::print("warning: {}\n", w);
+      // What a frame's size costs: the process's peak resident memory so far (the image,
+      // if asked for, is written after this line and streams a strip at a time).
+      rusage ru{};
+      if (getrusage(RUSAGE_SELF, &ru) == 0) fmt::print("peak memory {:.1f} MB\n", static_cast<double>(ru.ru_maxrss) / 1024.0);
     }
   }
   if (format && runner.stop_reason() != StopReason::failed && !write_image(*job, runner, o.image_out, *format)) {

@@ -128,6 +128,7 @@ class Offline(unittest.TestCase):
             out = os.path.join(self.dir, name)
             r = run("run", spec, "--image", out, "--threads", "1")
             self.assertEqual(r.returncode, 0, r.stderr)
+            self.assertRegex(r.stdout, r"\npeak memory [0-9]+\.[0-9] MB\n")
             with open(out, "rb") as f:
                 self.assertEqual(f.read(len(magic)), magic, name)
         # An integration job has no image: said, not a silent empty file.
