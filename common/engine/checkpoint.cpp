@@ -22,7 +22,7 @@ constexpr char kMagic[8] = {'T', 'A', 'L', 'L', 'Y', 'C', 'K', '1'};
 // Version 5 adds JobState::sums (after the channels); earlier versions read none.
 // Version 6 stores the sums as 4-byte floats (JobState::sums); version 5's doubles read
 // rounded to float.
-constexpr uint32_t kVersion = 6;
+constexpr uint32_t kVersion = kCheckpointVersion;
 
 // The counters of versions 1 and 2, in their order (the engine's enum of that time).
 constexpr std::string_view kLegacyCounterNames[] = {

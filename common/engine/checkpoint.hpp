@@ -22,6 +22,8 @@ class CheckpointError : public std::runtime_error {
 // comes: no buffer of the whole checkpoint, and no SQLite blob over its size limit).
 using CheckpointSink = std::function<void(std::string_view piece)>;
 inline constexpr size_t kCheckpointPieceBytes = size_t{16} << 20;
+// The version encode_checkpoint writes (its history: checkpoint.cpp); decode reads 1 to it.
+inline constexpr uint32_t kCheckpointVersion = 6;
 
 // Streams the checkpoint of `state` to `sink` in pieces of exactly `piece_bytes` (the
 // last one shorter), holding about one piece besides the state: the pieces joined are

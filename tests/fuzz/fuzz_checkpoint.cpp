@@ -3,8 +3,9 @@
 // An input that starts with the checkpoint magic has its last 8 bytes replaced by the
 // checksum of the rest, so mutations of the seed corpus (whole checkpoints) reach the
 // parser behind a valid checksum; other inputs go in as given (the checksum's path).
-// Decoded sealed inputs of the current version (5) must re-encode to exactly their own
-// bytes (older versions re-encode as version 5, which adds what they lacked).
+// Decoded sealed inputs of the current version (kCheckpointVersion) must re-encode to
+// exactly their own bytes (older versions re-encode as the current one, which adds what
+// they lacked or changes how it is stored).
 #include <cstring>
 #include <string>
 #include <string_view>
@@ -27,7 +28,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     return 0;
   }
   const std::string again = tally::encode_checkpoint(s);
-  const bool current_version = bytes.size() >= 16 && static_cast<unsigned char>(bytes[8]) == 5 &&
+  const bool current_version = bytes.size() >= 16 && static_cast<unsigned char>(bytes[8]) == tally::kCheckpointVersion &&
                                bytes.compare(9, 7, std::string(7, '\0')) == 0;
   if (seal && current_version && again != bytes) tally::fuzz::fail("a decoded checkpoint does not encode to its own bytes", "", bytes);
   try {
