@@ -29,17 +29,9 @@ class ByteWriter {
   // Room for `bytes` more without reallocating (a checkpoint knows its size roughly).
   void reserve(size_t bytes) { out_.reserve(out_.size() + bytes); }
   void u8(uint8_t v) { out_.push_back(static_cast<char>(v)); }
-  void u64(uint64_t v) {
-    char b[8];  // one append, not eight push_backs: checkpoints write millions of these
-    for (int i = 0; i < 8; ++i) b[i] = static_cast<char>((v >> (8 * i)) & 0xff);
-    out_.append(b, 8);
-  }
+  void u64(uint64_t v) { little_endian(v); }
   void f64(double v) { u64(std::bit_cast<uint64_t>(v)); }
-  void u32(uint32_t v) {
-    char b[4];
-    for (int i = 0; i < 4; ++i) b[i] = static_cast<char>((v >> (8 * i)) & 0xff);
-    out_.append(b, 4);
-  }
+  void u32(uint32_t v) { little_endian(v); }
   void f32(float v) { u32(std::bit_cast<uint32_t>(v)); }
   void raw(std::string_view s) { out_.append(s); }
   void bytes(std::string_view s) {  // length, then the bytes
@@ -78,6 +70,13 @@ class ByteWriter {
   }
 
  private:
+  template <class U>
+  void little_endian(U v) {
+    char b[sizeof(U)];  // one append, not a push_back a byte: checkpoints write millions of these
+    for (size_t i = 0; i < sizeof(U); ++i) b[i] = static_cast<char>((v >> (8 * i)) & 0xff);
+    out_.append(b, sizeof(U));
+  }
+
   std::string out_;
 };
 
@@ -91,25 +90,9 @@ class ByteReader {
     need(1);
     return static_cast<uint8_t>(in_[pos_++]);
   }
-  uint64_t u64() {
-    need(8);
-    uint64_t v = 0;
-    for (int i = 0; i < 8; ++i) {
-      v |= static_cast<uint64_t>(static_cast<unsigned char>(in_[pos_ + static_cast<size_t>(i)])) << (8 * i);
-    }
-    pos_ += 8;
-    return v;
-  }
+  uint64_t u64() { return little_endian<uint64_t>(); }
   double f64() { return std::bit_cast<double>(u64()); }
-  uint32_t u32() {
-    need(4);
-    uint32_t v = 0;
-    for (int i = 0; i < 4; ++i) {
-      v |= static_cast<uint32_t>(static_cast<unsigned char>(in_[pos_ + static_cast<size_t>(i)])) << (8 * i);
-    }
-    pos_ += 4;
-    return v;
-  }
+  uint32_t u32() { return little_endian<uint32_t>(); }
   float f32() { return std::bit_cast<float>(u32()); }
   // A count of items of at least `item_size` bytes each, checked against what is left.
   uint64_t count(size_t item_size) {
@@ -171,6 +154,15 @@ class ByteReader {
   }
 
  private:
+  template <class U>
+  U little_endian() {
+    need(sizeof(U));
+    U v = 0;
+    for (size_t i = 0; i < sizeof(U); ++i) v |= static_cast<U>(static_cast<unsigned char>(in_[pos_ + i])) << (8 * i);
+    pos_ += sizeof(U);
+    return v;
+  }
+
   void need(size_t n) const {
     if (in_.size() - pos_ < n) throw Error(fmt::format("{} is truncated at byte {}", what_, pos_));
   }

@@ -1,5 +1,7 @@
 #include "common/image/image_io.hpp"
 
+#include "common/image/exr_pixels.hpp"
+
 #include <dlfcn.h>
 #include <fmt/format.h>
 
@@ -152,14 +154,7 @@ int fill_strip(void* context, int32_t y, int32_t rows, float* px) {
   try {
     const ImageSnapshot snap = s.source.snapshot(s.state, TileRect{0, y, s.source.width(), rows});
     check_snapshot(snap);
-    const size_t n = static_cast<size_t>(snap.width) * static_cast<size_t>(snap.height);
-    for (size_t i = 0; i < n; ++i) {
-      for (size_t c = 0; c < 3; ++c) {
-        px[7 * i + c] = snap.rgb[3 * i + c];
-        px[7 * i + 3 + c] = snap.stderr_rgb[3 * i + c];
-      }
-      px[7 * i + 6] = snap.samples[i];
-    }
+    interleave_exr_pixels(snap.rgb.data(), snap.stderr_rgb.data(), snap.samples.data(), snap.samples.size(), px);
     return 0;
   } catch (const std::exception& e) {
     s.error = e.what();

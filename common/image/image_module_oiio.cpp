@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "common/image/exr_pixels.hpp"
 #include "common/image/image_module_abi.hpp"
 #include "common/image/image_module_guard.hpp"
 
@@ -74,14 +75,7 @@ int encode_exr(const tally_image_view* im, const char* metadata_json, tally_imag
         const OIIO::ImageSpec spec = exr_spec(im, metadata_json);
         const size_t n = static_cast<size_t>(im->width) * static_cast<size_t>(im->height);
         std::vector<float> interleaved(7 * n);
-        for (size_t i = 0; i < n; ++i) {
-          float* px = &interleaved[7 * i];
-          for (size_t c = 0; c < 3; ++c) {
-            px[c] = im->rgb[3 * i + c];
-            px[3 + c] = im->stderr_rgb[3 * i + c];
-          }
-          px[6] = im->samples[i];
-        }
+        tally::interleave_exr_pixels(im->rgb, im->stderr_rgb, im->samples, n, interleaved.data());
         const auto bytes = write_to_memory("image.exr", spec, interleaved.data(), OIIO::TypeDesc::FLOAT);
         out(out_context, reinterpret_cast<const char*>(bytes.data()), bytes.size());
       },

@@ -26,6 +26,7 @@
 #include <string>
 #include <vector>
 
+#include "common/image/exr_pixels.hpp"
 #include "common/image/image_module_abi.hpp"
 #include "common/image/image_module_guard.hpp"
 
@@ -112,13 +113,7 @@ int encode_exr(const tally_image_view* im, const char* metadata_json, tally_imag
         // The planes as one interleaved buffer, 7 floats a pixel.
         const size_t w = static_cast<size_t>(im->width), h = static_cast<size_t>(im->height);
         std::vector<float> px(7 * w * h);
-        for (size_t i = 0; i < w * h; ++i) {
-          for (size_t c = 0; c < 3; ++c) {
-            px[7 * i + c] = im->rgb[3 * i + c];
-            px[7 * i + 3 + c] = im->stderr_rgb[3 * i + c];
-          }
-          px[7 * i + 6] = im->samples[i];
-        }
+        tally::interleave_exr_pixels(im->rgb, im->stderr_rgb, im->samples, w * h, px.data());
         MemoryStream stream;
         {
           Imf::OutputFile file(stream, header, 1);
