@@ -115,6 +115,18 @@ class Previewer {
       dirty_[t] = pass;
       last_refined_[t] = pass;
       if (!first_tile_) first_tile_ = Clock::now();
+    } else if (e.event == "tiles") {
+      // A pass that refined more tiles than the server announces one by one (a 4K
+      // frame's 8,160): every tile from `first` to `last` is marked, a superset of them.
+      const json d = json::parse(e.data);
+      const uint32_t first = d.at("first").get<uint32_t>();
+      const uint32_t last = std::min(d.at("last").get<uint32_t>(), tile_count_ ? tile_count_ - 1 : 0u);
+      const uint64_t pass = d.value("pass", uint64_t{0});
+      for (uint32_t t = first; t <= last; ++t) {
+        dirty_[t] = pass;
+        last_refined_[t] = pass;
+      }
+      if (!first_tile_) first_tile_ = Clock::now();
     } else if (e.event == "progress") {
       const json d = json::parse(e.data);
       pass_ = d.value("pass", d.value("passes", pass_));
@@ -134,8 +146,21 @@ class Previewer {
     if (dirty_.empty()) return;
     if (!force && std::chrono::duration<double>(Clock::now() - last_flush_).count() < interval()) return;
     last_flush_ = Clock::now();
+    // At most kMaxTilesPerFlush tiles a flush (all of them when forced, at the end),
+    // taken round-robin from where the last flush stopped: a 4K frame's 8,160 tiles are
+    // mirrored over several flushes and the bridge keeps up with the event stream.
     std::map<uint32_t, uint64_t> batch;
-    batch.swap(dirty_);
+    if (force || dirty_.size() <= kMaxTilesPerFlush) {
+      batch.swap(dirty_);
+    } else {
+      auto it = dirty_.lower_bound(next_tile_);
+      while (batch.size() < kMaxTilesPerFlush) {
+        if (it == dirty_.end()) it = dirty_.begin();
+        next_tile_ = it->first + 1;
+        batch.insert(*it);
+        it = dirty_.erase(it);
+      }
+    }
     for (const auto& [t, pass] : batch) {
       const ClientResponse r = client_.request("GET", base_ + "/tiles/" + std::to_string(t));
       if (r.status != 200) {
@@ -162,7 +187,9 @@ class Previewer {
   HttpClient& client_;
   TevBridge& bridge_;
   std::string base_;
+  static constexpr size_t kMaxTilesPerFlush = 256;
   uint32_t tile_count_ = 0;
+  uint32_t next_tile_ = 0;                     // where the next capped flush starts
   std::map<uint32_t, uint64_t> dirty_;         // tile -> newest announced pass
   std::map<uint32_t, uint64_t> last_refined_;  // tile -> last pass that refined it
   uint64_t pass_ = 0;

@@ -430,7 +430,7 @@ JobEnding Job::publish_pass(const std::vector<Block>& blocks, const PassCommit& 
   JobEnding ending;
   std::lock_guard lock(mu_);
   events_.append("progress", *pv.progress);
-  for (std::string& t : pv.tiles) events_.append("tile", std::move(t));
+  for (TileEvent& t : pv.tiles) events_.append(std::move(t.type), std::move(t.data));
   watch_progress_ = std::move(pv.progress);
   watch_progress_version_ = c.version;
   publishing_ = false;

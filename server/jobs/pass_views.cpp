@@ -1,5 +1,7 @@
 #include "server/jobs/pass_views.hpp"
 
+#include <algorithm>
+#include <climits>
 #include <set>
 
 #include "common/protocol/job_json.hpp"
@@ -13,15 +15,32 @@ namespace {
 
 std::string dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
 
-// The pass's tile events of an image job (one per tile refined in the pass).
-std::vector<std::string> tile_events(const ImageSource* img, const std::vector<Block>& blocks, uint64_t pass) {
-  std::vector<std::string> out;
+// The pass's tile events of an image job: one `tile` event per tile refined in the
+// pass, or, above kMaxTileEventsPerPass tiles (a pass over a 4K frame refines 8,160),
+// one `tiles` event for all of them: their count, first and last index and the pixel
+// rectangle that bounds them. A watcher's bytes per pass stay bounded and a pass never
+// overruns the replay buffer (which would turn every watcher's next read into a snapshot).
+std::vector<TileEvent> tile_events(const ImageSource* img, const std::vector<Block>& blocks, uint64_t pass) {
+  std::vector<TileEvent> out;
   if (!img) return out;
   std::set<uint32_t> tiles;
   for (const Block& b : blocks) tiles.insert(img->tile_of_partition(b.partition));
+  if (tiles.size() > kMaxTileEventsPerPass) {
+    int x0 = INT_MAX, y0 = INT_MAX, x1 = 0, y1 = 0;
+    for (uint32_t t : tiles) {
+      const TileRect rc = img->tile_rect(t);
+      x0 = std::min(x0, rc.x);
+      y0 = std::min(y0, rc.y);
+      x1 = std::max(x1, rc.x + rc.w);
+      y1 = std::max(y1, rc.y + rc.h);
+    }
+    out.push_back({"tiles", dump(json{{"count", tiles.size()}, {"first", *tiles.begin()}, {"last", *tiles.rbegin()},
+                                      {"x", x0}, {"y", y0}, {"w", x1 - x0}, {"h", y1 - y0}, {"pass", pass}})});
+    return out;
+  }
   for (uint32_t t : tiles) {
     const TileRect rc = img->tile_rect(t);
-    out.push_back(dump(json{{"tile", t}, {"x", rc.x}, {"y", rc.y}, {"w", rc.w}, {"h", rc.h}, {"pass", pass}}));
+    out.push_back({"tile", dump(json{{"tile", t}, {"x", rc.x}, {"y", rc.y}, {"w", rc.w}, {"h", rc.h}, {"pass", pass}})});
   }
   return out;
 }

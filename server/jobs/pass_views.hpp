@@ -16,9 +16,18 @@
 
 namespace tally {
 
+// Above this many tiles refined in a pass, the pass publishes one `tiles` event
+// (count, first, last, bounding rectangle) instead of a `tile` event per tile.
+inline constexpr size_t kMaxTileEventsPerPass = 64;
+
+struct TileEvent {
+  std::string type;  // "tile" or "tiles"
+  std::string data;
+};
+
 struct PassViews {
   std::shared_ptr<const std::string> progress;  // the progress event's data
-  std::vector<std::string> tiles;               // one tile event per tile refined in the pass
+  std::vector<TileEvent> tiles;                 // the pass's tile events (tile_events in pass_views.cpp)
   std::shared_ptr<const nlohmann::json> engine; // a running job's status (engine_json); null for no definition
   std::shared_ptr<const RunFacts> live;         // live_run_facts
 };

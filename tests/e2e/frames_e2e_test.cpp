@@ -7,6 +7,7 @@
 
 #include <string>
 
+#include "client/sse_parser.hpp"
 #include "server_process.hpp"
 #include "tests/support/frame_scene.hpp"
 
@@ -19,6 +20,54 @@ using nlohmann::json;
 // seconds of work on two threads.
 json frame_spec(int w, int h) { return scenes::frame_spec(w, h, 8); }
 
+// The job's whole event stream, replayed from the start of its epoch (Last-Event-ID =
+// epoch x 10^9; a new watcher of a finished job would get a snapshot without tiles). A
+// pass over a frame refines every tile (60 x 34 of them at 1920x1080, over the 1,024
+// events of the replay buffer): it publishes one `tiles` event naming them, no `tile`
+// event each, so the whole stream is a few hundred bytes a pass.
+void expect_one_tiles_event_a_pass(HttpClient& c, const std::string& id, int w, int h, uint64_t passes) {
+  std::vector<SseEvent> snapshot, ev;
+  size_t bytes = 0;
+  auto read = [&](std::vector<SseEvent>& out, const std::string& last_id) {
+    SseParser p([&](const SseEvent& e) { out.push_back(e); });
+    HeaderList hl = {{"Accept", "text/event-stream"}};
+    if (!last_id.empty()) hl.emplace_back("Last-Event-ID", last_id);
+    const ClientResponse r = c.stream("/v1/jobs/" + id + "/events", hl,
+                                      [&](std::string_view b) {
+                                        bytes += b.size();
+                                        p.feed(b);
+                                        return out.empty() || out.back().event != "end";
+                                      },
+                                      60);
+    ASSERT_EQ(r.status, 200) << r.body;
+  };
+  read(snapshot, "");
+  ASSERT_FALSE(snapshot.empty());
+  const uint64_t last = std::stoull(snapshot.back().id);
+  bytes = 0;
+  read(ev, std::to_string(last - last % 1'000'000'000ULL));
+  ASSERT_FALSE(ev.empty());
+  EXPECT_EQ(ev.back().event, "end");
+  const int ts = 32;
+  const uint64_t tiles = uint64_t((w + ts - 1) / ts) * uint64_t((h + ts - 1) / ts);
+  uint64_t tiles_events = 0;
+  for (const SseEvent& e : ev) {
+    EXPECT_NE(e.event, "tile") << e.data;
+    if (e.event != "tiles") continue;
+    ++tiles_events;
+    const json d = json::parse(e.data);
+    EXPECT_EQ(d.at("count"), tiles) << e.data;
+    EXPECT_EQ(d.at("first"), 0) << e.data;
+    EXPECT_EQ(d.at("last"), tiles - 1) << e.data;
+    EXPECT_EQ(d.at("x"), 0);
+    EXPECT_EQ(d.at("y"), 0);
+    EXPECT_EQ(d.at("w"), w);
+    EXPECT_EQ(d.at("h"), h);
+  }
+  EXPECT_EQ(tiles_events, passes);
+  EXPECT_LT(bytes, 2048 * (passes + 1)) << bytes << " bytes for " << ev.size() << " events";
+}
+
 TEST(FramesE2E, FullHdImageRunsWithDefaultLimits) {
   TempDir tmp;
   ServerProcess server(tmp.path / "data");
@@ -27,6 +76,7 @@ TEST(FramesE2E, FullHdImageRunsWithDefaultLimits) {
   const json st = wait_state(c, id, "succeeded", 240);
   EXPECT_EQ(st.at("samples"), 8) << st.dump();
   EXPECT_EQ(st.at("passes"), 1) << st.dump();
+  expect_one_tiles_event_a_pass(c, id, 1920, 1080, 1);
   server.kill9();
   // Its final state is stored in pieces: 1920 x 1080 x 24 sums of 4 bytes and the rest
   // (a frame's checkpoint may be over SQLite's 1e9-byte limit for one blob: a 4K frame's

@@ -343,6 +343,46 @@ TEST(TevBridgeEndToEnd, MirrorsTheJobBitExactlyIntoTev) {
   fs::remove_all(dir);
 }
 
+TEST(TevBridgeEndToEnd, MirrorsAJobWhosePassesAnnounceTilesTogether) {
+  // 160x120 in tiles of 8: 300 tiles, so each pass publishes one `tiles` event (over 64
+  // tiles) and the bridge's flushes are capped at 256 tiles (the rest in the next one).
+  Server server;
+  FakeTev tev;
+  json spec = example_spec();
+  spec["scene"]["camera"]["resolution"] = {160, 120};
+  spec["query"]["tile_size"] = 8;
+  // It runs until cancelled, after the bridge has mirrored it and the job has gone on
+  // for two more passes: those passes reach the bridge only through `tiles` events
+  // (the tiles it fetched at the start are stale by then).
+  spec["query"]["max_pass_spp"] = 2;
+  spec["stop"] = {{"max_samples", uint64_t{100000000}}};
+  const std::string id = submit(server, spec);
+  const fs::path dir = temp_dir("tev-cli");
+  Child cli(preview_argv(server, id, tev.port()), dir / "preview.log");
+  const auto t0 = std::chrono::steady_clock::now();
+  while (tev.bytes() < 100000 && std::chrono::steady_clock::now() - t0 < 60s) std::this_thread::sleep_for(10ms);
+  ASSERT_GE(tev.bytes(), 100000u) << cli.log();
+  const uint64_t passes = status(server, id).at("passes").get<uint64_t>();
+  while (status(server, id).at("passes").get<uint64_t>() < passes + 2 && std::chrono::steady_clock::now() - t0 < 90s) {
+    std::this_thread::sleep_for(20ms);
+  }
+  HttpClient c = server.client();
+  ASSERT_EQ(c.request("DELETE", "/v1/jobs/" + id).status / 100, 2);
+  const auto rc = cli.wait(120s);
+  ASSERT_TRUE(rc.has_value()) << "tally preview did not finish:\n" << cli.log();
+  EXPECT_EQ(*rc, 0) << cli.log();
+  ASSERT_EQ(status(server, id).at("state"), "cancelled");
+  for (int i = 0; i < 100 && tev.eofs() == 0; ++i) std::this_thread::sleep_for(20ms);
+  const auto conns = tev.connections();
+  ASSERT_EQ(conns.size(), 1u);
+  const Mirror m = replay(conns[0], "tally-" + id);
+  EXPECT_EQ(m.width, 160);
+  EXPECT_EQ(m.height, 120);
+  EXPECT_GE(m.updates, 300) << "every tile at least once";
+  expect_matches_exr(m, server, id);
+  fs::remove_all(dir);
+}
+
 TEST(TevBridgeEndToEnd, ReconnectsWhenTevRestartsAndResendsTheImage) {
   Server server;
   auto tev = std::make_unique<FakeTev>();
