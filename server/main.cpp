@@ -260,9 +260,10 @@ int main(int argc, char** argv) {
   }
 #ifdef TALLY_HAVE_IMAGE_IO
   // The image module is loaded on the first image; without it the image routes answer 501.
-  hc.images.exr = [](const ImageSnapshot& s, const nlohmann::json& meta) {
+  hc.images.exr_file = [](const ImageSource& source, const JobState& state, const nlohmann::json& meta,
+                          const std::filesystem::path& path) {
     try {
-      return encode_exr(s, meta);
+      write_exr_file(source, state, meta, path);
     } catch (const ImageModuleUnavailable& e) {
       throw HttpError(501, e.what());
     }

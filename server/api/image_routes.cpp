@@ -2,10 +2,15 @@
 // the immutable state of a JobSnapshot (a finished job's is read back from the
 // store, JobManager::state), so encoding never holds a job's lock.
 #include <fmt/format.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <filesystem>
 
 #include "common/protocol/job_json.hpp"
 #include "server/api/request_handler.hpp"
 #include "server/api/route_support.hpp"
+#include "server/http/file_body_stream.hpp"
 
 namespace tally {
 
@@ -43,21 +48,31 @@ HttpResponse RequestHandler::job_tile(const ApiRequest& req, const PathParams& p
 HttpResponse RequestHandler::job_image(const ApiRequest& req, const PathParams& p, bool exr) {
   const JobSnapshot s = visible_snapshot(req, p.at("id"), JobManager::SnapshotOf::state);
   const ImageSource& img = image_of(s);
-  if ((exr && !config_.images.exr) || (!exr && !config_.images.png)) {
+  if ((exr && !config_.images.exr_file) || (!exr && !config_.images.png)) {
     throw HttpError(501, "image encoding is not available in this build");
   }
   const std::shared_ptr<const JobState> state = manager_.state(s);  // a finished job's: from the store
   if (!state) throw HttpError(409, "the job's state is not available");
-  const ImageSnapshot snap = img.snapshot(*state);
+  HttpResponse r;
+  r.set_header("Content-Type", exr ? "image/x-exr" : "image/png");
+  r.set_header("Content-Disposition", fmt::format("inline; filename=\"{}.{}\"", s.id, exr ? "exr" : "png"));
+  if (!exr) {
+    r.body = config_.images.png(img.snapshot(*state));
+    return r;
+  }
+  // The EXR goes through a file, a strip of rows at a time, and is sent from it in parts:
+  // a 4K frame's image (232 MB of floats) and its encoding (over 100 MB) are never in
+  // memory whole. The stream unlinks the file as it opens it.
   const json meta = {{"job_id", s.id},
                      {"state", std::string(job_status_name(s.status))},
                      {"samples", state->samples},
                      {"passes", state->passes},
                      {"spec", *s.spec}};
-  HttpResponse r;
-  r.set_header("Content-Type", exr ? "image/x-exr" : "image/png");
-  r.set_header("Content-Disposition", fmt::format("inline; filename=\"{}.{}\"", s.id, exr ? "exr" : "png"));
-  r.body = exr ? config_.images.exr(snap, meta) : config_.images.png(snap);
+  static std::atomic<uint64_t> serial{0};
+  const std::filesystem::path path = std::filesystem::temp_directory_path() /
+                                     fmt::format("tally-{}-{}-{}.exr", ::getpid(), s.id, serial.fetch_add(1));
+  config_.images.exr_file(img, *state, meta, path);
+  r.stream = std::make_shared<FileBodyStream>(path);
   return r;
 }
 

@@ -70,7 +70,7 @@ std::string Metrics::render(const ManagerStats& jobs) const {
     prom_metric(o, "tally_process_resident_bytes", "gauge", "Resident memory of the server process (VmRSS).", *rss);
   }
   prom_metric(o, "tally_http_connections", "gauge", "Open connections.", connections.load());
-  prom_metric(o, "tally_http_event_streams", "gauge", "Open event streams.", streams.load());
+  prom_metric(o, "tally_http_event_streams", "gauge", "Open streamed responses (event streams; EXR images being sent).", streams.load());
   prom_metric(o, "tally_http_rejected_connections_total", "counter", "Connections refused at the limit.",
               rejected_connections.load());
   prom_metric(o, "tally_http_timeouts_total", "counter", "Connections closed by a read/idle/write timeout.",

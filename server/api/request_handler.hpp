@@ -6,6 +6,7 @@
 // health/metrics/openapi routes in add_routes). Routes read JobSnapshots.
 #include <atomic>
 #include <chrono>
+#include <filesystem>
 #include <functional>
 #include <map>
 #include <mutex>
@@ -25,7 +26,11 @@ namespace tally {
 class AssetStore;
 
 struct ImageEncoders {
-  std::function<std::string(const ImageSnapshot&, const nlohmann::json& metadata)> exr;
+  // Writes the EXR of `state`'s image to a file (write_exr_file: a strip at a time); the
+  // route sends the file and unlinks it.
+  std::function<void(const ImageSource&, const JobState&, const nlohmann::json& metadata,
+                     const std::filesystem::path&)>
+      exr_file;
   std::function<std::string(const ImageSnapshot&)> png;
 };
 

@@ -32,6 +32,7 @@
 #include "server/http/event_stream.hpp"
 #include "server/jobs/job_store.hpp"
 #include "server/api/metrics.hpp"
+#include "tests/support/response_body.hpp"
 #include "server/api/request_handler.hpp"
 
 #if __has_include("common/image/image_io.hpp")
@@ -126,7 +127,8 @@ struct Server {
     manager->recover();
     HandlerConfig hc;
 #ifdef TALLY_HAVE_IMAGE_IO
-    hc.images.exr = [](const ImageSnapshot& s, const json& meta) { return encode_exr(s, meta); };
+    hc.images.exr_file = [](const ImageSource& src, const JobState& state, const json& meta,
+                            const std::filesystem::path& path) { write_exr_file(src, state, meta, path); };
     hc.images.png = [](const ImageSnapshot& s) { return encode_png(s); };
 #endif
     handler = std::make_unique<RequestHandler>(*manager, metrics, hc);
@@ -214,7 +216,7 @@ json run_example(const std::string& name) {
     EXPECT_EQ(exr.status, 200);
     // The EXR header carries the job id and OpenEXR's capDate (the clock): mask
     // both with bytes of the same length.
-    std::string exr_bytes = replace_all(exr.body, id, std::string(id.size(), '0'));
+    std::string exr_bytes = replace_all(whole_body(exr), id, std::string(id.size(), '0'));
     if (const size_t at = exr_bytes.find("capDate"); at != std::string::npos) {
       static const std::regex date("[0-9]{4}:[0-9]{2}:[0-9]{2} [0-9]{2}:[0-9]{2}:[0-9]{2}");
       std::smatch m;

@@ -3,11 +3,14 @@
 // status, detail (and pointer for spec errors).
 #include <gtest/gtest.h>
 
+#include <filesystem>
+#include <fstream>
 #include <set>
 
 #include "client/sse_parser.hpp"
 #include "server/http/event_stream.hpp"
 #include "server_test_support.hpp"
+#include "tests/support/response_body.hpp"
 
 namespace tally::test {
 namespace {
@@ -368,7 +371,9 @@ TEST(RequestHandler, ImageJobsStreamTilesAndServeThem) {
 TEST(RequestHandler, ImageEncodersAreUsedWhenPresent) {
   HandlerConfig hc;
   hc.images.png = [](const ImageSnapshot& s) { return "PNG" + std::to_string(s.width) + "x" + std::to_string(s.height); };
-  hc.images.exr = [](const ImageSnapshot&, const json& meta) { return "EXR" + meta.at("job_id").get<std::string>(); };
+  hc.images.exr_file = [](const ImageSource& src, const JobState&, const json& meta, const std::filesystem::path& path) {
+    std::ofstream(path, std::ios::binary) << "EXR" << src.width() << "x" << src.height() << meta.at("job_id").get<std::string>();
+  };
   Harness h(test_manager_config(), make_memory_store(), hc);
   const std::string id = h.submit(fake_spec(8192, 0, 1, true));
   ASSERT_TRUE(h.wait_state(id, "succeeded"));
@@ -376,8 +381,16 @@ TEST(RequestHandler, ImageEncodersAreUsedWhenPresent) {
   EXPECT_EQ(png.status, 200);
   EXPECT_EQ(png.header("content-type"), "image/png");
   EXPECT_EQ(png.body, "PNG8x8");
+  // The EXR is written to a file and sent from it in parts; the file is gone once the
+  // stream has it open.
   const auto exr = h.call("GET", "/v1/jobs/" + id + "/image.exr");
-  EXPECT_EQ(exr.body, "EXR" + id);
+  EXPECT_EQ(exr.status, 200);
+  EXPECT_EQ(exr.header("content-type"), "image/x-exr");
+  ASSERT_TRUE(exr.stream);
+  EXPECT_EQ(whole_body(exr), "EXR8x8" + id);
+  for (const auto& f : std::filesystem::directory_iterator(std::filesystem::temp_directory_path())) {
+    EXPECT_EQ(f.path().filename().string().find(id), std::string::npos) << f.path();
+  }
 }
 
 TEST(RequestHandler, OpenApiDocumentMatchesTheRouteTable) {
