@@ -107,7 +107,7 @@ demo: deps-demo $(BUILD)/build.ninja
 	@scripts/demo.sh $(BUILD)
 
 bench: build
-	@scripts/bench.sh $(BUILD)
+	@scripts/bench.sh $(BUILD) $(BENCH)
 
 study: deps
 	@scripts/study.sh
