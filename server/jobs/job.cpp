@@ -76,6 +76,14 @@ JobSnapshot Job::snapshot_locked(bool with_runner) const {
       s.facts = facts_;
       return s;
     }
+    if (!is_terminal(status_)) {
+      // No pass of this process has published views yet (resumed from a checkpoint at
+      // start, or queued again after a pause): the figures from the runner itself. A copy
+      // of the runner here (below) was a second copy of a 4K frame's state, made by the
+      // first status read after a restart and kept until the job ended.
+      s.facts = std::make_shared<const RunFacts>(live_run_facts(*runner_));
+      return s;
+    }
   }
   // The runner changes in place at pass boundaries: readers get a copy made once
   // per version, which no one mutates afterwards.

@@ -231,3 +231,73 @@ TEST(JobStateHeap, LocalRunHoldsAFewTilesBesideTheState) {
 
 }  // namespace
 }  // namespace tally
+
+namespace tally {
+namespace {
+
+// A job resumed from its checkpoint at start, read by status polls as a watcher or the
+// page would (SnapshotOf::views) until it ends: its peak is the uninterrupted job's.
+// Before the fix, a status read of a job that had not published a pass in this process
+// yet copied its runner (the whole state) and kept the copy until the job ended: 4.67 x
+// the state here (1.68 x job_state_bytes for a resumed 4K frame in
+// bench/frame_4k_e2e.py). 512 x 512, so the state (25 MB) is larger than a checkpoint
+// piece (16 MiB), which the bound allows for.
+TEST(JobStateHeap, ResumedJobReadByStatusPollsPeaksWithinItsCharge) {
+  TempDir dir;
+  nlohmann::json spec = scenes::frame_spec(512, 512, 24);
+  spec["query"]["max_pass_spp"] = 8;
+  ManagerConfig mc;
+  mc.workers = 2;
+  mc.checkpoint_interval_s = 0;
+  mc.checkpoint_copy_bytes = 1 << 20;
+  const auto samples = [](const JobSnapshot& s) { return s.facts ? s.facts->samples : uint64_t{0}; };
+  std::string id;
+  {
+    std::unique_ptr<JobStore> store = open_sqlite_store(dir.path.string());
+    JobManager manager(mc, *store, compile);
+    manager.recover();
+    id = manager.submit(spec)->id();
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+    while (samples(manager.snapshot(id)) < 8 && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    manager.shutdown();  // checkpoints it: it resumes on the next start
+  }
+  int64_t state = 0, charged = 0;
+  {
+    const auto def = compile(spec, JobLimits{});
+    const Kernel& k = *def->kernel();
+    state = static_cast<int64_t>(k.channel_count() * sizeof(Tally) + k.sum_count() * sizeof(float) +
+                                 k.partition_count() * sizeof(uint64_t));
+    charged = static_cast<int64_t>(job_state_bytes(k.channel_count(), k.partition_count(), k.sum_count()));
+  }
+  const int64_t before = g_live.load();
+  g_peak = before;
+  uint64_t resumed_at = 0;
+  {
+    std::unique_ptr<JobStore> store = open_sqlite_store(dir.path.string());
+    JobManager manager(mc, *store, compile);
+    manager.recover();
+    resumed_at = samples(manager.snapshot(id));
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+    while (!is_terminal(manager.snapshot(id).status) && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    const JobSnapshot s = manager.snapshot(id);
+    EXPECT_EQ(s.status, JobStatus::succeeded);
+    EXPECT_EQ(samples(s), 24u);
+    manager.shutdown();
+  }
+  const int64_t peak = g_peak.load() - before;
+  std::printf("resumed at %llu spp: state %lld bytes, charged %lld, heap peak %lld (%.2f x the state)\n",
+              static_cast<unsigned long long>(resumed_at), static_cast<long long>(state),
+              static_cast<long long>(charged), static_cast<long long>(peak),
+              static_cast<double>(peak) / static_cast<double>(state));
+  EXPECT_GE(resumed_at, 8u) << "it resumed from its checkpoint";
+  EXPECT_LT(resumed_at, 24u);
+  EXPECT_LE(peak, charged + static_cast<int64_t>(kCheckpointPieceBytes) + kSlack)
+      << "peak " << peak << " bytes, charged " << charged;
+}
+
+}  // namespace
+}  // namespace tally
