@@ -5,10 +5,13 @@
 //   GET /examples/index.json, /examples/NAME.json   bundled specs for the form
 //   POST /v1/jobs/validate, POST /v1/jobs            the form
 //   GET /v1/jobs/ID         status: spec, plan, stop rule, image size, trace
-//   GET /v1/jobs/ID/events  EventSource: progress, state, tile, end (ids; the browser
-//                           resumes with Last-Event-ID after a dropped connection)
-//   GET /v1/jobs/ID/tiles/N pixels of a tile named by a `tile` event, fetched at most
-//                           every 250 ms (slower as the image converges), coalesced
+//   GET /v1/jobs/ID/events  EventSource: progress, state, tile, tiles, end (ids; the
+//                           browser resumes with Last-Event-ID after a dropped connection)
+//   GET /v1/jobs/ID/tiles/N pixels of a tile named by a `tile` or `tiles` event, fetched
+//                           at most every 250 ms (slower as the image converges), coalesced
+//   GET /v1/jobs/ID/image.png  instead of tiles for a large image (over LARGE_TILES tiles
+//                           or LARGE_PIXELS pixels): the whole image, one request at a
+//                           time, at most every 2 s (slower as it converges)
 //   DELETE /v1/jobs/ID, POST /v1/jobs/ID/extend      the buttons
 //   PATCH /v1/jobs/ID {"priority"}                    the priority control
 //   POST /v1/jobs?priority=P (the job's spec)         Requeue a failed or cancelled job
@@ -33,6 +36,13 @@
     return Math.round(255 * s);
   }
 
+  // Above this many tiles or pixels an image is "large": the page draws it from
+  // image.png, one request per refresh decoded off the main thread, instead of one
+  // JSON request per tile (a 4K frame has 8,160 tiles of 30–130 KB of JSON each), and the
+  // standard-error map (which needs the tiles' JSON) is off. docs/preview.md.
+  const LARGE_TILES = 1024;
+  const LARGE_PIXELS = 1024 * 1024;
+
   // Perceptual heat ramp (inferno-like), t in [0, 1].
   const RAMP = [[0, 0, 4], [59, 15, 112], [140, 41, 129], [222, 73, 104], [254, 159, 109], [252, 253, 191]];
   function heat(t) {
@@ -43,8 +53,8 @@
   }
 
   // ------------------------------------------------------------------ test hook
-  // Browser tests read what the page saw (pass numbers, tile fetches) and can drop
-  // the event stream; nothing else uses this object.
+  // Browser tests read what the page saw (pass numbers, tile and image fetches, the
+  // image's path and scale) and can drop the event stream; nothing else uses this object.
   const hook = {
     streamClosed: 0,
     streamsOpened: 0,     // EventSources the page created
@@ -54,6 +64,11 @@
     eventIds: [],         // ids of every event received
     tileFetches: 0,
     tileEvents: 0,
+    tilesEvents: 0,       // `tiles` events (one per pass that refined more than 64 tiles)
+    imageFetches: 0,      // image.png requests (large images)
+    imageDraws: 0,        // image.png answers drawn
+    large: false,         // the open job's image is drawn from image.png
+    zoom: 'fit',          // 'fit' or '1:1'
     flushes: 0,
     reconnects: 0,
     ended: false,
@@ -294,6 +309,10 @@
       this.tiles = new Map();    // tile -> {x, y, w, h, mean, se, samples, pass}
       this.dirty = new Map();    // tile -> pass of the newest tile event not yet fetched
       this.inflight = 0;
+      this.large = false;        // drawn from image.png (setupImage)
+      // The large path's one request: dirty (a pass changed the image since the last
+      // request began), inflight, when the last began, what it cost (ms), failures.
+      this.png = { dirty: false, inflight: false, last: -Infinity, cost: 0, failures: 0, retryAt: 0, draws: 0 };
       this.lastFlush = 0;
       this.firstTileAt = 0;
       this.timer = null;
@@ -302,7 +321,9 @@
       this.canvas = $('image');
       this.ctx = this.canvas.getContext('2d', { willReadFrequently: true });
       Object.assign(hook, { jobId: id, passesSeen: [], eventIds: [], tileFetches: 0, tileEvents: 0, flushes: 0,
+                            tilesEvents: 0, imageFetches: 0, imageDraws: 0, large: false,
                             reconnects: 0, ended: false, settled: false, lastEventId: null, points: this.points });
+      setZoom('fit');
     }
 
     async start() {
@@ -382,21 +403,49 @@
         $(id).hidden = false;
       }
       if (!this.image || this.image.w !== w || this.image.h !== h) {
-        this.image = { w, h, tileSize: img ? img.tile_size : (s.spec.query.tile_size || 32),
-                       tileCount: img ? img.tiles : null };
+        const tileSize = img ? img.tile_size : (s.spec.query.tile_size || 32);
+        const cols = Math.ceil(w / tileSize);
+        const tileCount = img ? img.tiles : cols * Math.ceil(h / tileSize);
+        this.image = { w, h, tileSize, tileCount, cols };
+        this.large = tileCount > LARGE_TILES || w * h > LARGE_PIXELS;
+        hook.large = this.large;
         this.canvas.width = w;
         this.canvas.height = h;
         this.ctx.fillStyle = '#000';
         this.ctx.fillRect(0, 0, w, h);
+        this.setupLarge();
+        layoutImage();
       }
-      // Draw whatever the job already has: every tile once, unless tile events have
-      // announced tiles already. Also at the end: a job that ended before the event
-      // stream connected sends a snapshot without tile events.
-      const ts = this.image.tileSize;
-      const count = this.image.tileCount || Math.ceil(w / ts) * Math.ceil(h / ts);
+      // Draw whatever the job already has: every tile once (the whole PNG once, for a
+      // large image), unless events have announced changes already. Also at the end: a
+      // job that ended before the event stream connected sends a snapshot without tile
+      // events.
+      if (this.large) {
+        if ((s.passes || 0) > 0 && this.png.draws === 0 && !this.png.inflight) this.png.dirty = true;
+        return;
+      }
+      const count = this.image.tileCount;
       if ((s.passes || 0) > 0 && this.tiles.size === 0 && this.dirty.size === 0 && this.inflight === 0) {
         for (let t = 0; t < count; ++t) this.dirty.set(t, s.passes);
       }
+    }
+
+    // A large image has no standard-error map (it needs every tile's JSON): the control is
+    // off and a note says why and where the errors are.
+    setupLarge() {
+      const { w, h, tileCount } = this.image;
+      $('view-stderr').disabled = this.large;
+      $('view-stderr').parentElement.title = this.large
+        ? 'needs per-tile data: only for images up to 1,024 tiles and 1,048,576 pixels' : '';
+      if (this.large && this.mode !== 'mean') this.setMode('mean');
+      if (this.large) document.querySelector('input[name=view][value=mean]').checked = true;
+      $('large-note').hidden = !this.large;
+      $('large-note').textContent = this.large
+        ? `A large image (${w}×${h}, ${tileCount.toLocaleString('en')} tiles): drawn from image.png, refreshed every 2 s or ` +
+          'more. The standard-error map is not shown above 1,024 tiles or 1,048,576 pixels; the EXR download has ' +
+          'the per-pixel standard errors (StdErr.R/G/B).'
+        : '';
+      $('tile-info').textContent = '';
     }
 
     hasErrorTarget() {
@@ -440,6 +489,7 @@
       on('progress', (d) => this.onProgress(d, false));
       on('state', (d) => { this.setState(d.state, d.stop_reason); if (d.error_message) this.message(d.error_message); });
       on('tile', (d) => this.onTile(d));
+      on('tiles', (d) => this.onTiles(d));
       on('end', (d) => this.onEnd(d));
       on('shutdown', () => this.message('the server is shutting down; the page reconnects when it is back', true));
       es.onopen = () => { this.retryDelay = 1000; if (!this.ended) this.message(null); };
@@ -508,8 +558,30 @@
       hook.tileEvents++;
       if (!this.image) return;
       if (!this.firstTileAt) this.firstTileAt = performance.now();
+      if (this.large) { this.png.dirty = true; return; }
       this.dirty.set(d.tile, d.pass);
       if (!this.tiles.has(d.tile)) this.tiles.set(d.tile, { x: d.x, y: d.y, w: d.w, h: d.h, pass: 0 });
+    }
+
+    // A pass that refined more than 64 tiles sends one `tiles` event: {count, first, last,
+    // x, y, w, h, pass}, every refined tile's index in [first, last] and its pixels inside
+    // the rectangle. Every tile in that range that meets the rectangle is marked (row-major
+    // tiles: a superset of the refined ones at worst).
+    onTiles(d) {
+      hook.tilesEvents++;
+      if (!this.image) return;
+      if (!this.firstTileAt) this.firstTileAt = performance.now();
+      if (this.large) { this.png.dirty = true; return; }
+      const { w, h, tileSize: ts, tileCount, cols } = this.image;
+      const x0 = d.x, y0 = d.y, x1 = d.x + d.w, y1 = d.y + d.h;
+      const last = Math.min(tileCount - 1, d.last);
+      for (let t = Math.max(0, d.first); t <= last; ++t) {
+        const x = (t % cols) * ts, y = Math.floor(t / cols) * ts;
+        const tw = Math.min(ts, w - x), th = Math.min(ts, h - y);
+        if (x >= x1 || y >= y1 || x + tw <= x0 || y + th <= y0) continue;
+        this.dirty.set(t, d.pass);
+        if (!this.tiles.has(t)) this.tiles.set(t, { x, y, w: tw, h: th, pass: 0 });
+      }
     }
 
     onEnd(d) {
@@ -523,6 +595,7 @@
         this.message(`stopped (${d.stop_reason}) before the error target was met`, true);
       }
       this.lastFlush = 0;  // draw the final tiles now
+      if (this.large) this.png.dirty = true;  // and the final image, once the request in flight is back
       this.render();
       // Not settled before the final status is in (it may announce every tile).
       this.endStatus = false;
@@ -543,10 +616,74 @@
       const now = performance.now();
       if (this.renderDue && (this.ended || now - (this.lastRender || 0) >= 200)) this.render();
       if (!this.image) return;
+      if (this.large) {
+        const png = this.png;
+        if (png.dirty && !png.inflight && now >= png.retryAt &&
+            now - png.last >= (this.ended ? 0 : this.imageInterval())) {
+          this.fetchImage();
+        }
+        hook.settled = this.ended && this.endStatus && !png.dirty && !png.inflight;
+        return;
+      }
       if (this.dirty.size > 0 && this.inflight === 0 && now - this.lastFlush >= (this.ended ? 0 : this.interval())) {
         this.flush();
       }
       hook.settled = this.ended && this.endStatus && this.dirty.size === 0 && this.inflight === 0;
+    }
+
+    // A large image's refresh period: 2 s for the first 16 s of tiles, then ∝ √time as
+    // for tiles, at most 10 s; and never less than 4× what the last request cost (its
+    // encode on the server, the transfer and the decode), so the page spends at most a
+    // fifth of its time on a frame that a slow link or a busy server makes expensive.
+    imageInterval() {
+      const t = this.firstTileAt ? (performance.now() - this.firstTileAt) / 1000 : 0;
+      return Math.max(4 * this.png.cost, Math.min(10000, Math.max(2000, 2000 * Math.sqrt(t / 16))));
+    }
+
+    // One request for the whole image; decoded by createImageBitmap (off the main thread,
+    // without colour conversion: the canvas gets the PNG's 8-bit sRGB values as they are)
+    // and drawn in one drawImage. Never two at once, so answers cannot overtake each other.
+    async fetchImage() {
+      const png = this.png;
+      png.dirty = false;
+      png.inflight = true;
+      const t0 = performance.now();
+      png.last = t0;
+      hook.imageFetches++;
+      let bitmap = null;
+      try {
+        const r = await fetch(`/v1/jobs/${encodeURIComponent(this.id)}/image.png`, { cache: 'no-store' });
+        if (!r.ok) {
+          const err = new Error(`image.png: ${r.status} ${await r.text().catch(() => '')}`.trim());
+          err.status = r.status;
+          throw err;
+        }
+        const blob = await r.blob();
+        bitmap = await createImageBitmap(blob, { colorSpaceConversion: 'none', premultiplyAlpha: 'none' });
+        if (this.closed) return;
+        if (bitmap.width !== this.image.w || bitmap.height !== this.image.h) {
+          throw new Error(`image.png is ${bitmap.width}×${bitmap.height}, the job's image ${this.image.w}×${this.image.h}`);
+        }
+        this.ctx.drawImage(bitmap, 0, 0);
+        png.draws++;
+        hook.imageDraws++;
+        png.cost = performance.now() - t0;
+        png.failures = 0;
+        $('tile-info').textContent = `image.png ${fmtNum(blob.size / 1e6, 3)} MB in ${Math.round(png.cost)} ms` +
+          (this.ended ? '' : ` · every ${fmtNum(this.imageInterval() / 1000, 2)} s`);
+      } catch (e) {
+        if (this.closed) return;
+        // Try again later (1 s, 2 s, … 30 s), also after the end; a server that cannot
+        // encode PNG (501) or has lost the job (404) is not asked again.
+        png.failures++;
+        png.retryAt = performance.now() + Math.min(30000, 1000 * 2 ** (png.failures - 1));
+        if (e.status !== 501 && e.status !== 404) png.dirty = true;
+        $('tile-info').textContent = `image.png failed: ${e.message}`;
+      } finally {
+        if (bitmap) bitmap.close();
+        png.inflight = false;
+        this.tick();
+      }
     }
 
     flush() {
@@ -598,6 +735,7 @@
     }
 
     setMode(mode) {
+      if (this.large && mode !== 'mean') return;  // no tile data: no heat map (setupLarge)
       this.mode = mode;
       $('heat-legend').hidden = mode !== 'stderr';
       for (const t of this.tiles.values()) if (t.mean) this.drawTile(t);
@@ -759,6 +897,84 @@
         refreshJobs();
       } catch (e) { this.message(e.message); }
     }
+  }
+
+  // ------------------------------------------------------------------ image scale
+
+  // The canvas holds the image at its own resolution; only its CSS size changes.
+  // Fit: the whole image within the panel's width and 70% of the window's height
+  // (magnified or reduced). 1:1: one image pixel per device pixel (CSS size = pixels /
+  // devicePixelRatio), in a view that scrolls (scrollbars, wheel, touch) and pans with a
+  // mouse drag. Pixelated at or above 1:1, filtered below.
+  let zoom = 'fit';
+
+  function layoutImage() {
+    const canvas = $('image'), box = $('image-view');
+    const w = canvas.width, h = canvas.height;
+    const dpr = window.devicePixelRatio || 1;
+    let cw, ch;
+    if (zoom === '1:1') {
+      cw = w / dpr; ch = h / dpr;
+    } else {
+      const availW = $('image-box').clientWidth, availH = Math.max(120, 0.7 * window.innerHeight);
+      const s = Math.min(availW / w, availH / h);
+      cw = Math.max(1, Math.floor(w * s)); ch = Math.max(1, Math.floor(h * s));
+    }
+    canvas.style.width = `${cw}px`;
+    canvas.style.height = `${ch}px`;
+    canvas.classList.toggle('smooth', cw * dpr < w - 0.5);
+    box.classList.toggle('one', zoom === '1:1');
+  }
+
+  // Sets the scale; at 1:1 the point at fractions (fx, fy) of the image goes to the
+  // middle of the view (the image's centre by default).
+  function setZoom(z, fx = 0.5, fy = 0.5) {
+    zoom = z;
+    hook.zoom = z;
+    $('zoom-fit').setAttribute('aria-pressed', String(z === 'fit'));
+    $('zoom-one').setAttribute('aria-pressed', String(z === '1:1'));
+    layoutImage();
+    const box = $('image-view'), canvas = $('image');
+    if (z === '1:1') {
+      box.scrollLeft = fx * canvas.clientWidth - box.clientWidth / 2;
+      box.scrollTop = fy * canvas.clientHeight - box.clientHeight / 2;
+    } else {
+      box.scrollLeft = 0;
+      box.scrollTop = 0;
+    }
+  }
+
+  {
+    const box = $('image-view'), canvas = $('image');
+    $('zoom-fit').addEventListener('click', () => setZoom('fit'));
+    $('zoom-one').addEventListener('click', () => setZoom('1:1'));
+    // Double click: 1:1 at the pixel clicked, or back to Fit.
+    canvas.addEventListener('dblclick', (e) => {
+      if (zoom === '1:1') { setZoom('fit'); return; }
+      const r = canvas.getBoundingClientRect();
+      setZoom('1:1', (e.clientX - r.left) / r.width, (e.clientY - r.top) / r.height);
+    });
+    // A mouse drag pans at 1:1 (touch scrolls natively; the scrollbars are the box's own).
+    let drag = null;
+    canvas.addEventListener('pointerdown', (e) => {
+      if (zoom !== '1:1' || e.pointerType !== 'mouse' || e.button !== 0) return;
+      drag = { x: e.clientX, y: e.clientY, left: box.scrollLeft, top: box.scrollTop };
+      canvas.setPointerCapture(e.pointerId);
+      box.classList.add('dragging');
+      e.preventDefault();
+    });
+    canvas.addEventListener('pointermove', (e) => {
+      if (!drag) return;
+      box.scrollLeft = drag.left - (e.clientX - drag.x);
+      box.scrollTop = drag.top - (e.clientY - drag.y);
+    });
+    const end = () => { drag = null; box.classList.remove('dragging'); };
+    canvas.addEventListener('pointerup', end);
+    canvas.addEventListener('pointercancel', end);
+    // The panel's width, the window's height and the device pixel ratio (browser zoom)
+    // change the CSS size.
+    new ResizeObserver(() => layoutImage()).observe($('image-box'));
+    window.addEventListener('resize', () => layoutImage());
   }
 
   // ------------------------------------------------------------------ routing

@@ -2,7 +2,9 @@
 // against a real tally-server: the form submits a lighting image job from examples/,
 // the canvas is filled tile by tile from the event stream and must equal the
 // server's PNG of the finished job (±1 per channel); a cut connection and a dropped
-// EventSource must resume with every pass seen exactly once.
+// EventSource must resume with every pass seen exactly once. A large image (over 1,024
+// tiles) is drawn from image.png instead of per-tile JSON, with Fit / 1:1 / pan, and the
+// page stays responsive while it runs.
 //
 // Env: TALLY_SERVER (path to tally-server, required), CHROMIUM (default
 // /usr/bin/chromium), PREVIEW_SCREENSHOT_DIR (write docs/img/preview-*.png there).
@@ -17,6 +19,11 @@ import { decodePng, launchBrowser, sleep, startProxy, startServer, waitFor } fro
 const serverBinary = process.env.TALLY_SERVER;
 const shotDir = process.env.PREVIEW_SCREENSHOT_DIR || '';
 const EXAMPLE = '/examples/preview_image.json';
+// The large-image test's job: 2048×1152 (2,304 tiles of 32 px, over the page's 1,024),
+// 4 passes of 1 sample per pixel: about 10 s on 2 cores. A 4K frame (8,160 tiles) takes
+// about 30 s here, mostly the server's PNG encodes: PREVIEW_LARGE_SIZE=3840x2160 runs it.
+const LARGE_SIZE = (process.env.PREVIEW_LARGE_SIZE || '2048x1152').split('x').map(Number);
+const LARGE_PASSES = 4;
 
 async function screenshot(page, name) {
   if (!shotDir) return;
@@ -92,6 +99,49 @@ const WORKERS = {
   ],
   results: { first: 0 },
 };
+
+// The spec of examples/preview_image.json at another size: 1 sample per pixel a pass
+// (independent samples: the sobol sampler's replicates make a pass at least K spp).
+async function sizedSpec(baseUrl, [w, h], tileSize, passes) {
+  const spec = await (await fetch(`${baseUrl}${EXAMPLE}`)).json();
+  spec.name = `${w}x${h}`;
+  spec.sampler = 'independent';
+  spec.scene.camera.resolution = [w, h];
+  spec.query.tile_size = tileSize;
+  spec.query.max_pass_spp = 1;
+  spec.stop = { max_samples: passes };
+  return spec;
+}
+
+// The page's canvas against the server's PNG of the job: the largest difference per
+// channel over `samples` pixels (all of them when 0) and how many of those are lit.
+async function canvasVsPng(page, baseUrl, id, samples = 0) {
+  const png = decodePng(Buffer.from(await (await fetch(`${baseUrl}/v1/jobs/${id}/image.png`)).arrayBuffer()));
+  const n = png.width * png.height;
+  const picks = [];
+  if (samples) {
+    let r = 12345;  // a fixed LCG: the same pixels every run
+    for (let i = 0; i < samples; ++i) { r = (r * 1103515245 + 12345) % 2147483648; picks.push(r % n); }
+    picks.push(0, png.width - 1, n - png.width, n - 1);  // the corners
+  }
+  const canvas = await page.evaluate((idx) => {
+    const c = document.getElementById('image');
+    const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    if (!idx.length) return { w: c.width, h: c.height, px: Array.from(d) };
+    const px = [];
+    for (const i of idx) px.push(d[4 * i], d[4 * i + 1], d[4 * i + 2], d[4 * i + 3]);
+    return { w: c.width, h: c.height, px };
+  }, picks);
+  assert.equal(canvas.w, png.width);
+  assert.equal(canvas.h, png.height);
+  const idx = samples ? picks : [...Array(n).keys()];
+  let worst = 0, lit = 0;
+  idx.forEach((p, k) => {
+    for (let c = 0; c < 3; ++c) worst = Math.max(worst, Math.abs(canvas.px[4 * k + c] - png.data[4 * p + c]));
+    if (png.data[4 * p] + png.data[4 * p + 1] + png.data[4 * p + 2] > 0) lit++;
+  });
+  return { worst, lit, count: idx.length, width: png.width, height: png.height };
+}
 
 function assertConsecutive(passes, finalPass) {
   assert.ok(passes.length > 0, 'no progress events seen');
@@ -571,6 +621,162 @@ describe('preview page', { concurrency: 1 }, () => {
     } finally {
       await page.close();
       await proxy.close();
+    }
+  });
+  test('a pass over more than 64 tiles sends one `tiles` event; the tile path fetches its tiles', async () => {
+    // 320×240 in 16 px tiles: 300 tiles (a small image: the tile path), all refined every pass.
+    const page = await browser.context.newPage();
+    const errors = [];
+    page.on('pageerror', (e) => errors.push(String(e)));
+    const pngRequests = [];
+    page.on('request', (r) => { if (/\/image\.png$/.test(new URL(r.url()).pathname)) pngRequests.push(r.url()); });
+    let id = null;
+    try {
+      await page.goto(`${server.url}/`);
+      await page.waitForSelector('#jobs-panel');
+      const sub = await call(server.url, 'POST', '/v1/jobs', await sizedSpec(server.url, [320, 240], 16, 3));
+      assert.equal(sub.status, 202);
+      id = sub.json.id;
+      await page.evaluate((j) => { location.hash = `#/jobs/${j}`; }, id);
+      await page.waitForFunction(() => window.tallyPreview.settled, null, { timeout: 60000 });
+      const status = (await call(server.url, 'GET', `/v1/jobs/${id}`)).json;
+      assert.equal(status.result.image.tiles, 300);
+      const h = await hook(page);
+      assert.equal(h.large, false);
+      assert.ok(h.tilesEvents >= 1, `tiles events: ${h.tilesEvents}`);
+      assert.equal(h.tileEvents, 0, 'no per-tile events above 64 tiles a pass');
+      // Every tile of a `tiles` event is fetched (plus a full draw when the page opened on
+      // a job that already had a pass), a tile at most once per flush.
+      assert.ok(h.tileFetches >= 300 && h.tileFetches <= 300 * (h.tilesEvents + 1), `tile fetches ${h.tileFetches}`);
+      assert.deepEqual(pngRequests, [], 'a small image is drawn from its tiles');
+      const cmp = await canvasVsPng(page, server.url, id);
+      assert.ok(cmp.lit > cmp.count / 4, `the image should not be mostly black (${cmp.lit} lit pixels)`);
+      assert.ok(cmp.worst <= 1, `canvas differs from the server's PNG by ${cmp.worst} levels`);
+      assert.deepEqual(errors, []);
+    } finally {
+      await page.close();
+      if (id) await removeJob(server.url, id);
+    }
+  });
+
+  test('a large image is drawn from image.png, fits, shows 1:1, pans, and the page stays responsive', async () => {
+    const t0 = Date.now();
+    const [W, H] = LARGE_SIZE;
+    const page = await browser.context.newPage();
+    const errors = [];
+    page.on('pageerror', (e) => errors.push(String(e)));
+    const requests = { png: 0, tiles: 0 };
+    page.on('request', (r) => {
+      const u = new URL(r.url()).pathname;
+      if (/\/image\.png$/.test(u)) requests.png++;
+      else if (/\/tiles\/\d+$/.test(u)) requests.tiles++;
+    });
+    // The longest main-thread task while the job runs (Long Tasks API: tasks over 50 ms).
+    await page.addInitScript(() => {
+      window.__longest = { ms: 0, supported: false };
+      if ((PerformanceObserver.supportedEntryTypes || []).includes('longtask')) {
+        window.__longest.supported = true;
+        new PerformanceObserver((list) => {
+          for (const e of list.getEntries()) window.__longest.ms = Math.max(window.__longest.ms, e.duration);
+        }).observe({ type: 'longtask' });
+      }
+    });
+    let id = null;
+    try {
+      await page.goto(`${server.url}/`);
+      await page.waitForSelector('#jobs-panel');
+      await page.evaluate(() => { window.__longest.ms = 0; });  // the page's own load does not count
+      const sub = await call(server.url, 'POST', '/v1/jobs', await sizedSpec(server.url, LARGE_SIZE, 32, LARGE_PASSES));
+      assert.equal(sub.status, 202, JSON.stringify(sub.json));
+      id = sub.json.id;
+      await page.evaluate((j) => { location.hash = `#/jobs/${j}`; }, id);
+
+      // While the job runs: a round trip into the page every 100 ms. A main thread busy
+      // with a long task (a JSON parse of thousands of tiles, a 33 MB getImageData) would
+      // hold it for seconds; drawing a decoded bitmap holds it for tens of ms.
+      let worstTrip = 0, trips = 0;
+      for (;;) {
+        const a = Date.now();
+        const h = await page.evaluate(() => ({ settled: window.tallyPreview.settled, draws: window.tallyPreview.imageDraws }));
+        worstTrip = Math.max(worstTrip, Date.now() - a);
+        trips++;
+        if (h.settled) break;
+        assert.ok(Date.now() - t0 < 120000, 'the large job should be drawn within 2 min');
+        await sleep(100);
+      }
+      const runMs = Date.now() - t0;
+
+      const status = (await call(server.url, 'GET', `/v1/jobs/${id}`)).json;
+      assert.equal(status.state, 'succeeded');
+      assert.ok(status.result.image.tiles > 1024, `${status.result.image.tiles} tiles`);
+      const h = await hook(page);
+      assert.equal(h.large, true);
+      assert.ok(h.tilesEvents >= 1, `tiles events: ${h.tilesEvents}`);
+      assert.equal(h.tileEvents, 0, 'a pass over the whole image sends one `tiles` event, no `tile` events');
+      assert.equal(requests.tiles, 0, 'no per-tile JSON for a large image');
+      assert.equal(h.tileFetches, 0);
+      assert.ok(requests.png >= 1 && requests.png <= status.passes + 2,
+        `image.png requests: ${requests.png} for ${status.passes} passes`);
+      assert.ok(h.imageDraws >= 1 && h.imageDraws <= requests.png);
+
+      // Responsive: the bound is generous (a 2-core machine that renders the job on both
+      // cores, in a headless browser without a GPU); the old tile path stalled for many
+      // seconds on this image.
+      const longest = await page.evaluate(() => window.__longest);
+      assert.ok(worstTrip < 1000, `a round trip into the page took ${worstTrip} ms`);
+      if (longest.supported) assert.ok(longest.ms < 1000, `the longest main-thread task took ${longest.ms} ms`);
+
+      // The standard-error map is off, and the page says so.
+      assert.equal(await page.isDisabled('#view-stderr'), true);
+      assert.match(await page.textContent('#large-note'), /standard-error map is not shown/);
+
+      // Fit (the default): the whole image within the panel and the window.
+      const geom = () => page.evaluate(() => {
+        const c = document.getElementById('image'), v = document.getElementById('image-view');
+        const r = c.getBoundingClientRect(), box = document.getElementById('image-box').getBoundingClientRect();
+        return { w: c.width, h: c.height, cw: r.width, ch: r.height, boxW: box.width, innerH: window.innerHeight,
+                 dpr: window.devicePixelRatio, left: v.scrollLeft, top: v.scrollTop,
+                 vw: v.clientWidth, vh: v.clientHeight, sw: v.scrollWidth, sh: v.scrollHeight,
+                 vr: v.getBoundingClientRect().toJSON() };
+      });
+      let g = await geom();
+      assert.equal(h.zoom, 'fit');
+      assert.deepEqual([g.w, g.h], [W, H], 'the canvas has the image\'s resolution');
+      assert.ok(g.cw <= g.boxW + 0.5 && g.ch <= 0.7 * g.innerH + 0.5, `fit: ${g.cw}×${g.ch} in ${g.boxW}×${0.7 * g.innerH}`);
+      assert.ok(Math.abs(g.cw / g.ch - W / H) < 0.01, 'fit keeps the aspect ratio');
+
+      // 1:1: one image pixel per device pixel, in a view that scrolls.
+      await page.click('#zoom-one');
+      g = await geom();
+      assert.equal((await hook(page)).zoom, '1:1');
+      assert.ok(Math.abs(g.cw * g.dpr - W) < 0.5 && Math.abs(g.ch * g.dpr - H) < 0.5, `1:1: ${g.cw}×${g.ch} at dpr ${g.dpr}`);
+      assert.ok(g.sw > g.vw && g.sh > g.vh, 'the view scrolls at 1:1');
+      assert.ok(g.vw <= g.boxW + 0.5, 'and stays inside the panel');
+      // A mouse drag pans: dragging left and up shows what lies right and below.
+      const before = { left: g.left, top: g.top };
+      const x = g.vr.x + g.vr.width / 2, y = g.vr.y + g.vr.height / 2;
+      await page.mouse.move(x, y);
+      await page.mouse.down();
+      await page.mouse.move(x - 120, y - 80, { steps: 5 });
+      await page.mouse.up();
+      g = await geom();
+      assert.ok(Math.abs(g.left - before.left - 120) <= 1 && Math.abs(g.top - before.top - 80) <= 1,
+        `the drag panned from ${JSON.stringify(before)} to ${g.left},${g.top}`);
+      await page.click('#zoom-fit');
+      g = await geom();
+      assert.ok(g.cw <= g.boxW + 0.5, 'back to fit');
+
+      // The final canvas is the server's PNG (±1 at 20,000 pixels and the corners).
+      const cmp = await canvasVsPng(page, server.url, id, 20000);
+      assert.ok(cmp.lit > cmp.count / 4, `the image should not be mostly black (${cmp.lit} of ${cmp.count} lit)`);
+      assert.ok(cmp.worst <= 1, `canvas differs from the server's PNG by ${cmp.worst} levels`);
+      assert.deepEqual(errors, []);
+      console.log(`# large image ${W}x${H}: ${status.passes} passes, ${requests.png} image.png requests, ` +
+        `job drawn in ${runMs} ms, worst round trip ${worstTrip} ms over ${trips}, ` +
+        `longest task ${longest.supported ? `${Math.round(longest.ms)} ms` : 'n/a'}, test ${Date.now() - t0} ms`);
+    } finally {
+      await page.close();
+      if (id) await removeJob(server.url, id);
     }
   });
 });
