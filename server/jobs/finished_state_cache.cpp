@@ -10,6 +10,11 @@ std::shared_ptr<const JobState> FinishedStateCache::get(const JobSnapshot& s) {
   if (!is_terminal(s.status) || !s.def || !s.facts) return nullptr;
   {
     std::lock_guard lock(mu_);
+    expire_locked();
+    if (oversize_ && oversize_->id == s.id && oversize_->version == s.version) {
+      oversize_used_ = std::chrono::steady_clock::now();
+      return oversize_->state;
+    }
     for (auto it = entries_.begin(); it != entries_.end(); ++it) {
       if (it->id == s.id && it->version == s.version) {
         entries_.splice(entries_.begin(), entries_, it);
@@ -51,6 +56,9 @@ std::shared_ptr<const JobState> FinishedStateCache::load(const JobSnapshot& s) {
       bytes_ -= entries_.back().bytes;
       entries_.pop_back();
     }
+  } else {
+    oversize_ = Entry{s.id, s.version, st, bytes};  // replaces the one before
+    oversize_used_ = std::chrono::steady_clock::now();
   }
   return st;
 }
@@ -60,7 +68,15 @@ void FinishedStateCache::erase(const std::string& id) {
   erase_locked(id);
 }
 
+void FinishedStateCache::expire_locked() const {
+  if (oversize_ && std::chrono::duration<double>(std::chrono::steady_clock::now() - oversize_used_).count() >=
+                       oversize_idle_s_) {
+    oversize_.reset();
+  }
+}
+
 void FinishedStateCache::erase_locked(const std::string& id) {
+  if (oversize_ && oversize_->id == id) oversize_.reset();
   for (auto it = entries_.begin(); it != entries_.end();) {
     if (it->id == id) {
       bytes_ -= it->bytes;
@@ -73,7 +89,8 @@ void FinishedStateCache::erase_locked(const std::string& id) {
 
 uint64_t FinishedStateCache::bytes() const {
   std::lock_guard lock(mu_);
-  return bytes_;
+  expire_locked();
+  return bytes_ + (oversize_ ? oversize_->bytes : 0);
 }
 
 uint64_t FinishedStateCache::loads() const {

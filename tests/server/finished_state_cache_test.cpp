@@ -6,6 +6,9 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
+#include <thread>
+
 #include "common/engine/checkpoint.hpp"
 #include "fake_job.hpp"
 #include "server/jobs/admission.hpp"
@@ -91,10 +94,42 @@ TEST(FinishedStateCache, EvictsLeastRecentlyUsedBeyondCapacity) {
   EXPECT_EQ(f.store.reads, 3);
   cache.get(b);
   EXPECT_EQ(f.store.reads, 4);
-  // A state larger than the whole cache is served but not kept.
-  FinishedStateCache tiny(f.store, f.one() - 1);
+  // A state larger than the whole cache is served, and not kept once idle.
+  FinishedStateCache tiny(f.store, f.one() - 1, 0.0);
   EXPECT_TRUE(tiny.get(a));
   EXPECT_EQ(tiny.bytes(), 0u);
+}
+
+// A state over the whole capacity (a 4K frame's against 256 MiB) is kept alone while it
+// is read: a run of tile reads decodes it once. Another oversize state replaces it; it
+// goes once idle; the capacity still bounds the others.
+TEST(FinishedStateCache, AStateOverTheCapacityIsKeptWhileItIsRead) {
+  Fixture f;
+  FinishedStateCache cache(f.store, f.one() - 1, 3600);
+  const JobSnapshot a = f.finished("a", 1, 1.0), b = f.finished("b", 1, 2.0);
+  const auto s1 = cache.get(a);
+  ASSERT_TRUE(s1);
+  for (int i = 0; i < 100; ++i) EXPECT_EQ(cache.get(a).get(), s1.get());
+  EXPECT_EQ(f.store.reads, 1);
+  EXPECT_EQ(cache.bytes(), f.one());
+  const auto s2 = cache.get(b);  // replaces a
+  ASSERT_TRUE(s2);
+  EXPECT_EQ(s2->channels[0].mean, 2.0);
+  EXPECT_EQ(cache.bytes(), f.one());
+  EXPECT_EQ(cache.get(b).get(), s2.get());
+  EXPECT_EQ(f.store.reads, 2);
+  cache.get(a);
+  EXPECT_EQ(f.store.reads, 3);
+  cache.erase("a");  // deleted: its state goes at once
+  EXPECT_EQ(cache.bytes(), 0u);
+
+  FinishedStateCache idle(f.store, f.one() - 1, 0.05);
+  ASSERT_TRUE(idle.get(a));
+  std::this_thread::sleep_for(std::chrono::milliseconds(120));
+  EXPECT_EQ(idle.bytes(), 0u) << "idle past oversize_idle_s";
+  const int before = f.store.reads;
+  ASSERT_TRUE(idle.get(a));
+  EXPECT_EQ(f.store.reads, before + 1);
 }
 
 TEST(FinishedStateCache, UnfinishedMissingOrMismatchedStatesAreNotServed) {
