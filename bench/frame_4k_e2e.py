@@ -382,9 +382,13 @@ def run(a, server_bin, client_bin, w, h, tmp, servers, t_begin):
           f"{a.workers} workers, --checkpoint-interval {a.checkpoint_interval}, data in {data}")
 
     # ---- run 1: submit, wait for a stored checkpoint mid-way, kill -9
-    s1 = Server("run1", server_bin, data, a.workers, a.checkpoint_interval, os.path.join(tmp, "server1.log"))
-    servers.append(s1)
-    s1.wait_ready()
+    def start(name):  # a server on the same data dir; killed in the finally below
+        srv = Server(name, server_bin, data, a.workers, a.checkpoint_interval, os.path.join(tmp, f"{name}.log"))
+        servers.append(srv)
+        srv.wait_ready()
+        return srv
+
+    s1 = start("run1")
     t_submit = time.monotonic()
     T0[0] = t_submit
     sub = subprocess.run([client_bin, "submit", "--no-predict", spec_path, "--server", s1.url],
@@ -461,9 +465,7 @@ def run(a, server_bin, client_bin, w, h, tmp, servers, t_begin):
           f"job at {samples_at_kill} spp, {passes_at_kill} passes")
 
     # ---- run 2: restart on the same data dir, resume, finish
-    s2 = Server("run2", server_bin, data, a.workers, a.checkpoint_interval, os.path.join(tmp, "server2.log"))
-    servers.append(s2)
-    s2.wait_ready()
+    s2 = start("run2")
     hwm_ready2 = s2.peak_rss_kb()
     note(f"run2: ready (port file written) after {s2.ready_s:.2f} s")
     first = s2.status(job)

@@ -176,9 +176,17 @@ void write_exr_file(const ImageSource& source, const JobState& state, const nloh
                        &error) != 0) {
     std::error_code ignored;
     std::filesystem::remove(part, ignored);
-    throw std::runtime_error(strips.error.empty() ? error : error + ": " + strips.error);
+    // Named by the path asked for: the .part file is this function's own business.
+    throw std::runtime_error("cannot write " + path.string() + ": " +
+                             (strips.error.empty() ? error : error + ": " + strips.error));
   }
-  std::filesystem::rename(part, path);
+  std::error_code ec;
+  std::filesystem::rename(part, path, ec);
+  if (ec) {
+    std::error_code ignored;
+    std::filesystem::remove(part, ignored);
+    throw std::runtime_error("cannot write " + path.string() + ": " + ec.message());
+  }
 }
 
 std::string encode_png(const ImageSnapshot& im) {

@@ -192,9 +192,18 @@ TEST(ImageIo, ExrFileWrittenByStripsIsEncodeExrsBytes) {
     ADD_FAILURE() << "a failing strip was written";
   } catch (const std::runtime_error& e) {
     EXPECT_NE(std::string(e.what()).find("row 10 is unreadable"), std::string::npos) << e.what();
+    EXPECT_EQ(std::string(e.what()).rfind("cannot write " + (dir / "b.exr").string() + ": ", 0), 0u) << e.what();
   }
   EXPECT_FALSE(std::filesystem::exists(dir / "b.exr"));
   EXPECT_FALSE(std::filesystem::exists(dir / "b.exr.part"));
+  // A path that cannot be written (its folder is missing): named as asked, not as .part.
+  try {
+    write_exr_file(source, JobState{}, meta, dir / "missing" / "c.exr", 3);
+    ADD_FAILURE() << "a file was written into a missing folder";
+  } catch (const std::runtime_error& e) {
+    EXPECT_EQ(std::string(e.what()).rfind("cannot write " + (dir / "missing" / "c.exr").string() + ": ", 0), 0u)
+        << e.what();
+  }
   std::filesystem::remove_all(dir);
 }
 
