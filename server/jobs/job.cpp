@@ -60,6 +60,8 @@ JobSnapshot Job::snapshot_locked(bool with_runner) const {
   s.last_event_id = events_.last_id();
   if (!runner_) {
     published_.reset();
+    idle_engine_.reset();
+    idle_facts_.reset();
     s.facts = facts_;
     return s;
   }
@@ -76,12 +78,14 @@ JobSnapshot Job::snapshot_locked(bool with_runner) const {
       s.facts = facts_;
       return s;
     }
-    if (!is_terminal(status_)) {
-      // No pass of this process has published views yet (resumed from a checkpoint at
-      // start, or queued again after a pause): the figures from the runner itself. A copy
-      // of the runner here (below) was a second copy of a 4K frame's state, made by the
-      // first status read after a restart and kept until the job ended.
-      s.facts = std::make_shared<const RunFacts>(live_run_facts(*runner_));
+    if (!is_terminal(status_) && def_) {
+      // No pass views of this process at this version (resumed from a checkpoint at start,
+      // or paused and queued): the documents from the runner itself, once per version. A
+      // copy of the runner here (below) was a second copy of a 4K frame's state, made by
+      // the first status read after a restart and kept until the job ended.
+      if (idle_version_ != version_ || !idle_engine_) build_idle_views_locked();
+      if (!s.engine) s.engine = idle_engine_;
+      s.facts = idle_facts_;
       return s;
     }
   }
@@ -95,6 +99,12 @@ JobSnapshot Job::snapshot_locked(bool with_runner) const {
   return s;
 }
 
+
+void Job::build_idle_views_locked() const {
+  idle_engine_ = std::make_shared<const nlohmann::json>(engine_json(*def_, *runner_));
+  idle_facts_ = std::make_shared<const RunFacts>(live_run_facts(*runner_));
+  idle_version_ = version_;
+}
 
 // ---------------------------------------------------------------- events and ending
 

@@ -188,6 +188,13 @@ class Job : public std::enable_shared_from_this<Job> {
   uint64_t version_ = 1;  // bumped on every change: keys snapshots, the status cache and saves
   mutable std::shared_ptr<const JobRunner> published_;  // copy of runner_ at published_version_
   mutable uint64_t published_version_ = 0;
+  // The documents of a job with a runner but no pass views of this process at its version
+  // (resumed at start, paused and queued): built from runner_ under mu_ once per version,
+  // without copying its state (snapshot_locked).
+  void build_idle_views_locked() const;
+  mutable std::shared_ptr<const nlohmann::json> idle_engine_;
+  mutable std::shared_ptr<const RunFacts> idle_facts_;
+  mutable uint64_t idle_version_ = 0;
   // The data of a watcher snapshot's progress event, built once per version off
   // the I/O threads (on_pass_done, finish) and shared by every watcher.
   mutable std::shared_ptr<const std::string> watch_progress_;

@@ -1,11 +1,7 @@
 #include "server/jobs/job_recorder.hpp"
 
 #include <fmt/format.h>
-#include <sys/resource.h>
-#include <unistd.h>
 
-#include <cerrno>
-#include <cstring>
 
 #include "common/engine/checkpoint.hpp"
 #include "common/log/log.hpp"
@@ -161,12 +157,11 @@ void JobRecorder::checkpoint_later(const std::shared_ptr<Job>& job) {
 }
 
 void JobRecorder::write_checkpoints(std::stop_token st) {
-  // Background work: below the request threads and the workers (Linux: per thread), so
-  // encoding a big image's checkpoint never delays a response; a checkpoint due while
-  // this one is still being written is skipped, and the final save is synchronous.
-  if (::setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), 10) != 0) {
-    log::warn("cannot lower the checkpoint thread's priority: {}", std::strerror(errno));
-  }
+  // At the workers' priority, not below it: at nice 10 a 4K frame's checkpoint (0.8 GB)
+  // got ~5% of a core beside two busy workers and landed only after the job's last pass
+  // (bench/frame_4k_e2e.py: 38 s for what takes 6.5 s on an idle core), so a crash lost
+  // the whole job. Now it takes its share for the few seconds it runs. A checkpoint due
+  // while this one is still being written is skipped; the final save is synchronous.
   std::unique_lock lock(checkpoint_mu_);
   for (;;) {
     checkpoint_cv_.wait(lock, st, [&] { return !checkpoints_.empty(); });
@@ -363,6 +358,7 @@ JobRecorder::Recovered JobRecorder::recover() {
       } else if (row.checkpoint) {
         JobState st = decode_checkpoint(*row.checkpoint);
         job->runner_ = std::make_unique<JobRunner>(job->def_->kernel(), rule, limits_.caps(), std::move(st));
+        job->build_idle_views_locked();  // here, not in the first status read (seconds at 4K)
       } else {
         // Queued and never started: its state is allocated when it starts.
         job->facts_ = std::make_shared<const RunFacts>(fresh_run_facts(rule));
