@@ -110,11 +110,7 @@ class Previewer {
   void on_event(const SseEvent& e) {
     if (e.event == "tile") {
       const json d = json::parse(e.data);
-      const uint32_t t = d.at("tile").get<uint32_t>();
-      const uint64_t pass = d.value("pass", uint64_t{0});
-      dirty_[t] = pass;
-      last_refined_[t] = pass;
-      if (!first_tile_) first_tile_ = Clock::now();
+      mark(d.at("tile").get<uint32_t>(), d.value("pass", uint64_t{0}));
     } else if (e.event == "tiles") {
       // A pass that refined more tiles than the server announces one by one (a 4K
       // frame's 8,160): every tile from `first` to `last` is marked, a superset of them.
@@ -122,11 +118,7 @@ class Previewer {
       const uint32_t first = d.at("first").get<uint32_t>();
       const uint32_t last = std::min(d.at("last").get<uint32_t>(), tile_count_ ? tile_count_ - 1 : 0u);
       const uint64_t pass = d.value("pass", uint64_t{0});
-      for (uint32_t t = first; t <= last; ++t) {
-        dirty_[t] = pass;
-        last_refined_[t] = pass;
-      }
-      if (!first_tile_) first_tile_ = Clock::now();
+      for (uint32_t t = first; t <= last; ++t) mark(t, pass);
     } else if (e.event == "progress") {
       const json d = json::parse(e.data);
       pass_ = d.value("pass", d.value("passes", pass_));
@@ -177,6 +169,13 @@ class Previewer {
       }
     }
     bridge_.set_refining(refining);
+  }
+
+  // Tile t changed in `pass`: fetched at the next flush.
+  void mark(uint32_t t, uint64_t pass) {
+    dirty_[t] = pass;
+    last_refined_[t] = pass;
+    if (!first_tile_) first_tile_ = Clock::now();
   }
 
   bool ended() const { return ended_; }

@@ -71,8 +71,14 @@ HttpResponse RequestHandler::job_image(const ApiRequest& req, const PathParams& 
   static std::atomic<uint64_t> serial{0};
   const std::filesystem::path path = std::filesystem::temp_directory_path() /
                                      fmt::format("tally-{}-{}-{}.exr", ::getpid(), s.id, serial.fetch_add(1));
-  config_.images.exr_file(img, *state, meta, path);
-  r.stream = std::make_shared<FileBodyStream>(path);
+  try {
+    config_.images.exr_file(img, *state, meta, path);
+    r.stream = std::make_shared<FileBodyStream>(path);  // unlinks it
+  } catch (...) {
+    std::error_code ignored;
+    std::filesystem::remove(path, ignored);  // written but not opened: not left in the temp dir
+    throw;
+  }
   return r;
 }
 

@@ -2,7 +2,6 @@
 
 #include <fmt/format.h>
 
-
 #include "common/engine/checkpoint.hpp"
 #include "common/log/log.hpp"
 #include "common/protocol/job_json.hpp"
