@@ -6,7 +6,7 @@ wrong EXR).
 
     python3 bench/frame_4k_e2e.py [--build build] [--server-bin P] [--client-bin P]
         [--resolution 3840x2160] [--spp 16] [--workers 2] [--checkpoint-interval 0.5]
-        [--kill-delay 0] [--keep]
+        [--kill-delay 0] [--keep] [--cluster [--worker-bin P] [--redis-bin P]]
 
 1. `scripts/gltf_example.py DIR` writes cornell.gltf + cornell.bin; the spec is
    examples/gltf_cornell.json with `"resolution"` set and `"stop": {"max_samples": SPP}`,
@@ -32,6 +32,15 @@ wrong EXR).
    /metrics adds the scene), ratios, and a timeline (status changes, checkpoints, the
    peak's growth, any GET over 1 s).
 
+With --cluster the same flow runs through cluster mode (docs/cluster.md): redis-server on a
+Unix socket in the temp dir (no TCP port, no persistence, noeviction), tally-server
+--redis as the coordinator (it computes nothing itself; --workers only sizes a validate
+pilot, which --no-predict skips) and one tally-worker --threads WORKERS. Only the
+coordinator is killed and restarted; the worker and Redis keep running. It also prints
+the worker's and redis-server's peak RSS (VmHWM; for Redis also INFO's used_memory_peak)
+at the kill, at the job's end and after the EXR, /v1/workers' counters, and their
+ratios to job_state_bytes; both are stopped with SIGTERM (then SIGKILL after 15 s).
+
 Needs about 4 GB of memory and 2 GB of disk in $TMPDIR at 3840x2160 (docs/performance.md,
 "A 4K frame through the server, killed mid-way").
 """
@@ -41,6 +50,7 @@ import json
 import os
 import shutil
 import signal
+import socket
 import sqlite3
 import struct
 import subprocess
@@ -83,28 +93,107 @@ def wait_for(what, timeout, poll, step):
         time.sleep(poll)
 
 
-class Server:
-    """One tally-server process and a thread that polls its /proc entry."""
+class Proc:
+    """A child process and a thread that polls its /proc entry every 20 ms: VmHWM (the
+    kernel's peak RSS, so exact whenever it is read while the process lives), VmRSS, and
+    whatever _poll_more() adds."""
 
-    def __init__(self, name, binary, data_dir, workers, checkpoint_interval, log_path):
+    def __init__(self, name, args, log_path):
         self.name = name
-        self.data_dir = data_dir
         self.log_path = log_path
-        self.port_file = port_file = os.path.join(os.path.dirname(data_dir), f"port-{name}")
-        if os.path.exists(port_file):
-            os.unlink(port_file)
-        args = [binary, "--listen", "127.0.0.1:0", "--data-dir", data_dir, "--port-file", port_file,
-                "--workers", str(workers), "--checkpoint-interval", str(checkpoint_interval)]
         self.log = open(log_path, "w")
         self.t_start = time.monotonic()
         self.proc = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
         self.hwm_kb = 0
         self.noted_hwm_kb = 0
         self.rss_kb = 0
-        self.spools = []  # [start, end or None, max bytes seen], monotonic seconds
         self._stop = threading.Event()
         self._mon = threading.Thread(target=self._monitor, daemon=True)
         self._mon.start()
+
+    def _read_status(self):
+        hwm = rss = None
+        with open(f"/proc/{self.proc.pid}/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    hwm = int(line.split()[1])
+                elif line.startswith("VmRSS:"):
+                    rss = int(line.split()[1])
+        if hwm is not None:
+            self.hwm_kb = max(self.hwm_kb, hwm)
+            if hwm > self.noted_hwm_kb * 1.1 + 32 * 1024:  # the peak's growth, in the timeline
+                self.noted_hwm_kb = hwm
+                note(f"{self.name}: VmHWM {hwm / 1024:.0f} MiB")
+        if rss is not None:
+            self.rss_kb = rss
+
+    def _poll_more(self):
+        pass
+
+    def _monitor(self):
+        while not self._stop.is_set() and self.proc.poll() is None:
+            try:
+                self._read_status()
+                self._poll_more()
+            except (OSError, ValueError):
+                break  # the process is gone
+            time.sleep(0.02)
+
+    def peak_rss_kb(self):
+        """VmHWM now (the process must be alive), merged with what the monitor saw."""
+        try:
+            self._read_status()
+        except (OSError, ValueError):
+            pass
+        return self.hwm_kb
+
+    def log_lines(self, *needles):
+        with open(self.log_path) as f:
+            return [line.rstrip() for line in f if any(n in line for n in needles)]
+
+    def alive(self):
+        return self.proc.poll() is None
+
+    def _ended(self):
+        self._stop.set()
+        self._mon.join(timeout=5)
+        self.log.close()
+
+    def kill9(self):
+        if self.proc.poll() is None:
+            os.kill(self.proc.pid, signal.SIGKILL)
+        self.proc.wait(timeout=30)
+        self._ended()
+
+    def stop(self, timeout=15):
+        """SIGTERM, then SIGKILL if it has not exited within `timeout` seconds; its exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                print(f"({self.name} did not exit {timeout:.0f} s after SIGTERM: kill -9)")
+                self.proc.kill()
+                self.proc.wait(timeout=30)
+        self._ended()
+        return self.proc.returncode
+
+
+class Server(Proc):
+    """One tally-server process (in process, or the coordinator with --redis), its /proc
+    entry polled for the peak and for the checkpoint's spool file."""
+
+    def __init__(self, name, binary, data_dir, workers, checkpoint_interval, log_path, redis_url=None):
+        self.data_dir = data_dir
+        self.port_file = port_file = os.path.join(os.path.dirname(data_dir), f"port-{name}")
+        if os.path.exists(port_file):
+            os.unlink(port_file)
+        args = [binary, "--listen", "127.0.0.1:0", "--data-dir", data_dir, "--port-file", port_file,
+                "--workers", str(workers), "--checkpoint-interval", str(checkpoint_interval)]
+        if redis_url:
+            args += ["--redis", redis_url]
+        self.spools = []  # [start, end or None, max bytes seen], monotonic seconds
+        super().__init__(name, args, log_path)
 
     def wait_ready(self):
         """Until the port file is written (the server writes it once jobs are recovered)."""
@@ -124,22 +213,6 @@ class Server:
         self.ready_s = time.monotonic() - self.t_start
         self.url = f"http://127.0.0.1:{self.port}"
 
-    def _read_status(self):
-        hwm = rss = None
-        with open(f"/proc/{self.proc.pid}/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    hwm = int(line.split()[1])
-                elif line.startswith("VmRSS:"):
-                    rss = int(line.split()[1])
-        if hwm is not None:
-            self.hwm_kb = max(self.hwm_kb, hwm)
-            if hwm > self.noted_hwm_kb * 1.1 + 32 * 1024:  # the peak's growth, in the timeline
-                self.noted_hwm_kb = hwm
-                note(f"{self.name}: VmHWM {hwm / 1024:.0f} MiB")
-        if rss is not None:
-            self.rss_kb = rss
-
     def _spool_sizes(self):
         fd_dir = f"/proc/{self.proc.pid}/fd"
         sizes = []
@@ -155,44 +228,18 @@ class Server:
                     sizes.append(0)
         return sizes
 
-    def _monitor(self):
-        while not self._stop.is_set() and self.proc.poll() is None:
-            try:
-                self._read_status()
-                sizes = self._spool_sizes()
-            except (OSError, ValueError):
-                break  # the process is gone
-            now = time.monotonic()
-            open_spool = self.spools and self.spools[-1][1] is None
-            if sizes and not open_spool:
-                self.spools.append([now, None, max(sizes)])
-                note(f"{self.name}: checkpoint spool opened", now)
-            elif sizes and open_spool:
-                self.spools[-1][2] = max(self.spools[-1][2], max(sizes))
-            elif not sizes and open_spool:
-                self.spools[-1][1] = now
-                note(f"{self.name}: checkpoint spool closed ({self.spools[-1][2] / MB:.1f} MB spooled)", now)
-            time.sleep(0.02)
-
-    def peak_rss_kb(self):
-        """VmHWM now (the process must be alive), merged with what the monitor saw."""
-        try:
-            self._read_status()
-        except OSError:
-            pass
-        return self.hwm_kb
-
-    def kill9(self):
-        if self.proc.poll() is None:
-            os.kill(self.proc.pid, signal.SIGKILL)
-        self.proc.wait(timeout=30)
-        self._stop.set()
-        self._mon.join(timeout=5)
-        self.log.close()
-
-    def log_lines(self, *needles):
-        with open(self.log_path) as f:
-            return [line.rstrip() for line in f if any(n in line for n in needles)]
+    def _poll_more(self):
+        sizes = self._spool_sizes()
+        now = time.monotonic()
+        open_spool = self.spools and self.spools[-1][1] is None
+        if sizes and not open_spool:
+            self.spools.append([now, None, max(sizes)])
+            note(f"{self.name}: checkpoint spool opened", now)
+        elif sizes and open_spool:
+            self.spools[-1][2] = max(self.spools[-1][2], max(sizes))
+        elif not sizes and open_spool:
+            self.spools[-1][1] = now
+            note(f"{self.name}: checkpoint spool closed ({self.spools[-1][2] / MB:.1f} MB spooled)", now)
 
     # HTTP
     def get(self, path, timeout=60):
@@ -212,6 +259,61 @@ class Server:
             if line.startswith(name + " ") or line.startswith(name + "{"):
                 return float(line.rsplit(" ", 1)[1])
         return None
+
+
+class Redis(Proc):
+    """redis-server on a Unix socket only (no TCP port), no persistence, noeviction
+    (docs/cluster.md)."""
+
+    def __init__(self, binary, sock, log_path):
+        self.sock = sock
+        super().__init__("redis", [binary, "--port", "0", "--unixsocket", sock, "--save", "", "--appendonly", "no",
+                                   "--maxmemory-policy", "noeviction"], log_path)
+
+    def wait_ready(self):
+        def pong():
+            if self.proc.poll() is not None:
+                raise Failed(f"redis-server exited with {self.proc.returncode}; see {self.log_path}")
+            try:
+                return redis_call(self.sock, "PING", timeout=1)
+            except OSError:
+                return None
+
+        wait_for("redis-server's PONG", 30, 0.05, pong)
+
+    def info(self, section="memory"):
+        """INFO SECTION as a dict of strings; {} when Redis does not answer."""
+        try:
+            text = redis_call(self.sock, "INFO", section)
+        except (OSError, Failed):
+            return {}
+        return dict(line.split(":", 1) for line in text.splitlines() if ":" in line and not line.startswith("#"))
+
+
+def redis_call(sock_path, *args, timeout=10):
+    """One command over Redis's Unix socket (RESP2): a simple or bulk string or an integer
+    reply. OSError when Redis cannot be reached, Failed on an error reply."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as c:
+        c.settimeout(timeout)
+        c.connect(sock_path)
+        req = [f"*{len(args)}\r\n".encode()]
+        for arg in args:
+            b = arg.encode()
+            req.append(f"${len(b)}\r\n".encode() + b + b"\r\n")
+        c.sendall(b"".join(req))
+        f = c.makefile("rb")
+        line = f.readline()
+        if not line:
+            raise OSError("redis-server closed the connection")
+        kind, rest = line[:1], line[1:].rstrip(b"\r\n")
+        if kind == b"+":
+            return rest.decode()
+        if kind == b":":
+            return int(rest)
+        if kind == b"$":
+            n = int(rest)
+            return None if n < 0 else f.read(n + 2)[:n].decode()
+        raise Failed(f"redis-server answered {line.decode(errors='replace').strip()}")
 
 
 def stored_checkpoint(db_path, job):
@@ -329,17 +431,25 @@ def main():
                     help="seconds after the checkpoint is stored before kill -9")
     ap.add_argument("--timeout", type=float, default=1800, help="bound on each wait (seconds)")
     ap.add_argument("--keep", action="store_true", help="keep the temp dir (data dir, logs, EXR)")
+    ap.add_argument("--cluster", action="store_true",
+                    help="cluster mode: redis-server on a Unix socket in the temp dir, tally-server --redis (the "
+                         "coordinator, computing nothing itself) and one tally-worker --threads WORKERS, which "
+                         "keeps running across the coordinator's kill -9 and restart")
+    ap.add_argument("--worker-bin", help="default: BUILD/server/cluster/tally-worker (with --cluster)")
+    ap.add_argument("--redis-bin", default="redis-server", help="redis-server (with --cluster)")
     a = ap.parse_args()
     server_bin = a.server_bin or os.path.join(a.build, "server", "tally-server")
     client_bin = a.client_bin or os.path.join(a.build, "client", "tally")
+    a.worker_bin = a.worker_bin or os.path.join(a.build, "server", "cluster", "tally-worker")
     w, h = (int(v) for v in a.resolution.lower().split("x"))
 
     tmp = tempfile.mkdtemp(prefix="frame4k-")
-    servers = []
+    servers = []  # tally-server runs, killed with kill -9 at the end
+    helpers = []  # with --cluster: redis-server, then tally-worker; stopped (SIGTERM, bounded) in reverse
     t_begin = time.monotonic()
     ok = False
     try:
-        ok = run(a, server_bin, client_bin, w, h, tmp, servers, t_begin)
+        ok = run(a, server_bin, client_bin, w, h, tmp, servers, helpers, t_begin)
     except Failed as e:
         print(f"FAILED: {e}")
     finally:
@@ -348,11 +458,16 @@ def main():
                 s.kill9()
             except Exception as e:  # noqa: BLE001 - keep killing the others
                 print(f"(killing {s.name}: {e})")
+        for p in reversed(helpers):
+            try:
+                p.stop()
+            except Exception as e:  # noqa: BLE001 - keep stopping the others
+                print(f"(stopping {p.name}: {e})")
         print("timeline (seconds after submit)")
         for at, what in sorted(TIMELINE):
             print(f"  {at - T0[0]:8.2f}  {what}")
         if not ok:
-            for s in servers:
+            for s in servers + helpers:
                 print(f"--- tail of {s.log_path}")
                 with open(s.log_path) as f:
                     print("".join(f.readlines()[-15:]), end="")
@@ -363,7 +478,7 @@ def main():
     return 0 if ok else 1
 
 
-def run(a, server_bin, client_bin, w, h, tmp, servers, t_begin):
+def run(a, server_bin, client_bin, w, h, tmp, servers, helpers, t_begin):
     assets = os.path.join(tmp, "assets")
     data = os.path.join(tmp, "data")
     subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "gltf_example.py"), assets],
@@ -378,17 +493,36 @@ def run(a, server_bin, client_bin, w, h, tmp, servers, t_begin):
         json.dump(spec, f, indent=1)
     pixels = w * h
     load0 = os.getloadavg()
+    mode = (f"cluster: redis-server on a Unix socket, tally-server --redis, one tally-worker --threads {a.workers}"
+            if a.cluster else f"{a.workers} workers")
     print(f"frame_4k_e2e: examples/gltf_cornell.json at {w}x{h}, stop max_samples {a.spp}, "
-          f"{a.workers} workers, --checkpoint-interval {a.checkpoint_interval}, data in {data}")
+          f"{mode}, --checkpoint-interval {a.checkpoint_interval}, data in {data}")
+
+    redis = worker = redis_url = None
+    if a.cluster:
+        sock = os.path.join(tmp, "redis.sock")
+        if len(sock) > 100:
+            raise Failed(f"the Redis socket path {sock} is too long for a Unix socket: set a shorter TMPDIR")
+        if not shutil.which(a.redis_bin):
+            raise Failed(f"{a.redis_bin} not found (Debian: apt-get install redis-server)")
+        redis = Redis(a.redis_bin, sock, os.path.join(tmp, "redis.log"))
+        helpers.append(redis)
+        redis.wait_ready()
+        redis_url = "unix://" + sock
 
     # ---- run 1: submit, wait for a stored checkpoint mid-way, kill -9
     def start(name):  # a server on the same data dir; killed in the finally below
-        srv = Server(name, server_bin, data, a.workers, a.checkpoint_interval, os.path.join(tmp, f"{name}.log"))
+        srv = Server(name, server_bin, data, a.workers, a.checkpoint_interval, os.path.join(tmp, f"{name}.log"),
+                     redis_url)
         servers.append(srv)
         srv.wait_ready()
         return srv
 
     s1 = start("run1")
+    if a.cluster:  # one worker for the whole job: it keeps running across the coordinator's restart
+        worker = Proc("worker", [a.worker_bin, "--redis", redis_url, "--threads", str(a.workers), "--name", "w1",
+                                 "--cache-dir", os.path.join(tmp, "worker-cache")], os.path.join(tmp, "worker.log"))
+        helpers.append(worker)
     t_submit = time.monotonic()
     T0[0] = t_submit
     sub = subprocess.run([client_bin, "submit", "--no-predict", spec_path, "--server", s1.url],
@@ -434,7 +568,26 @@ def run(a, server_bin, client_bin, w, h, tmp, servers, t_begin):
             out.append(line)
         return out
 
+    def helpers_alive():
+        for p in helpers:
+            if not p.alive():
+                raise Failed(f"{p.name} exited with {p.proc.returncode}; see {p.log_path}")
+
+    cluster_at = {}  # with --cluster: what the helpers and /v1/workers say at the kill and at the job's end
+
+    def cluster_figures(server, when):
+        if not a.cluster:
+            return
+        helpers_alive()
+        try:
+            workers = json.loads(server.get("/v1/workers"))
+        except (OSError, ValueError) as e:
+            workers = {"error": str(e)}
+        cluster_at[when] = {"worker_kb": worker.peak_rss_kb(), "redis_kb": redis.peak_rss_kb(),
+                            "redis_info": redis.info("memory"), "workers": workers}
+
     def checkpoint_mid_way():
+        helpers_alive()
         st = s1.status(job)
         track(s1, st)
         if st["state"] not in ("queued", "running"):
@@ -457,6 +610,7 @@ def run(a, server_bin, client_bin, w, h, tmp, servers, t_begin):
     samples_at_kill, passes_at_kill = st.get("samples", 0), st.get("passes", 0)
     pieces, ckpt_bytes = stored_checkpoint(db, job) or (pieces, ckpt_bytes)  # the one the restart will read
     peak1 = s1.peak_rss_kb()
+    cluster_figures(s1, "kill")
     disk1 = disk_bytes(data)
     t_kill = time.monotonic() - t_submit
     s1.kill9()
@@ -481,6 +635,7 @@ def run(a, server_bin, client_bin, w, h, tmp, servers, t_begin):
                      f"{first.get('samples')} samples)")
 
     def done():
+        helpers_alive()
         st = s2.status(job)
         track(s2, st)
         used = s2.metric("tally_memory_used_bytes")
@@ -493,6 +648,7 @@ def run(a, server_bin, client_bin, w, h, tmp, servers, t_begin):
     final = wait_for("the resumed job to finish", a.timeout, 0.5, done)
     t_done = time.monotonic() - t_submit
     hwm_done2 = s2.peak_rss_kb()
+    cluster_figures(s2, "end")
     if final["state"] != "succeeded":
         raise Failed(f"the job ended {final['state']}: {final.get('error_message')}")
     # The final save (with its checkpoint) is stored before the job reads as finished;
@@ -508,6 +664,11 @@ def run(a, server_bin, client_bin, w, h, tmp, servers, t_begin):
         shutil.copyfileobj(r, f, 1 << 20)
     t_exr = time.monotonic() - t0
     hwm_exr2 = s2.peak_rss_kb()
+    cluster_figures(s2, "exr")
+    worker_exit = redis_exit = None
+    if a.cluster:  # both ran the whole job; their peaks are read above, while they live
+        worker_exit = worker.stop()
+        redis_exit = redis.stop()
     exr_bytes = os.path.getsize(exr)
     hd = exr_header(exr)
     x0, y0, x1, y1 = hd["window"]
@@ -542,7 +703,8 @@ def run(a, server_bin, client_bin, w, h, tmp, servers, t_begin):
           f"{final['plan']['image']['tiles']} tiles): {fmt_bytes(jsb)}, {jsb / pixels:.1f} B/pixel; "
           f"tally_memory_used_bytes while it ran (the state and the scene the budget charges): {fmt_bytes(used)}")
     print()
-    print("run 1 (killed)")
+    role = "the coordinator, tally-server --redis" if a.cluster else "tally-server"
+    print(f"run 1 (killed; {role})")
     print(f"  peak RSS (VmHWM just before kill -9): {peak1 * 1024:,} B ({peak1 / 1024:.1f} MiB), "
           f"{peak1 * 1024 / pixels:.1f} B/pixel")
     print(f"  checkpoint stored: {pieces} pieces, {fmt_bytes(ckpt_bytes)}, {ckpt_bytes / pixels:.1f} B/pixel")
@@ -555,7 +717,7 @@ def run(a, server_bin, client_bin, w, h, tmp, servers, t_begin):
           "checkpoint is lost" + ("; a later save (the next checkpoint or the final one) was being written at the kill"
                                   if s1.spools and s1.spools[-1][1] is None else ""))
     print()
-    print("run 2 (restarted on the same data dir)")
+    print(f"run 2 (restarted on the same data dir{' and Redis' if a.cluster else ''}; {role})")
     print(f"  ready (recovery: checkpoint read back) in {s2.ready_s:.2f} s; VmHWM then {hwm_ready2 / 1024:.1f} MiB")
     print(f"  samples at resume: {resumed_samples} spp (server log), status {first.get('samples')} spp, "
           f"{first.get('passes')} passes -> resumed, not restarted from 0: yes"
@@ -573,10 +735,33 @@ def run(a, server_bin, client_bin, w, h, tmp, servers, t_begin):
           f"whole script {t_total:.1f} s; load average at start {load0[0]:.2f}, at end {os.getloadavg()[0]:.2f} "
           f"({os.cpu_count()} CPUs)")
     print()
+    if a.cluster:
+        print()
+        print("cluster (the worker and redis-server ran from before the submit to the end, across the restart)")
+        for when, what in (("kill", "at the kill"), ("end", "at the job's end"), ("exr", "after the EXR GET")):
+            c = cluster_at[when]
+            info = c["redis_info"]
+            used, used_peak = int(info.get("used_memory", 0)), int(info.get("used_memory_peak", 0))
+            print(f"  {what}: tally-worker VmHWM {c['worker_kb'] * 1024:,} B ({c['worker_kb'] / 1024:.1f} MiB); "
+                  f"redis-server VmHWM {c['redis_kb'] * 1024:,} B ({c['redis_kb'] / 1024:.1f} MiB), its "
+                  f"used_memory {fmt_bytes(used)}, used_memory_peak {fmt_bytes(used_peak)}")
+            wk = c["workers"]
+            if "results" in wk:
+                print(f"    /v1/workers: results {wk['results']}; workers "
+                      f"{[(x['name'], x['threads'], x['blocks_done']) for x in wk.get('workers', [])]}")
+            else:
+                print(f"    /v1/workers: {wk}")
+        print(f"  stopped with SIGTERM: tally-worker exit {worker_exit}, redis-server exit {redis_exit}")
     print("ratios")
     if jsb:
         print(f"  peak RSS / job_state_bytes: run 1 {peak1 * 1024 / jsb:.2f}, run 2 {hwm_done2 * 1024 / jsb:.2f} "
               f"(job end), {hwm_exr2 * 1024 / jsb:.2f} (after the EXR)")
+        if a.cluster:
+            c = cluster_at["exr"]
+            used_peak = int(c["redis_info"].get("used_memory_peak", 0))
+            print(f"  tally-worker peak RSS / job_state_bytes: {c['worker_kb'] * 1024 / jsb:.3f} (whole job)")
+            print(f"  redis-server peak RSS / job_state_bytes: {c['redis_kb'] * 1024 / jsb:.3f}; its "
+                  f"used_memory_peak / job_state_bytes: {used_peak / jsb:.3f} (whole job)")
         print(f"  checkpoint / job_state_bytes: {ckpt_bytes / jsb:.3f}")
     k = final["plan"]["sampler"]["replicates"]
     print(f"  checkpoint / state floats (3 x {k} replicates x 4 B a pixel = {3 * k * 4 * pixels:,} B): "
