@@ -136,7 +136,7 @@ double fewest(const std::vector<AutoCandidate>& cs) {
 
 }  // namespace
 
-AutoSelection select_estimator(const IntegrationProblem& problem, const StopRule& stop) {
+AutoSelection select_estimator(const IntegrationProblem& problem, const StopRule& stop, PilotLatticeRules* built) {
   IntegrationProblem pp = problem;
   pp.seed = mix64(problem.seed ^ 0x61757430706c6f74ULL);  // the pilot's own stream ("auto0plot")
   pp.covariance = false;  // the pilot needs each component's spread, not the pairs'
@@ -176,7 +176,8 @@ AutoSelection select_estimator(const IntegrationProblem& problem, const StopRule
   // Randomized QMC: 8 randomizations at each pilot size. Lattice rules are built once per
   // size and shared by both periodizations.
   const std::vector<double> weights(U, kDefaultLatticeWeight);
-  std::map<uint32_t, LatticeRule> rules;
+  PilotLatticeRules own_rules;
+  PilotLatticeRules& rules = built ? *built : own_rules;
   const auto run_at = [&](size_t i, uint64_t want) {
     const AutoCandidate& c = sel.candidates[i];
     std::shared_ptr<const Kernel> k;

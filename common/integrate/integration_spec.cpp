@@ -3,6 +3,7 @@
 #include <cmath>
 #include <fmt/format.h>
 #include <numbers>
+#include <optional>
 
 #include "common/engine/component_targets.hpp"
 #include "common/engine/job_state.hpp"
@@ -239,18 +240,19 @@ void use_qmc(EstimatorChoice& c, const IntegrationProblem& prob, uint32_t points
   c.sweep = true;
 }
 
+// `rule`: one already built for (n, weights) (the auto pilot's), else CBC builds it.
 void use_lattice(EstimatorChoice& c, const IntegrationProblem& prob, uint32_t n, const std::vector<double>& weights,
-                 const std::string& per) {
-  LatticeRule rule = cbc_lattice_rule(n, weights);
+                 const std::string& per, std::optional<LatticeRule> rule = std::nullopt) {
+  if (!rule) rule = cbc_lattice_rule(n, weights);
   c.plan.construction =
       "rank-1 lattice, prime n, generating vector by fast component-by-component construction (Nuyens-Cools) "
       "minimising P_2 for product weights; one independent uniform shift per sample";
   c.plan.periodize = per;
   c.plan.points_per_sample = n;
-  c.plan.generating_vector.assign(rule.z.begin(), rule.z.end());
+  c.plan.generating_vector.assign(rule->z.begin(), rule->z.end());
   c.plan.weights = weights;
-  c.plan.worst_case_error = rule.worst_case_error;
-  c.kernel = make_lattice_kernel(prob, std::move(rule),
+  c.plan.worst_case_error = rule->worst_case_error;
+  c.kernel = make_lattice_kernel(prob, std::move(*rule),
                                  per == "none" ? Periodization::none
                                                : (per == "baker" ? Periodization::baker : Periodization::cubic));
   c.sweep = true;
@@ -410,7 +412,8 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
   } else if (type == "auto") {
     if (vector) need_box("auto with a vector integrand");
     if (D.uniforms() > 1024) throw SpecError(r.pointer_of("type"), "auto supports at most 1024 dimensions");
-    AutoSelection sel = select_estimator(prob, stop);
+    PilotLatticeRules pilot_rules;
+    AutoSelection sel = select_estimator(prob, stop, &pilot_rules);
     const AutoCandidate& w = sel.candidates[sel.chosen];
     if (w.estimator == "uniform" && vector) {
       frozen_uniform(r.pointer_of("type"));
@@ -419,8 +422,10 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
     } else if (w.estimator == "qmc") {
       use_qmc(c, prob, static_cast<uint32_t>(w.points), "affine");
     } else {
-      use_lattice(c, prob, static_cast<uint32_t>(w.points), std::vector<double>(D.uniforms(), kDefaultLatticeWeight),
-                  w.periodize);
+      const auto n = static_cast<uint32_t>(w.points);
+      std::optional<LatticeRule> built;
+      if (auto it = pilot_rules.find(n); it != pilot_rules.end()) built = std::move(it->second);
+      use_lattice(c, prob, n, std::vector<double>(D.uniforms(), kDefaultLatticeWeight), w.periodize, std::move(built));
     }
     c.plan.type = w.estimator;
     c.plan.selection = std::move(sel);

@@ -9,7 +9,11 @@
 #include <cmath>
 #include <fmt/format.h>
 
+#include "common/engine/stop_rule.hpp"
+#include "common/integrate/auto_estimator.hpp"
+#include "common/integrate/domain.hpp"
 #include "common/integrate/genz.hpp"
+#include "common/integrate/lattice_rule.hpp"
 #include "common/integrate/integration_job.hpp"
 #include "common/protocol/integration_json.hpp"
 #include "common/spec/spec_reader.hpp"
@@ -133,6 +137,50 @@ TEST(AutoEstimator, ALargeJobFitsItsRateAgainAtATwoToTheSixteenPointPilot) {
   EXPECT_LE(e.ci_lo, exact);
   EXPECT_GE(e.ci_hi, exact);
   EXPECT_LE(std::fabs(e.mean - exact), 5e-6 * exact);
+}
+
+// The pilot hands out the lattice rules it built, one per pilot size, each the rule CBC
+// builds for that size with the default weights; a spec whose choice is a lattice of a
+// pilot size (here the third, 65,521 points) compiles to that rule, taken from the pilot
+// rather than constructed a second time (integration_spec.cpp).
+TEST(AutoEstimator, ThePilotsLatticeRulesAreCbcsAndAChosenOneIsReused) {
+  // The instance of ChoiceIsDeterministic...: auto chooses the baker lattice at the third
+  // pilot size.
+  const GenzParams p = genz_random_instance(GenzFamily::gaussian, 8, 1);
+  const std::vector<double> weights(8, kDefaultLatticeWeight);
+  IntegrationProblem prob;
+  prob.integrand = make_genz(p);
+  prob.domain = make_box(std::vector<double>(8, 0.0), std::vector<double>(8, 1.0));
+  prob.seed = 7;
+  StopRule stop;
+  stop.rel_error = 5e-6;
+  PilotLatticeRules rules;
+  const AutoSelection s = select_estimator(prob, stop, &rules);
+  std::vector<uint32_t> sizes;
+  for (const auto& [n, rule] : rules) {
+    sizes.push_back(n);
+    const LatticeRule fresh = cbc_lattice_rule(n, weights);
+    EXPECT_EQ(rule.n, n);
+    EXPECT_EQ(rule.z, fresh.z) << n;
+    EXPECT_EQ(rule.worst_case_error, fresh.worst_case_error) << n;
+  }
+  EXPECT_EQ(sizes, (std::vector<uint32_t>{1021, 8191, 65521}));
+  // Without the out-parameter the selection is the same.
+  const AutoSelection again = select_estimator(prob, stop);
+  EXPECT_EQ(again.chosen, s.chosen);
+  EXPECT_EQ(again.reason, s.reason);
+
+  const json spec = {{"kind", "integrate"},
+                     {"seed", 7},
+                     {"integrand", {{"builtin", "genz"}, {"family", "gaussian"}, {"a", p.a}, {"u", p.u}}},
+                     {"estimator", {{"type", "auto"}}},
+                     {"stop", {{"rel_error", 5e-6}}}};
+  const EstimatorPlan chosen = plan_of(*compile_job(spec, JobLimits{}));
+  ASSERT_EQ(chosen.type, "lattice") << chosen.selection->reason;
+  ASSERT_EQ(chosen.points_per_sample, 65521u);  // a pilot size: its rule is the pilot's
+  const LatticeRule fresh = cbc_lattice_rule(65521, weights);
+  EXPECT_EQ(chosen.generating_vector, std::vector<uint64_t>(fresh.z.begin(), fresh.z.end()));
+  EXPECT_EQ(chosen.worst_case_error, fresh.worst_case_error);
 }
 
 // exp(s * sum_j sin(2 pi x_j) / (j + 1)) over [0,1]^d, = prod_j I0(s / (j + 1)).
