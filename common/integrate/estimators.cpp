@@ -543,8 +543,8 @@ class StratifiedKernel final : public SweepKernelBase {
 
 class QmcKernel final : public SweepKernelBase {
  public:
-  QmcKernel(IntegrationProblem p, uint64_t points, bool owen)
-      : SweepKernelBase(std::move(p), points), owen_(owen) {}
+  QmcKernel(IntegrationProblem p, uint64_t points, bool owen, uint32_t interlacing)
+      : SweepKernelBase(std::move(p), points), owen_(owen), interlacing_(interlacing) {}
 
  protected:
   bool sweep_uniforms(Scratch& s, uint64_t sample, uint64_t j0, size_t n) const override {
@@ -561,6 +561,20 @@ class QmcKernel final : public SweepKernelBase {
       }
       return false;
     }
+    std::array<double*, 1024> rows{};
+    for (uint32_t d = 0; d < U; ++d) rows[d] = s.urow(d);
+    if (interlacing_ > 1) {
+      // A higher-order net: the same affine scramble of interlacing x U dimensions,
+      // interlaced (qmc.hpp), likewise built once per randomization and thread.
+      thread_local std::optional<InterlacedSobolSet> hi;
+      thread_local uint64_t hi_seed = 0;
+      if (!hi || hi_seed != scramble || hi->dimensions() != U || hi->interlacing() != interlacing_) {
+        hi.emplace(scramble, U, interlacing_);
+        hi_seed = scramble;
+      }
+      hi->fill(static_cast<uint32_t>(j0), n, rows.data());
+      return false;
+    }
     // One scrambled point set per randomization (= sample), built once per thread and
     // reused for the batches of that set.
     thread_local std::optional<ScrambledSobolSet> set;
@@ -569,14 +583,13 @@ class QmcKernel final : public SweepKernelBase {
       set.emplace(scramble, U);
       set_seed = scramble;
     }
-    std::array<double*, 1024> rows{};
-    for (uint32_t d = 0; d < U; ++d) rows[d] = s.urow(d);
     set->fill(static_cast<uint32_t>(j0), n, rows.data());
     return false;
   }
 
  private:
   bool owen_;
+  uint32_t interlacing_;  // 1: the Sobol' net itself; 2 or 3: interlaced (higher order)
 };
 
 // A randomly shifted rank-1 lattice: point k of shift `sample` is
@@ -821,8 +834,8 @@ std::shared_ptr<const Kernel> make_cosine_importance_kernel(IntegrationProblem p
 std::shared_ptr<const Kernel> make_stratified_kernel(IntegrationProblem p, uint32_t k, uint32_t s) {
   return std::make_shared<StratifiedKernel>(std::move(p), k, s);
 }
-std::shared_ptr<const Kernel> make_qmc_kernel(IntegrationProblem p, uint32_t points, bool owen) {
-  return std::make_shared<QmcKernel>(std::move(p), points, owen);
+std::shared_ptr<const Kernel> make_qmc_kernel(IntegrationProblem p, uint32_t points, bool owen, uint32_t interlacing) {
+  return std::make_shared<QmcKernel>(std::move(p), points, owen, interlacing);
 }
 std::shared_ptr<const Kernel> make_lattice_kernel(IntegrationProblem p, LatticeRule rule, Periodization per) {
   return std::make_shared<LatticeKernel>(std::move(p), std::move(rule), per);

@@ -51,7 +51,9 @@ std::shared_ptr<const Kernel> make_stratified_kernel(IntegrationProblem p, uint3
 inline constexpr uint64_t kMaxSweepCoordinates = uint64_t{1} << 24;
 inline constexpr uint32_t kMaxQmcPoints = uint32_t{1} << 20;
 // owen = false: affine matrix scramble (fast, default); true: nested uniform scramble.
-std::shared_ptr<const Kernel> make_qmc_kernel(IntegrationProblem p, uint32_t points, bool owen = false);
+// interlacing 2 or 3 (affine only): a higher-order net, InterlacedSobolSet (qmc.hpp).
+std::shared_ptr<const Kernel> make_qmc_kernel(IntegrationProblem p, uint32_t points, bool owen = false,
+                                              uint32_t interlacing = 1);
 // rule.z has one entry per uniform of the domain; per: the periodizing transform.
 std::shared_ptr<const Kernel> make_lattice_kernel(IntegrationProblem p, LatticeRule rule, Periodization per);
 std::shared_ptr<const Kernel> make_rejection_kernel(IntegrationProblem p, uint32_t max_attempts);

@@ -53,7 +53,8 @@ struct EstimatorPlan {
   std::optional<DensityPlan> density;  // importance
   std::optional<uint64_t> strata_per_dim, stratified_dims;  // stratified
   std::optional<uint64_t> points_per_sample;                // stratified, qmc
-  std::optional<std::string> sequence, scramble;            // qmc
+  std::optional<std::string> sequence, scramble;            // qmc ...
+  std::optional<uint64_t> interlacing;                      // ... qmc (higher-order nets)
   std::optional<std::string> construction, periodize;       // lattice ...
   std::vector<uint64_t> generating_vector;
   std::vector<double> weights;

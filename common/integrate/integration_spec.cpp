@@ -17,6 +17,7 @@
 #include "common/integrate/auto_estimator.hpp"
 #include "common/integrate/cubature.hpp"
 #include "common/integrate/vegas.hpp"
+#include "common/sampling/qmc.hpp"
 #include "common/spec/pool_field.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "common/spec/state_limit_error.hpp"
@@ -231,12 +232,20 @@ struct EstimatorChoice {
 };
 
 // The qmc and lattice estimators with their plans (from their own spec fields or from auto).
-void use_qmc(EstimatorChoice& c, const IntegrationProblem& prob, uint32_t points, const std::string& scramble) {
+void use_qmc(EstimatorChoice& c, const IntegrationProblem& prob, uint32_t points, const std::string& scramble,
+             uint32_t interlacing = 1) {
   c.plan.sequence = scramble == "owen" ? "sobol (nested uniform Owen scramble, Joe-Kuo directions)"
                                        : "sobol (random linear scramble + digital shift, Joe-Kuo directions)";
+  if (interlacing > 1) {
+    c.plan.sequence = fmt::format(
+        "interlaced sobol of order {0} (the digits of {0} x d dimensions of a random linear scramble + digital "
+        "shift, Joe-Kuo directions, taken in turn)",
+        interlacing);
+    c.plan.interlacing = interlacing;
+  }
   c.plan.scramble = scramble;
   c.plan.points_per_sample = points;
-  c.kernel = make_qmc_kernel(prob, points, scramble == "owen");
+  c.kernel = make_qmc_kernel(prob, points, scramble == "owen", interlacing);
   c.sweep = true;
 }
 
@@ -382,14 +391,26 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
   } else if (type == "qmc") {
     const uint32_t points = static_cast<uint32_t>(r.integer_or("points", 1024, 1, kMaxQmcPoints));
     if (D.uniforms() > 1024) throw SpecError(pointer, "qmc supports at most 1024 dimensions");
+    const std::string scramble = r.enumeration_or("scramble", "affine", {"affine", "owen"});
+    const auto interlacing = static_cast<uint32_t>(r.integer_or("interlacing", 1, 1, 3));
+    if (interlacing > 1 && scramble == "owen") {
+      throw SpecError(r.pointer_of("interlacing"), "interlacing needs the affine scramble, not owen");
+    }
+    if (static_cast<uint64_t>(interlacing) * D.uniforms() > kRqmcMaxDimensions) {
+      throw SpecError(r.pointer_of("interlacing"),
+                      fmt::format("interlacing {} x {} dimensions exceeds the {} Sobol' dimensions", interlacing,
+                                  D.uniforms(), kRqmcMaxDimensions));
+    }
     // One sample is one whole point set, computed by one block: bound its work so
-    // cancel and shutdown (which act between blocks) stay prompt.
-    if (static_cast<uint64_t>(points) * D.uniforms() > kMaxSweepCoordinates) {
+    // cancel and shutdown (which act between blocks) stay prompt (an interlaced set
+    // draws interlacing x dimensions Sobol' coordinates a point).
+    const uint64_t coordinates = static_cast<uint64_t>(interlacing) * D.uniforms();
+    if (static_cast<uint64_t>(points) * coordinates > kMaxSweepCoordinates) {
       throw SpecError(r.pointer_of("points"),
                       fmt::format("points x dimensions = {} x {} exceeds {} coordinates per point set", points,
-                                  D.uniforms(), kMaxSweepCoordinates));
+                                  coordinates, kMaxSweepCoordinates));
     }
-    use_qmc(c, prob, points, r.enumeration_or("scramble", "affine", {"affine", "owen"}));
+    use_qmc(c, prob, points, scramble, interlacing);
   } else if (type == "lattice") {
     const uint32_t U = D.uniforms();
     const auto requested = static_cast<uint32_t>(r.integer_or("points", 1021, 5, kMaxLatticePoints));

@@ -88,6 +88,7 @@ json estimator_plan_json(const EstimatorPlan& p) {
   put(j, "points_per_sample", p.points_per_sample);
   put(j, "sequence", p.sequence);
   put(j, "scramble", p.scramble);
+  put(j, "interlacing", p.interlacing);
   put(j, "construction", p.construction);
   put(j, "periodize", p.periodize);
   if (!p.generating_vector.empty()) j["generating_vector"] = p.generating_vector;

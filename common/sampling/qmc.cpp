@@ -118,22 +118,88 @@ ScrambledSobolSet::ScrambledSobolSet(std::uint64_t scramble_seed, std::uint32_t 
   }
 }
 
+namespace {
+
+// Calls out(i, y) with the scrambled bits y of points first .. first + n - 1 of one
+// dimension (direction numbers v, digital shift `shift`), in Gray-code order.
+template <class Out>
+void walk_gray(const std::array<std::uint32_t, 32>& v, std::uint32_t shift, std::uint32_t first, std::size_t n,
+               Out out) {
+  // Point `first` directly: y = shift ^ XOR of v[k] over the bits of gray(first).
+  const std::uint32_t g = first ^ (first >> 1);
+  std::uint32_t y = shift;
+  for (std::uint32_t k = 0; k < 32; ++k) {
+    if ((g >> k) & 1u) y ^= v[k];
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    out(i, y);
+    // Gray code: the next point flips the direction of the lowest set bit of j + 1.
+    const auto next = static_cast<std::uint32_t>(first + i + 1);
+    y ^= v[static_cast<std::uint32_t>(__builtin_ctz(next | 0x80000000u))];
+  }
+}
+
+// Bits 0..31 of x to the even bits 0..62 (bit k to 2k).
+std::uint64_t spread2(std::uint32_t x) {
+  std::uint64_t v = x;
+  v = (v | (v << 16)) & 0x0000FFFF0000FFFFULL;
+  v = (v | (v << 8)) & 0x00FF00FF00FF00FFULL;
+  v = (v | (v << 4)) & 0x0F0F0F0F0F0F0F0FULL;
+  v = (v | (v << 2)) & 0x3333333333333333ULL;
+  v = (v | (v << 1)) & 0x5555555555555555ULL;
+  return v;
+}
+
+// Bits 0..20 of x to every third bit 0..60 (bit k to 3k).
+std::uint64_t spread3(std::uint32_t x) {
+  std::uint64_t v = x & 0x1FFFFFu;
+  v = (v | (v << 32)) & 0x1F00000000FFFFULL;
+  v = (v | (v << 16)) & 0x1F0000FF0000FFULL;
+  v = (v | (v << 8)) & 0x100F00F00F00F00FULL;
+  v = (v | (v << 4)) & 0x10C30C30C30C30C3ULL;
+  v = (v | (v << 2)) & 0x1249249249249249ULL;
+  return v;
+}
+
+}  // namespace
+
 void ScrambledSobolSet::fill(std::uint32_t first, std::size_t n, double* const* rows) const {
   for (std::uint32_t d = 0; d < dims_; ++d) {
-    const std::array<std::uint32_t, 32>& v = v_[d];
-    // Point `first` directly: y = shift ^ XOR of v[k] over the bits of gray(first).
-    const std::uint32_t g = first ^ (first >> 1);
-    std::uint32_t y = shift_[d];
-    for (std::uint32_t k = 0; k < 32; ++k) {
-      if ((g >> k) & 1u) y ^= v[k];
-    }
     double* row = rows[d];
     const double low = low_[d];
+    walk_gray(v_[d], shift_[d], first, n,
+              [&](std::size_t i, std::uint32_t y) { row[i] = static_cast<double>(y) * 0x1.0p-32 + low; });
+  }
+}
+
+void ScrambledSobolSet::fill_bits(std::uint32_t d, std::uint32_t first, std::size_t n, std::uint32_t* bits) const {
+  walk_gray(v_[d], shift_[d], first, n, [&](std::size_t i, std::uint32_t y) { bits[i] = y; });
+}
+
+std::uint64_t interlace_digits(const std::uint32_t* words, std::uint32_t alpha) {
+  if (alpha == 2) return ((spread2(words[0]) << 1) | spread2(words[1])) >> 12;
+  // alpha 3: the top 21 bits of each, 63 bits, of which the top 52.
+  return ((spread3(words[0] >> 11) << 2) | (spread3(words[1] >> 11) << 1) | spread3(words[2] >> 11)) >> 11;
+}
+
+InterlacedSobolSet::InterlacedSobolSet(std::uint64_t scramble_seed, std::uint32_t dims, std::uint32_t interlacing)
+    : dims_(dims), alpha_(interlacing), base_(scramble_seed, dims * interlacing) {
+  if (interlacing != 2 && interlacing != 3) {
+    throw std::invalid_argument("interlacing must be 2 or 3, not " + std::to_string(interlacing));
+  }
+}
+
+void InterlacedSobolSet::fill(std::uint32_t first, std::size_t n, double* const* rows) const {
+  thread_local std::vector<std::uint32_t> bits;
+  bits.resize(n * alpha_);
+  std::array<std::uint32_t, 3> words{};
+  for (std::uint32_t j = 0; j < dims_; ++j) {
+    for (std::uint32_t a = 0; a < alpha_; ++a) base_.fill_bits(j * alpha_ + a, first, n, bits.data() + a * n);
+    double* row = rows[j];
     for (std::size_t i = 0; i < n; ++i) {
-      row[i] = static_cast<double>(y) * 0x1.0p-32 + low;
-      // Gray code: the next point flips the direction of the lowest set bit of j + 1.
-      const auto next = static_cast<std::uint32_t>(first + i + 1);
-      y ^= v[static_cast<std::uint32_t>(__builtin_ctz(next | 0x80000000u))];
+      for (std::uint32_t a = 0; a < alpha_; ++a) words[a] = bits[a * n + i];
+      // The midpoint of its 2^-52 cell: exact, and never 0 or 1.
+      row[i] = (static_cast<double>(interlace_digits(words.data(), alpha_)) + 0.5) * 0x1.0p-52;
     }
   }
 }

@@ -21,6 +21,10 @@ const json kSpecs[] = {
     {{"kind", "integrate"}, {"seed", 14},
      {"integrand", {{"builtin", "genz"}, {"family", "gaussian"}, {"a", {1.3, 2.1, 0.7, 1.1, 0.9, 1.7, 0.5, 1.2}}}},
      {"estimator", {{"type", "lattice"}, {"points", 257}, {"periodize", "cubic"}}}, {"stop", {{"max_samples", 300}}}},
+    // Higher-order (interlaced) nets: each randomization's scramble is the sample's own.
+    {{"kind", "integrate"}, {"seed", 15},
+     {"integrand", {{"builtin", "genz"}, {"family", "product_peak"}, {"a", {1.3, 2.1, 0.7, 1.1}}, {"u", {0.3, 0.6, 0.45, 0.5}}}},
+     {"estimator", {{"type", "qmc"}, {"points", 256}, {"interlacing", 3}}}, {"stop", {{"max_samples", 300}}}},
 };
 
 using testing::expect_same_state;
