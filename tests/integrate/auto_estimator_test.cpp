@@ -24,12 +24,9 @@ namespace {
 
 using nlohmann::json;
 using testing::run_spec;
+using testing::unit_box;
 
 const EstimatorPlan& plan_of(const JobDefinition& job) { return dynamic_cast<const IntegrationJob&>(job).plan().estimator; }
-
-json box(size_t d) {
-  return {{"type", "box"}, {"lower", std::vector<double>(d, 0.0)}, {"upper", std::vector<double>(d, 1.0)}};
-}
 
 // A smooth periodic integrand (d = 8) to 6 digits: the unperiodized lattice wins
 // (baker's fold would add a kink), and the job then meets the target with an interval
@@ -46,7 +43,7 @@ TEST(AutoEstimator, PicksTheUnperiodizedLatticeForASmoothPeriodicIntegrand) {
   const json spec = {{"kind", "integrate"},
                      {"seed", 4},
                      {"integrand", {{"expression", "exp(" + f + ")"}}},
-                     {"domain", box(d)},
+                     {"domain", unit_box(d)},
                      {"estimator", {{"type", "auto"}}},
                      {"stop", {{"rel_error", 1e-6}, {"max_samples", 100000}}}};
   const auto r = run_spec(spec);
@@ -206,7 +203,7 @@ TEST(AutoEstimator, AVectorIntegrandIsPredictedByItsNeediestComponent) {
   const json base = {{"kind", "integrate"},
                      {"seed", 3},
                      {"integrand", {{"expression", periodic_template(d)}, {"parameters", {{"s", s}}}}},
-                     {"domain", box(d)},
+                     {"domain", unit_box(d)},
                      {"estimator", {{"type", "auto"}}},
                      {"stop", {{"rel_error", 1e-6}, {"max_samples", 100000}}}};
   {
@@ -255,7 +252,7 @@ TEST(AutoEstimator, AVectorOfCopiesChoosesAsItsScalarDoes) {
   json scalar = {{"kind", "integrate"},
                  {"seed", 7},
                  {"integrand", {{"expression", f}}},
-                 {"domain", box(p.a.size())},
+                 {"domain", unit_box(p.a.size())},
                  {"estimator", {{"type", "auto"}}},
                  {"stop", {{"rel_error", 1e-5}}}};
   json vector = scalar;

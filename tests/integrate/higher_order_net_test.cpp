@@ -21,10 +21,7 @@ namespace {
 
 using nlohmann::json;
 using testing::run_spec;
-
-json unit_box(size_t d) {
-  return {{"type", "box"}, {"lower", std::vector<double>(d, 0.0)}, {"upper", std::vector<double>(d, 1.0)}};
-}
+using testing::unit_box;
 
 // Least-squares slope of log y on log x.
 double log_slope(const std::vector<double>& x, const std::vector<double>& y) {

@@ -22,10 +22,7 @@ namespace {
 
 using nlohmann::json;
 using testing::run_spec;
-
-json unit_box(size_t d) {
-  return {{"type", "box"}, {"lower", std::vector<double>(d, 0.0)}, {"upper", std::vector<double>(d, 1.0)}};
-}
+using testing::unit_box;
 
 const EstimatorPlan& plan_of(const testing::Ran& r) {
   return dynamic_cast<const IntegrationJob&>(*r.job).plan().estimator;

@@ -7,6 +7,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "common/engine/checkpoint.hpp"
 #include "common/engine/pass_loop.hpp"
@@ -62,6 +63,11 @@ inline Ran resume_spec(const nlohmann::json& spec, JobState state, unsigned thre
   r.runner = std::make_unique<JobRunner>(r.job->kernel(), r.job->stop_rule(), JobCaps{}, std::move(state));
   run_local(*r.runner, threads);
   return r;
+}
+
+// The spec's domain [0, 1]^d.
+inline nlohmann::json unit_box(size_t d) {
+  return {{"type", "box"}, {"lower", std::vector<double>(d, 0.0)}, {"upper", std::vector<double>(d, 1.0)}};
 }
 
 // The JSON pointer compile_job's SpecError names for `spec`, or "<accepted>".

@@ -18,11 +18,8 @@ namespace {
 
 using nlohmann::json;
 using testing::run_spec;
+using testing::unit_box;
 using testing::spec_error_pointer;
-
-json unit_box(size_t d) {
-  return {{"type", "box"}, {"lower", std::vector<double>(d, 0.0)}, {"upper", std::vector<double>(d, 1.0)}};
-}
 
 json job(json integrand, json estimator, size_t d, json stop = {{"max_samples", 16}}) {
   return {{"kind", "integrate"},  {"seed", 11},           {"integrand", std::move(integrand)},
