@@ -83,14 +83,16 @@ JobSnapshot Job::snapshot_locked(bool with_runner) const {
       // or paused and queued): the documents from the runner itself, once per version. A
       // copy of the runner here (below) was a second copy of a 4K frame's state, made by
       // the first status read after a restart and kept until the job ended.
-      if (idle_version_ != version_ || !idle_engine_) build_idle_views_locked();
+      // Not while a pass merges (merging_): the views built before it serve.
+      if (!merging_ && (idle_version_ != version_ || !idle_engine_)) build_idle_views_locked();
       if (!s.engine) s.engine = idle_engine_;
-      s.facts = idle_facts_;
+      s.facts = idle_facts_ ? idle_facts_ : facts_;
       return s;
     }
   }
   // The runner changes in place at pass boundaries: readers get a copy made once
-  // per version, which no one mutates afterwards.
+  // per version, which no one mutates afterwards (the caller holds state_mu_: no pass is
+  // being merged).
   if (published_version_ != version_) {
     published_ = std::make_shared<const JobRunner>(*runner_);
     published_version_ = version_;
@@ -134,6 +136,7 @@ std::shared_ptr<const std::string> Job::watch_progress_locked() const {
   // previous pass's progress serves: the new one follows as a live event.
   // No progress published yet for a pass being published (the first one): none serves.
   if (publishing_ && !watch_progress_) return nullptr;
+  if (merging_) return watch_progress_;  // the last boundary's, or none: the runner is changing
   const bool publishing = status_ == JobStatus::running && watch_progress_;
   if (!watch_progress_ || (watch_progress_version_ != version_ && !publishing)) {
     watch_progress_ = std::make_shared<const std::string>(dump(progress_event_json(*runner_)));
@@ -149,8 +152,11 @@ std::vector<Event> Job::watch_snapshot() const {
   // A job whose state is not in memory (queued, or finished and on disk) shows the
   // figures kept when it left (RunFacts): the same bytes the runner would give.
   const RunFacts* facts = facts_.get();
-  out.push_back(Event{id, "state", dump(state_event_of(status_, runner_.get(), facts, error_, false))});
-  if (runner_ && runner_->state().passes > 0) {
+  // While a pass merges, the figures of the boundary before it (live_facts_).
+  const JobRunner* runner = merging_ ? nullptr : runner_.get();
+  if (merging_ && live_facts_) facts = live_facts_.get();
+  out.push_back(Event{id, "state", dump(state_event_of(status_, runner, facts, error_, false))});
+  if (runner_ && (merging_ ? watch_progress_ != nullptr : runner_->state().passes > 0)) {
     // Built on a worker thread at the pass boundary; only a rare transition
     // (start, cancel of a queued job, extend) leaves it to be built here.
     if (auto progress = watch_progress_locked()) out.push_back(Event{id, "progress", *progress});
@@ -315,6 +321,9 @@ JobSnapshot Job::snapshot(const Executor& executor, bool with_runner) const {
     note.in_flight = b.in_flight;
     note.redelivered = b.redelivered;
   }
+  // With the runner: between merges (state_mu_), since a pass merges without mu_.
+  std::unique_lock between_merges(state_mu_, std::defer_lock);
+  if (with_runner) between_merges.lock();
   std::lock_guard lock(mu_);
   JobSnapshot s = snapshot_locked(with_runner);
   if (preempted_ && status_ == JobStatus::queued) note.waiting_reason = "preempted";
@@ -391,8 +400,9 @@ void Job::answer_locked(std::shared_ptr<const JobDefinition> def, JobCaps caps, 
 }
 
 void Job::forecast_locked(double share, double& running, double& queued) const {
-  if (status_ == JobStatus::running && runner_) {
-    // Its ETA at its current throughput, on its share of the workers.
+  if (status_ == JobStatus::running && runner_ && !merging_) {
+    // Its ETA at its current throughput, on its share of the workers (left out for the
+    // moment a pass merges).
     if (const double eta = runner_->eta_seconds(); std::isfinite(eta)) running += eta * share;
   } else if (status_ == JobStatus::queued && facts_ && facts_->samples > 0 && facts_->compute_seconds > 0 &&
              facts_->rule.max_samples > facts_->samples) {
@@ -402,16 +412,28 @@ void Job::forecast_locked(double share, double& running, double& queued) const {
   }
 }
 
-Job::PassCommit Job::commit_pass_locked(std::vector<BlockResult>&& results, double wall, uint64_t pass,
-                                        double checkpoint_interval_s) {
-  PassCommit c;
-  JobRunner& r = *runner_;
+std::string Job::merge_pass(std::vector<BlockResult>&& results, double wall, uint64_t pass) {
+  JobRunner* r = nullptr;
+  {
+    std::lock_guard lock(mu_);
+    merging_ = true;
+    r = runner_.get();
+  }
+  std::string error;
   try {
-    r.commit_groups(std::move(results), wall);
+    r->commit_groups(std::move(results), wall);
   } catch (const std::exception& e) {
     log::job(log::Level::error, id_, "committing pass {} failed: {}", pass, e.what());
-    r.fail(fmt::format("internal error committing a pass: {}", e.what()));
+    error = e.what();
   }
+  std::lock_guard lock(mu_);
+  merging_ = false;
+  return error;
+}
+
+Job::PassCommit Job::commit_pass_locked(double /*wall*/, uint64_t /*pass*/, double checkpoint_interval_s) {
+  PassCommit c;
+  JobRunner& r = *runner_;
   version_++;
   c.version = version_;
   publishing_ = true;  // until this pass's progress event is in the log (publish_pass)

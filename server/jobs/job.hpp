@@ -133,8 +133,13 @@ class Job : public std::enable_shared_from_this<Job> {
     bool finished = false, checkpoint = false, cancel_now = false, pause_now = false;
     uint64_t version = 0;
   };
-  PassCommit commit_pass_locked(std::vector<BlockResult>&& results, double wall, uint64_t pass,
-                                double checkpoint_interval_s);
+  PassCommit commit_pass_locked(double wall, uint64_t pass, double checkpoint_interval_s);
+  // Before commit_pass_locked, under state_mu_ and not mu_: the pass's results merged into
+  // the runner (seconds for a 4K frame), with merging_ set meanwhile, so that status
+  // reads, watchers and metrics (under mu_ alone, some on the I/O threads) never wait
+  // for it. Returns the error of a merge that failed ("" if none): the runner then fails
+  // under mu_ in commit_pass_locked's caller.
+  std::string merge_pass(std::vector<BlockResult>&& results, double wall, uint64_t pass);
   // Then, taking mu_ itself: the pass's heavy views (progress, tiles, status; for the
   // last pass the final ones, into `views`) built without the lock, then published.
   // Returns the job's ending when it finished (stored before it is published).
@@ -162,8 +167,10 @@ class Job : public std::enable_shared_from_this<Job> {
   // streaming that state to the store (JobRecorder::store, no copy of it) while it
   // encodes a piece; not while the store writes one. A commit so waits for one piece
   // at most; the checkpoint then finds the state's passes changed and is abandoned.
-  // Taken before mu_.
-  std::mutex state_mu_;
+  // Taken before mu_. Also held for a pass's merge (merge_pass, without mu_) and by
+  // whoever reads the runner itself rather than its views (a snapshot with the runner,
+  // a checkpoint's take).
+  mutable std::mutex state_mu_;
   // The job's last checkpoint streamed from the live state was abandoned: the next one
   // holds state_mu_ for its whole write (JobRecorder::store).
   std::atomic<bool> checkpoint_abandoned_{false};
@@ -203,6 +210,11 @@ class Job : public std::enable_shared_from_this<Job> {
   // without the lock): a snapshot then shows the last published progress, or none, and
   // the new one follows live — never the same pass twice.
   bool publishing_ = false;
+  // A pass is being merged into runner_ (merge_pass: under state_mu_, not mu_). Readers
+  // under mu_ alone then leave runner_ alone and show the last boundary's views (engine_,
+  // live_facts_, watch_progress_, idle views); whoever needs the runner itself takes
+  // state_mu_ first (a snapshot with the runner, a checkpoint's take).
+  bool merging_ = false;
   // engine_json at engine_version_ for a running job's status, built at the pass
   // boundary on the worker thread (a status GET then does no pass over every pixel).
   std::shared_ptr<const nlohmann::json> engine_;

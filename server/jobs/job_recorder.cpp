@@ -24,6 +24,10 @@ struct CheckpointAbandoned : std::exception {
 JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint, const JobEnding* ending) const {
   Pending p;
   StoredJob& s = p.row;
+  // A pass merges under state_mu_ alone (Job::merge_pass): a checkpoint's copy or pass
+  // count is taken between merges.
+  std::unique_lock between_merges(job.state_mu_, std::defer_lock);
+  if (with_checkpoint) between_merges.lock();
   std::lock_guard lock(job.mu_);
   p.version = job.version_;
   s.id = job.id_;
@@ -42,8 +46,8 @@ JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint, const Job
   if (is_terminal(status) && final_result && !final_result->is_null()) s.result = dump(*final_result);
   if (is_terminal(status) && facts) s.facts = dump(run_facts_json(*facts));
   if (with_checkpoint && job.runner_) {
-    // Encoded later, without the lock. A small state is copied now (a commit needs mu_
-    // too, so it is the state at this boundary): its checkpoint always lands, however
+    // Encoded later, without the lock. A small state is copied now (state_mu_ is held, so
+    // it is the state at this boundary): its checkpoint always lands, however
     // slow the store. A big one (an image) is read from the live state, piece by piece,
     // when the store takes it: no copy of it.
     if (checkpoint_size_hint(job.runner_->state()) <= copy_bytes_.load()) {

@@ -20,7 +20,9 @@ void add_job_figures(ManagerStats& s, const std::vector<std::shared_ptr<Job>>& j
   for (const auto& j : jobs) {
     std::lock_guard jl(j->mu_);
     s.jobs_by_state[std::string(job_status_name(j->status_))]++;
-    if (j->status_ == JobStatus::running && j->runner_) s.samples_per_second += j->runner_->samples_per_second();
+    if (j->status_ == JobStatus::running && j->runner_ && !j->merging_) {
+      s.samples_per_second += j->runner_->samples_per_second();  // (not while a pass merges into it)
+    }
     j->forecast_locked(share, s.predicted_cpu_seconds_running, s.predicted_cpu_seconds_queued);
   }
 }

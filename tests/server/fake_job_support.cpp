@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <chrono>
 #include <cmath>
 
 #include "common/spec/spec_reader.hpp"
@@ -23,7 +24,12 @@ constexpr int kPixelsPerTile = kTile * kTile;
 
 class FakeKernel final : public Kernel {
  public:
-  FakeKernel(uint64_t seed, uint64_t work, bool image) : seed_(seed), work_(work), image_(image) {}
+  FakeKernel(uint64_t seed, uint64_t work, bool image, bool gated)
+      : seed_(seed), work_(work), image_(image), gated_(gated) {}
+  bool folds_passes() const override { return gated_; }
+  void fold_pass(std::string_view, const std::vector<BlockResult>&, JobState&) const override {
+    if (gated_) fold_gate().pass();
+  }
   size_t channel_count() const override { return image_ ? kTilesX * kTilesY * kPixelsPerTile : 1; }
   uint32_t partition_count() const override { return image_ ? kTilesX * kTilesY : 1; }
   PassSchedule schedule() const override {
@@ -53,7 +59,7 @@ class FakeKernel final : public Kernel {
 
  private:
   uint64_t seed_, work_;
-  bool image_;
+  bool image_, gated_;
 };
 
 class FakeImage final : public ImageSource {
@@ -90,8 +96,8 @@ class FakeImage final : public ImageSource {
 
 class FakeJob final : public JobDefinition {
  public:
-  FakeJob(uint64_t seed, uint64_t work, bool image, StopRule rule)
-      : seed_(seed), rule_(rule), kernel_(std::make_shared<FakeKernel>(seed, work, image)) {
+  FakeJob(uint64_t seed, uint64_t work, bool image, bool gated, StopRule rule)
+      : seed_(seed), rule_(rule), kernel_(std::make_shared<FakeKernel>(seed, work, image, gated)) {
     if (image) image_ = std::make_unique<FakeImage>();
   }
   std::string_view kind() const override { return "fake"; }
@@ -115,10 +121,41 @@ std::unique_ptr<JobDefinition> compile_fake_job(const nlohmann::json& spec, cons
   const uint64_t seed = r.integer_or("seed", 1, 0, UINT64_MAX);
   const uint64_t work = r.integer_or("work", 0, 0, 1'000'000);
   const bool image = r.boolean_or("image", false);
+  const bool gated = r.boolean_or("fold_gate", false);
   SpecReader stop = r.object("stop");
   const StopRule rule = parse_stop_rule(stop, limits);
   r.finish();
-  return std::make_unique<FakeJob>(seed, work, image, rule);
+  return std::make_unique<FakeJob>(seed, work, image, gated, rule);
+}
+
+void FoldGate::arm() {
+  std::lock_guard lock(mu_);
+  armed_ = true;
+  entered_ = false;
+}
+
+bool FoldGate::wait_entered(double seconds) {
+  std::unique_lock lock(mu_);
+  return cv_.wait_for(lock, std::chrono::duration<double>(seconds), [&] { return entered_; });
+}
+
+void FoldGate::release() {
+  std::lock_guard lock(mu_);
+  armed_ = false;
+  cv_.notify_all();
+}
+
+void FoldGate::pass() {
+  std::unique_lock lock(mu_);
+  if (!armed_) return;
+  entered_ = true;
+  cv_.notify_all();
+  cv_.wait_for(lock, std::chrono::seconds(60), [&] { return !armed_; });
+}
+
+FoldGate& fold_gate() {
+  static FoldGate gate;
+  return gate;
 }
 
 nlohmann::json fake_spec(uint64_t max_samples, uint64_t work, uint64_t seed, bool image) {
