@@ -413,11 +413,11 @@ void Job::forecast_locked(double share, double& running, double& queued) const {
 }
 
 std::string Job::merge_pass(std::vector<BlockResult>&& results, double wall, uint64_t pass) {
-  JobRunner* r = nullptr;
+  std::shared_ptr<JobRunner> r;  // its own reference: the merge does not rely on runner_ staying put
   {
     std::lock_guard lock(mu_);
     merging_ = true;
-    r = runner_.get();
+    r = runner_;
   }
   std::string error;
   try {
@@ -431,7 +431,7 @@ std::string Job::merge_pass(std::vector<BlockResult>&& results, double wall, uin
   return error;
 }
 
-Job::PassCommit Job::commit_pass_locked(double /*wall*/, uint64_t /*pass*/, double checkpoint_interval_s) {
+Job::PassCommit Job::commit_pass_locked(double checkpoint_interval_s) {
   PassCommit c;
   JobRunner& r = *runner_;
   version_++;

@@ -124,16 +124,16 @@ class Job : public std::enable_shared_from_this<Job> {
   bool resumed_locked(std::unique_ptr<JobRunner> runner, const std::string& error, double now);
   // A new job answered from a finished job's result and facts.
   void answer_locked(std::shared_ptr<const JobDefinition> def, JobCaps caps, const JobEnding& ending);
-  // A pass boundary (JobManager::on_pass_done), in two steps. First, under mu_: the
-  // pass's results merged, then what comes next: the next pass, or the end (the rule is
-  // met, nothing is left, or a cancel), or a pause (preempt_requested_), and whether a
-  // checkpoint is due.
+  // A pass boundary (JobManager::on_pass_done), in three steps. First merge_pass (below),
+  // then under mu_: what comes next: the next pass, or the end (the rule is met, nothing
+  // is left, or a cancel), or a pause (preempt_requested_), and whether a checkpoint is
+  // due.
   struct PassCommit {
     PassWork next;
     bool finished = false, checkpoint = false, cancel_now = false, pause_now = false;
     uint64_t version = 0;
   };
-  PassCommit commit_pass_locked(double wall, uint64_t pass, double checkpoint_interval_s);
+  PassCommit commit_pass_locked(double checkpoint_interval_s);
   // Before commit_pass_locked, under state_mu_ and not mu_: the pass's results merged into
   // the runner (seconds for a 4K frame), with merging_ set meanwhile, so that status
   // reads, watchers and metrics (under mu_ alone, some on the I/O threads) never wait

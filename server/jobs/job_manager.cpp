@@ -284,7 +284,7 @@ PassWork JobManager::on_pass_done(const std::string& id, const PassWork& done, s
     const std::string error = job->merge_pass(std::move(results), wall, done.pass);
     std::lock_guard lock(job->mu_);
     if (!error.empty()) job->runner_->fail(fmt::format("internal error committing a pass: {}", error));
-    c = job->commit_pass_locked(wall, done.pass, config_.checkpoint_interval_s);
+    c = job->commit_pass_locked(config_.checkpoint_interval_s);
   }
   const auto t_committed = Clock::now();
   FinishViews views;
