@@ -412,7 +412,7 @@ void Job::forecast_locked(double share, double& running, double& queued) const {
   }
 }
 
-std::string Job::merge_pass(std::vector<BlockResult>&& results, double wall, uint64_t pass) {
+void Job::merge_pass(std::vector<BlockResult>&& results, double wall, uint64_t pass) {
   std::shared_ptr<JobRunner> r;  // its own reference: the merge does not rely on runner_ staying put
   {
     std::lock_guard lock(mu_);
@@ -428,7 +428,7 @@ std::string Job::merge_pass(std::vector<BlockResult>&& results, double wall, uin
   }
   std::lock_guard lock(mu_);
   merging_ = false;
-  return error;
+  if (!error.empty()) r->fail(fmt::format("internal error committing a pass: {}", error));
 }
 
 Job::PassCommit Job::commit_pass_locked(double checkpoint_interval_s) {

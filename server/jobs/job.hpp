@@ -137,9 +137,8 @@ class Job : public std::enable_shared_from_this<Job> {
   // Before commit_pass_locked, under state_mu_ and not mu_: the pass's results merged into
   // the runner (seconds for a 4K frame), with merging_ set meanwhile, so that status
   // reads, watchers and metrics (under mu_ alone, some on the I/O threads) never wait
-  // for it. Returns the error of a merge that failed ("" if none): the runner then fails
-  // under mu_ in commit_pass_locked's caller.
-  std::string merge_pass(std::vector<BlockResult>&& results, double wall, uint64_t pass);
+  // for it. A merge that throws fails the runner (under mu_), as a kernel bug must.
+  void merge_pass(std::vector<BlockResult>&& results, double wall, uint64_t pass);
   // Then, taking mu_ itself: the pass's heavy views (progress, tiles, status; for the
   // last pass the final ones, into `views`) built without the lock, then published.
   // Returns the job's ending when it finished (stored before it is published).
