@@ -73,9 +73,18 @@ TEST(PassMerge, AStateSnapshotWaitsForTheMergeAndSeesItWhole) {
   fold_gate().release();
   ASSERT_EQ(snap.wait_for(std::chrono::seconds(20)), std::future_status::ready);
   const JobSnapshot s = snap.get();
-  ASSERT_TRUE(s.runner);
-  EXPECT_EQ(s.runner->state().samples, 4096u);  // the whole first pass
-  EXPECT_EQ(s.runner->state().passes, 1u);
+  // Once the gate opens, the second (ungated) pass may run, merge and even finish the
+  // job before this thread is scheduled (CI, under load): a finished job keeps no
+  // runner. Otherwise the snapshot holds whole passes only — the first, or both —
+  // never none and never part of one.
+  if (!s.runner) {
+    EXPECT_EQ(s.status, JobStatus::succeeded);
+  } else {
+    const uint64_t passes = s.runner->state().passes;
+    EXPECT_GE(passes, 1u);
+    EXPECT_LE(passes, 2u);
+    EXPECT_EQ(s.runner->state().samples, 4096u * passes);
+  }
   ASSERT_TRUE(h.wait_state(id, "succeeded"));
 }
 
