@@ -25,6 +25,7 @@ benches=(
   "farm|preemption latency and result-cache latency|$b/farm/farm_bench"
   "frame_4k|a 4K frame through the server: kill -9, resume, EXR|python3 $root/bench/frame_4k_e2e.py --build $build"
   "boundary_stall|request latency while a 1080p frame merges its passes|python3 $root/bench/boundary_stall.py --build $build"
+  "auto_pilot_memo|a 1,000-component auto spec: validate, then submit (pilot remembered)|python3 $root/bench/auto_pilot_memo.py --build $build"
   "higher_order_nets|interlaced vs plain scrambled Sobol' sd, d 2-16|python3 $root/bench/higher_order_nets.py --build $build"
 )
 default=(integrate expr vector lighting frame_memory)

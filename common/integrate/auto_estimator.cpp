@@ -1,11 +1,16 @@
 #include "common/integrate/auto_estimator.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <cmath>
 #include <fmt/format.h>
 #include <limits>
+#include <list>
 #include <map>
+#include <mutex>
+#include <optional>
+#include <utility>
 
 #include "common/engine/component_targets.hpp"
 #include "common/engine/kernel.hpp"
@@ -134,9 +139,73 @@ double fewest(const std::vector<AutoCandidate>& cs) {
   return best;
 }
 
+std::atomic<uint64_t> g_pilots_run{0};
+
+// The memo behind select_estimator_remembered: answers by key, most recently used first.
+class SelectionMemo {
+ public:
+  struct Answer {
+    AutoSelection selection;
+    std::optional<std::pair<uint32_t, LatticeRule>> chosen_rule;  // a chosen lattice's rule
+  };
+
+  std::optional<Answer> find(const std::string& key) {
+    std::lock_guard lock(mu_);
+    const auto it = index_.find(key);
+    if (it == index_.end()) return std::nullopt;
+    order_.splice(order_.begin(), order_, it->second);
+    return it->second->second;
+  }
+
+  void put(const std::string& key, Answer a) {
+    std::lock_guard lock(mu_);
+    if (const auto it = index_.find(key); it != index_.end()) {
+      order_.splice(order_.begin(), order_, it->second);
+      return;
+    }
+    order_.emplace_front(key, std::move(a));
+    index_.emplace(key, order_.begin());
+    while (order_.size() > kSelectionMemoEntries) {
+      index_.erase(order_.back().first);
+      order_.pop_back();
+    }
+  }
+
+ private:
+  std::mutex mu_;
+  std::list<std::pair<std::string, Answer>> order_;
+  std::map<std::string, std::list<std::pair<std::string, Answer>>::iterator, std::less<>> index_;
+};
+
+SelectionMemo& selection_memo() {
+  static SelectionMemo memo;
+  return memo;
+}
+
 }  // namespace
 
+uint64_t pilots_run() { return g_pilots_run.load(); }
+
+AutoSelection select_estimator_remembered(const std::string& key, const IntegrationProblem& problem,
+                                          const StopRule& stop, PilotLatticeRules* rules) {
+  if (auto hit = selection_memo().find(key)) {
+    if (rules && hit->chosen_rule) rules->insert(std::move(*hit->chosen_rule));
+    return std::move(hit->selection);
+  }
+  PilotLatticeRules built;
+  SelectionMemo::Answer a;
+  a.selection = select_estimator(problem, stop, &built);
+  const AutoCandidate& w = a.selection.candidates[a.selection.chosen];
+  if (w.estimator == "lattice") {
+    if (auto it = built.find(static_cast<uint32_t>(w.points)); it != built.end()) a.chosen_rule = *it;
+  }
+  selection_memo().put(key, a);
+  if (rules) rules->merge(built);
+  return std::move(a.selection);
+}
+
 AutoSelection select_estimator(const IntegrationProblem& problem, const StopRule& stop, PilotLatticeRules* built) {
+  g_pilots_run.fetch_add(1);
   IntegrationProblem pp = problem;
   pp.seed = mix64(problem.seed ^ 0x61757430706c6f74ULL);  // the pilot's own stream ("auto0plot")
   pp.covariance = false;  // the pilot needs each component's spread, not the pairs'

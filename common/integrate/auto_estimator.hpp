@@ -18,6 +18,7 @@
 // (workers, resume).
 #include <cstdint>
 #include <map>
+#include <string>
 
 #include "common/integrate/estimators.hpp"
 #include "common/integrate/integration_plan.hpp"
@@ -37,5 +38,20 @@ using PilotLatticeRules = std::map<uint32_t, LatticeRule>;
 // the pilot built are left there.
 AutoSelection select_estimator(const IntegrationProblem& problem, const StopRule& stop,
                                PilotLatticeRules* rules = nullptr);
+
+// select_estimator through a memo of its answers in this process. It is a pure function
+// of the problem and the stop rule, so `key` must determine both (the integration
+// compiler passes the spec's canonical text and the parsed targets): a spec compiled
+// again here — validate then submit, a cluster worker's next run of a job, identical
+// jobs recovered at start-up — takes the choice, and the chosen lattice's rule, without
+// running the pilot again (67 s for 1,000 components, docs/jobs.md). Keeps at most
+// kSelectionMemoEntries answers, the least recently used dropped first; thread-safe. Two
+// compiles of one key at the same moment each run the pilot (the answers are equal).
+inline constexpr size_t kSelectionMemoEntries = 64;
+AutoSelection select_estimator_remembered(const std::string& key, const IntegrationProblem& problem,
+                                          const StopRule& stop, PilotLatticeRules* rules = nullptr);
+
+// Pilots this process has run (select_estimator calls): for tests of the memo.
+uint64_t pilots_run();
 
 }  // namespace tally

@@ -267,8 +267,10 @@ void use_lattice(EstimatorChoice& c, const IntegrationProblem& prob, uint32_t n,
   c.sweep = true;
 }
 
-EstimatorChoice parse_estimator(const json* node, const std::string& pointer, IntegrationProblem prob,
-                                const JobLimits& limits, const StopRule& stop, bool stop_has_max_samples) {
+// `spec` is the whole job spec (auto's pilot memo is keyed by it).
+EstimatorChoice parse_estimator(const json& spec, const json* node, const std::string& pointer,
+                                IntegrationProblem prob, const JobLimits& limits, const StopRule& stop,
+                                bool stop_has_max_samples) {
   const Domain& D = *prob.domain;
   EstimatorChoice c;
   const bool vector = prob.integrand->components() > 1;
@@ -434,7 +436,11 @@ EstimatorChoice parse_estimator(const json* node, const std::string& pointer, In
     if (vector) need_box("auto with a vector integrand");
     if (D.uniforms() > 1024) throw SpecError(r.pointer_of("type"), "auto supports at most 1024 dimensions");
     PilotLatticeRules pilot_rules;
-    AutoSelection sel = select_estimator(prob, stop, &pilot_rules);
+    // The spec determines the problem (no file is read) and, with the parsed targets
+    // (limits may fill them), the stop rule: the pilot's answer is remembered by both.
+    const std::string key = fmt::format("{}|{:a}|{:a}|{:a}", spec.dump(), stop.abs_error, stop.rel_error,
+                                        stop.confidence);
+    AutoSelection sel = select_estimator_remembered(key, prob, stop, &pilot_rules);
     const AutoCandidate& w = sel.candidates[sel.chosen];
     if (w.estimator == "uniform" && vector) {
       frozen_uniform(r.pointer_of("type"));
@@ -644,7 +650,7 @@ std::unique_ptr<IntegrationJob> compile_integration_job(const json& spec, const 
   SpecReader stop = top.object("stop");
   job.stop = parse_stop_rule(stop, limits);
   EstimatorChoice est =
-      parse_estimator(top.find("estimator"), "/estimator", prob, limits, job.stop, stop.has("max_samples"));
+      parse_estimator(spec, top.find("estimator"), "/estimator", prob, limits, job.stop, stop.has("max_samples"));
   check_component_targets(job.stop, m, est.deterministic);
   if (est.deterministic) {
     job.stop.max_samples = 1;

@@ -180,6 +180,59 @@ TEST(AutoEstimator, ThePilotsLatticeRulesAreCbcsAndAChosenOneIsReused) {
   EXPECT_EQ(chosen.worst_case_error, fresh.worst_case_error);
 }
 
+// A spec compiled again in the same process takes its pilot's remembered answer
+// (select_estimator_remembered): no second pilot, the same plan, the same kernel bits.
+// A spec that differs in its seed or its target runs its own pilot, and an answer
+// pushed out by kSelectionMemoEntries newer ones is piloted again.
+TEST(AutoEstimator, ASpecCompiledAgainReusesItsPilot) {
+  const GenzParams p = genz_random_instance(GenzFamily::gaussian, 8, 1);
+  json spec = {{"kind", "integrate"},
+               {"seed", 11},
+               {"integrand", {{"builtin", "genz"}, {"family", "gaussian"}, {"a", p.a}, {"u", p.u}}},
+               {"estimator", {{"type", "auto"}}},
+               {"stop", {{"rel_error", 5e-6}}}};
+  const auto block_of = [](const JobDefinition& job) {
+    Block b;
+    b.sample_count = 2;
+    BlockResult out;
+    job.kernel()->run_block(b, out);
+    return std::pair(out.tallies.at(0).mean, out.tallies.at(0).m2);
+  };
+  const uint64_t before = pilots_run();
+  const auto first = compile_job(spec, JobLimits{});
+  EXPECT_EQ(pilots_run(), before + 1);
+  const auto second = compile_job(spec, JobLimits{});
+  EXPECT_EQ(pilots_run(), before + 1) << "the second compile ran the pilot again";
+  EXPECT_EQ(estimator_plan_json(plan_of(*second)), estimator_plan_json(plan_of(*first)));
+  EXPECT_EQ(plan_of(*second).type, "lattice");  // with the rule the memo kept
+  EXPECT_EQ(block_of(*second), block_of(*first));
+
+  json other_seed = spec;
+  other_seed["seed"] = 12;
+  compile_job(other_seed, JobLimits{});
+  EXPECT_EQ(pilots_run(), before + 2);
+  json other_target = spec;
+  other_target["stop"]["rel_error"] = 1e-5;
+  compile_job(other_target, JobLimits{});
+  EXPECT_EQ(pilots_run(), before + 3);
+
+  // kSelectionMemoEntries cheap specs (d = 2, 3 digits: no third pilot size) push the
+  // first answer out.
+  for (size_t i = 0; i < kSelectionMemoEntries; ++i) {
+    const json cheap = {{"kind", "integrate"},
+                        {"seed", 1000 + i},
+                        {"integrand", {{"expression", "x0*x1"}}},
+                        {"domain", unit_box(2)},
+                        {"estimator", {{"type", "auto"}}},
+                        {"stop", {{"rel_error", 1e-3}}}};
+    compile_job(cheap, JobLimits{});
+  }
+  EXPECT_EQ(pilots_run(), before + 3 + kSelectionMemoEntries);
+  const auto third = compile_job(spec, JobLimits{});
+  EXPECT_EQ(pilots_run(), before + 4 + kSelectionMemoEntries);
+  EXPECT_EQ(estimator_plan_json(plan_of(*third)), estimator_plan_json(plan_of(*first)));
+}
+
 // exp(s * sum_j sin(2 pi x_j) / (j + 1)) over [0,1]^d, = prod_j I0(s / (j + 1)).
 std::string periodic_template(size_t d) {
   std::string f;
