@@ -1,6 +1,8 @@
 // Evaluations per second of user expressions: muParser one point at a time, muParser's
 // bulk mode, and our compiled batches, in one run so the ratios compare like with like.
 //   expr_bench [points=16777216]
+// Then a vector integrand's components: one template at 1,000 parameter values evaluated
+// one by one and together (CompiledExpressionSet: the shared part once), interleaved.
 // muParser's bulk mode uses OpenMP threads (Debian builds it with MUP_USE_OPENMP): its
 // wall-clock rate counts every thread, so the per-CPU-second rate is printed as well; run
 // with OMP_NUM_THREADS=1 for a single-thread comparison.
@@ -15,6 +17,7 @@
 #include <vector>
 
 #include "common/expr/compiled_expression.hpp"
+#include "common/expr/expr_parameters.hpp"
 
 namespace {
 
@@ -136,6 +139,61 @@ void report(const char* name, const Result& r, const Result& scalar, const Resul
 
 }  // namespace
 
+// exp(s*(sum_j sin(2 pi x_j)/(j+1))) over 16 dimensions at s = 0.001 .. 1 (the spec of
+// examples/vector_parameters_16d.json): component evaluations per CPU second, one by one
+// and together, over `rounds` interleaved rounds of 64 batches of 256 points.
+void components_together(int rounds) {
+  constexpr size_t kD = 16, kM = 1000, kN = 256, kBatches = 64;
+  std::string sum;
+  for (size_t j = 0; j < kD; ++j) {
+    sum += (j ? "+" : "") + std::to_string(1.0 / static_cast<double>(j + 1)) + "*sin(2*_pi*x" + std::to_string(j) + ")";
+  }
+  const std::string text = "exp(s*(" + sum + "))";
+  std::vector<tally::CompiledExpression> exprs;
+  for (size_t c = 1; c <= kM; ++c) {
+    exprs.push_back(tally::CompiledExpression::compile(
+        tally::expr::bind_parameters(text, {{"s", static_cast<double>(c) / 1000.0}}), kD));
+  }
+  const tally::CompiledExpressionSet set(exprs);
+  std::vector<std::vector<double>> x(kD, std::vector<double>(kN));
+  uint64_t state = 12345;
+  for (auto& col : x) {
+    for (double& v : col) {
+      state = state * 6364136223846793005ULL + 1442695040888963407ULL;
+      v = static_cast<double>(state >> 11) * 0x1.0p-53;
+    }
+  }
+  std::vector<const double*> xs;
+  for (auto& col : x) xs.push_back(col.data());
+  std::vector<std::vector<double>> out(kM, std::vector<double>(kN));
+  std::vector<double*> outs;
+  for (auto& o : out) outs.push_back(o.data());
+  double alone_cpu = 0, together_cpu = 0, check_alone = 0, check_together = 0;
+  for (int r = 0; r < rounds; ++r) {
+    {
+      const Timer t;
+      for (size_t b = 0; b < kBatches; ++b) {
+        for (size_t c = 0; c < kM; ++c) exprs[c].evaluate_batch(xs.data(), kN, outs[c]);
+      }
+      alone_cpu += t.cpu_seconds();
+      for (const auto& o : out) check_alone += o[0];
+    }
+    {
+      const Timer t;
+      for (size_t b = 0; b < kBatches; ++b) set.evaluate_batch(xs.data(), kN, outs.data());
+      together_cpu += t.cpu_seconds();
+      for (const auto& o : out) check_together += o[0];
+    }
+  }
+  const double evals = static_cast<double>(rounds) * kBatches * kN * kM;
+  std::printf("\n%zu components of exp(s*(16 sines)), d = %zu: %zu instructions a batch one by one, %zu together\n",
+              kM, kD, set.instructions_alone(), set.instructions_together());
+  std::printf("  one by one: %.3g component evaluations per CPU second\n", evals / alone_cpu);
+  std::printf("  together  : %.3g component evaluations per CPU second\n", evals / together_cpu);
+  std::printf("  speed-up together / one by one: %.2fx (%d interleaved rounds; results %s)\n", alone_cpu / together_cpu,
+              rounds, check_alone == check_together ? "bit-identical" : "DIFFER");
+}
+
 int main(int argc, char** argv) {
   size_t total = argc > 1 ? std::strtoull(argv[1], nullptr, 10) : (size_t{1} << 24);
   total = (total + kChunk - 1) / kChunk * kChunk;
@@ -156,5 +214,6 @@ int main(int argc, char** argv) {
       report(name.c_str(), ours_batch(e, cols, total, batch), scalar, bulk);
     }
   }
+  components_together(5);
   return 0;
 }

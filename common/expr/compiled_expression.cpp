@@ -5,6 +5,7 @@
 
 #include "common/expr/expr_parser.hpp"
 #include "common/expr/expr_program.hpp"
+#include "common/expr/expr_sharing.hpp"
 #include "common/expr/muparser_check.hpp"
 
 namespace tally {
@@ -62,5 +63,34 @@ double CompiledExpression::evaluate(const double* x) const {
 size_t CompiledExpression::instruction_count() const {
   return program_->code.size();
 }
+
+CompiledExpressionSet::CompiledExpressionSet(const std::vector<CompiledExpression>& exprs) {
+  std::vector<const expr::Program*> programs;
+  programs.reserve(exprs.size());
+  for (const CompiledExpression& e : exprs) {
+    programs.push_back(e.program_.get());
+    alone_ += e.program_->code.size();
+  }
+  shared_ = std::make_shared<const expr::SharedPrograms>(expr::share_programs(programs));
+}
+
+size_t CompiledExpressionSet::size() const { return shared_->residual.size(); }
+
+void CompiledExpressionSet::evaluate_batch(const double* const* xs, size_t n, double* const* out) const {
+  expr::run_shared(*shared_, 0, size(), xs, n, out);
+}
+
+void CompiledExpressionSet::evaluate_batch(size_t first, size_t count, const double* const* xs, size_t n,
+                                           double* const* out) const {
+  expr::run_shared(*shared_, first, count, xs, n, out);
+}
+
+size_t CompiledExpressionSet::instructions_together() const {
+  size_t total = shared_->prelude.code.size();
+  for (const expr::Program& r : shared_->residual) total += r.code.size();
+  return total;
+}
+
+size_t CompiledExpressionSet::instructions_alone() const { return alone_; }
 
 }  // namespace tally

@@ -7,6 +7,7 @@
 #include <memory>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "common/expr/expr_error.hpp"
 
@@ -14,6 +15,7 @@ namespace tally {
 
 namespace expr {
 struct Program;
+struct SharedPrograms;
 }
 
 class CompiledExpression {
@@ -45,9 +47,37 @@ class CompiledExpression {
   CompiledExpression(std::string text, size_t dimensions,
                      std::shared_ptr<const expr::Program> program);
 
+  friend class CompiledExpressionSet;
   std::string text_;
   size_t dimensions_ = 0;
   std::shared_ptr<const expr::Program> program_;  // immutable, shared by copies
+};
+
+// Several expressions over the same variables (a vector integrand's components),
+// evaluated together: what two or more of them compute alike — the same operation on the
+// same operands, e.g. the sum of sines in exp(s*(sin(2*_pi*x0)+...)) at every value of
+// s — runs once a batch, and each expression runs only the rest (expr_sharing.hpp).
+// Each result is bit-identical to the expression's own evaluate_batch. Immutable and
+// thread-safe, like CompiledExpression.
+class CompiledExpressionSet {
+ public:
+  // `exprs` non-empty, all of the same dimensions.
+  explicit CompiledExpressionSet(const std::vector<CompiledExpression>& exprs);
+
+  size_t size() const;
+  // out[c] gets n results of expression c; no out[c] may overlap the inputs.
+  void evaluate_batch(const double* const* xs, size_t n, double* const* out) const;
+  // Expressions [first, first + count) only: out[k] gets expression first + k (the shared
+  // part is computed once a call, so call with many at a time).
+  void evaluate_batch(size_t first, size_t count, const double* const* xs, size_t n, double* const* out) const;
+  // Instructions a batch runs together (the shared ones once) and one by one: for tests
+  // and benchmarks.
+  size_t instructions_together() const;
+  size_t instructions_alone() const;
+
+ private:
+  std::shared_ptr<const expr::SharedPrograms> shared_;
+  size_t alone_ = 0;
 };
 
 }  // namespace tally

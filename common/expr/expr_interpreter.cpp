@@ -152,28 +152,29 @@ struct Scratch {
   std::vector<const double*> slots;
 };
 
-}  // namespace
-
-void run_batch(const Program& program, const double* const* xs, size_t n, double* out) {
+// run_batch and run_batch_registers: `regs` (num_registers x kBatch) is the caller's, or
+// null for the thread's own scratch.
+void run(const Program& program, const double* const* xs, size_t n, double* out, double* own_regs) {
   if (n == 0) return;
   thread_local Scratch scratch;
   const size_t padded = (n + kLane - 1) / kLane * kLane;
   const bool partial = padded != n;
   const size_t dims = program.dimensions;
   const size_t extra = partial ? program.used_inputs.size() + 1 : 0;
-  const size_t need = (program.num_registers + extra) * kBatch;
+  const size_t own = own_regs ? 0 : program.num_registers;
+  const size_t need = (own + extra) * kBatch;
   if (scratch.values.size() < need) scratch.values.resize(need);
   if (scratch.slots.size() < dims + program.num_registers) {
     scratch.slots.resize(dims + program.num_registers);
   }
-  double* regs = scratch.values.data();
+  double* regs = own_regs ? own_regs : scratch.values.data();
   const double** slots = scratch.slots.data();
   for (size_t v = 0; v < dims; ++v) slots[v] = xs[v];
   for (size_t r = 0; r < program.num_registers; ++r) slots[dims + r] = regs + r * kBatch;
 
   double* target = out;
   if (partial) {
-    double* pad = regs + program.num_registers * kBatch;
+    double* pad = scratch.values.data() + own * kBatch;
     for (uint16_t v : program.used_inputs) {
       std::memcpy(pad, xs[v], n * sizeof(double));
       std::fill(pad + n, pad + padded, 0.0);
@@ -186,7 +187,17 @@ void run_batch(const Program& program, const double* const* xs, size_t n, double
     double* o = ins.dst == kOutSlot ? target : regs + (ins.dst - dims) * kBatch;
     execute(ins, o, slots, padded);
   }
-  if (partial) std::memcpy(out, target, n * sizeof(double));
+  if (partial && out) std::memcpy(out, target, n * sizeof(double));
+}
+
+}  // namespace
+
+void run_batch(const Program& program, const double* const* xs, size_t n, double* out) {
+  run(program, xs, n, out, nullptr);
+}
+
+void run_batch_registers(const Program& program, const double* const* xs, size_t n, double* regs) {
+  run(program, xs, n, nullptr, regs);
 }
 
 double run_point(const Program& program, const double* x) {

@@ -41,6 +41,11 @@ Program generate(const Ast& ast, size_t dimensions, size_t max_instructions);
 // out[i] = f(xs[0][i], ..., xs[d-1][i]) for i < n, n <= kBatch. out must not alias an input.
 void run_batch(const Program& program, const double* const* xs, size_t n, double* out);
 
+// The same, for a program that writes no output: its registers are left in regs
+// (num_registers x kBatch doubles, register r at regs + r * kBatch), each valid on the
+// first n values (on a multiple of 8 beyond: values of zero-padded inputs).
+void run_batch_registers(const Program& program, const double* const* xs, size_t n, double* regs);
+
 // One point, x[0..d-1], interpreted on scalars (same operations, same results).
 double run_point(const Program& program, const double* x);
 
