@@ -38,11 +38,28 @@ struct PilotRun {
   uint64_t evaluations = 0;
 };
 
+// A vector integrand's block keeps components x samples values until it ends: the pilot
+// runs at most this many a block (merged in sample order), so that the uniform
+// candidate's 16,384 one-point samples of 10,000 components take 16 MB, not 1.3 GB.
+// A scalar integrand's pilot is one block, as before.
+constexpr uint64_t kPilotValuesPerBlock = uint64_t{1} << 21;
+
 PilotRun pilot(const Kernel& k, uint64_t samples, uint64_t points, size_t components) {
-  Block b;
-  b.sample_count = samples;
+  const uint64_t per_block = std::max<uint64_t>(1, kPilotValuesPerBlock / std::max<size_t>(1, components));
   BlockResult out;
-  k.run_block(b, out);
+  for (uint64_t first = 0; first < samples && !out.fault; first += per_block) {
+    Block b;
+    b.index = first / per_block;
+    b.first_sample = first;
+    b.sample_count = std::min(per_block, samples - first);
+    if (first == 0) {
+      k.run_block(b, out);
+    } else {
+      BlockResult part;
+      k.run_block(b, part);
+      combine_results(out, part);
+    }
+  }
   PilotRun r;
   r.evaluations = samples * points;
   r.mean.assign(components, 0.0);

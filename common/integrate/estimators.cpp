@@ -22,6 +22,8 @@ namespace tally {
 namespace {
 
 constexpr size_t kB = kIntegrandBatch;
+// Components of a vector integrand a sweep evaluates at once (256 x kB doubles a thread).
+constexpr size_t kComponentChunk = 256;
 
 // Per-thread structure-of-arrays buffers for one batch.
 struct Scratch {
@@ -431,8 +433,14 @@ class SweepKernelBase : public IntegrationKernelBase {
   void run_vector_block(const Block& b, BlockResult& out) const {
     const size_t count = static_cast<size_t>(b.sample_count);
     thread_local std::vector<double> vals, fbuf, totals;
+    thread_local std::vector<double*> fptr;
     vals.assign(m_ * count, 0.0);
-    fbuf.resize(kB);  // one component's batch at a time: memory does not grow with m
+    // kComponentChunk components' batches at a time (evaluated together: what they share
+    // runs once): memory does not grow with m.
+    const size_t chunk = std::min(m_, kComponentChunk);
+    fbuf.resize(chunk * kB);
+    fptr.resize(chunk);
+    for (size_t i = 0; i < chunk; ++i) fptr[i] = fbuf.data() + i * kB;
     totals.resize(m_);
     Scratch& s = scratch();
     const Domain& D = *p_.domain;
@@ -451,8 +459,10 @@ class SweepKernelBase : public IntegrationKernelBase {
         const bool weighted = sweep_uniforms(s, sample, j0, n);
         D.map_uniform(s.u_ptr.data(), n, s.x_ptr.data());
         for (size_t c = 0; c < m_ && done == count; ++c) {
-          double* f = fbuf.data();
-          p_.integrand->evaluate_component(c, s.x_cptr.data(), n, f);
+          if (c % chunk == 0) {
+            p_.integrand->evaluate_component_range(c, std::min(chunk, m_ - c), s.x_cptr.data(), n, fptr.data());
+          }
+          const double* f = fptr[c % chunk];
           if (!all_finite(f, n)) {
             for (size_t i = 0; i < n; ++i) {
               if (!std::isfinite(f[i])) {

@@ -40,10 +40,12 @@ class Integrand {
   virtual void evaluate_components(const double* const* xs, size_t n, double* const* out) const {
     evaluate_batch(xs, n, out[0]);
   }
-  // Component c alone (n values to out), for callers that consume one component at a
-  // time and so need one batch buffer, not components() of them. Default: component 0.
-  virtual void evaluate_component(size_t /*c*/, const double* const* xs, size_t n, double* out) const {
-    evaluate_batch(xs, n, out);
+  // Components [first, first + count) (n values of component first + k to out[k]), for
+  // callers that consume a few at a time and so need count batch buffers, not
+  // components() of them. Default: one component, evaluate_batch.
+  virtual void evaluate_component_range(size_t /*first*/, size_t /*count*/, const double* const* xs, size_t n,
+                                   double* const* out) const {
+    evaluate_batch(xs, n, out[0]);
   }
   virtual IntegrandInfo describe() const = 0;
 };

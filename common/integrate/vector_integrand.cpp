@@ -14,17 +14,18 @@ class VectorExpressionIntegrand final : public Integrand {
   using Parameters = std::vector<std::pair<std::string, std::vector<double>>>;
   explicit VectorExpressionIntegrand(std::vector<CompiledExpression> e, std::string tmpl = {},
                                      Parameters parameters = {})
-      : exprs_(std::move(e)), template_(std::move(tmpl)), parameters_(std::move(parameters)) {}
+      : exprs_(std::move(e)), together_(exprs_), template_(std::move(tmpl)), parameters_(std::move(parameters)) {}
   size_t dimensions() const override { return exprs_[0].dimensions(); }
   size_t components() const override { return exprs_.size(); }
   void evaluate_batch(const double* const* xs, size_t n, double* out) const override {
     exprs_[0].evaluate_batch(xs, n, out);
   }
   void evaluate_components(const double* const* xs, size_t n, double* const* out) const override {
-    for (size_t c = 0; c < exprs_.size(); ++c) exprs_[c].evaluate_batch(xs, n, out[c]);
+    together_.evaluate_batch(xs, n, out);  // what the components share runs once
   }
-  void evaluate_component(size_t c, const double* const* xs, size_t n, double* out) const override {
-    exprs_[c].evaluate_batch(xs, n, out);
+  void evaluate_component_range(size_t first, size_t count, const double* const* xs, size_t n,
+                           double* const* out) const override {
+    together_.evaluate_batch(first, count, xs, n, out);
   }
   IntegrandInfo describe() const override {
     IntegrandInfo info;
@@ -39,6 +40,7 @@ class VectorExpressionIntegrand final : public Integrand {
 
  private:
   std::vector<CompiledExpression> exprs_;
+  CompiledExpressionSet together_;  // the same expressions, evaluated together
   std::string template_;
   Parameters parameters_;
 };
@@ -61,8 +63,9 @@ class GenzSet final : public Integrand {
   void evaluate_components(const double* const* xs, size_t n, double* const* out) const override {
     for (size_t c = 0; c < fs_.size(); ++c) fs_[c]->evaluate_batch(xs, n, out[c]);
   }
-  void evaluate_component(size_t c, const double* const* xs, size_t n, double* out) const override {
-    fs_[c]->evaluate_batch(xs, n, out);
+  void evaluate_component_range(size_t first, size_t count, const double* const* xs, size_t n,
+                           double* const* out) const override {
+    for (size_t k = 0; k < count; ++k) fs_[first + k]->evaluate_batch(xs, n, out[k]);
   }
   IntegrandInfo describe() const override {
     return {.builtin = "genz", .families = names_, .a = a_, .u = u_};
