@@ -65,16 +65,16 @@ size_t CompiledExpression::instruction_count() const {
 }
 
 CompiledExpressionSet::CompiledExpressionSet(const std::vector<CompiledExpression>& exprs) {
-  std::vector<const expr::Program*> programs;
+  std::vector<std::shared_ptr<const expr::Program>> programs;
   programs.reserve(exprs.size());
   for (const CompiledExpression& e : exprs) {
-    programs.push_back(e.program_.get());
+    programs.push_back(e.program_);
     alone_ += e.program_->code.size();
   }
   shared_ = std::make_shared<const expr::SharedPrograms>(expr::share_programs(programs));
 }
 
-size_t CompiledExpressionSet::size() const { return shared_->residual.size(); }
+size_t CompiledExpressionSet::size() const { return shared_->size(); }
 
 void CompiledExpressionSet::evaluate_batch(const double* const* xs, size_t n, double* const* out) const {
   expr::run_shared(*shared_, 0, size(), xs, n, out);
@@ -86,6 +86,7 @@ void CompiledExpressionSet::evaluate_batch(size_t first, size_t count, const dou
 }
 
 size_t CompiledExpressionSet::instructions_together() const {
+  if (!shared_->alone.empty()) return alone_;
   size_t total = shared_->prelude.code.size();
   for (const expr::Program& r : shared_->residual) total += r.code.size();
   return total;

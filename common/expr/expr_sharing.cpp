@@ -11,6 +11,7 @@ namespace tally::expr {
 namespace {
 
 constexpr uint32_t kNone = 0xFFFFFFFFu;
+constexpr size_t kMaxInputs = 64;  // CompiledExpression::kMaxDimensions
 
 // What an instruction computes, in value numbers: equal keys, equal values.
 struct Key {
@@ -32,11 +33,17 @@ struct Numbered {
 
 }  // namespace
 
-SharedPrograms share_programs(const std::vector<const Program*>& programs) {
+SharedPrograms share_programs(const std::vector<std::shared_ptr<const Program>>& programs) {
   SharedPrograms sp;
   if (programs.empty()) return sp;
   const size_t d = programs.front()->dimensions;
   sp.dimensions = d;
+  size_t total = 0;
+  for (const auto& p : programs) total += p->code.size();
+  if (programs.size() < 2 || total > kMaxSharingInstructions) {
+    sp.alone = programs;
+    return sp;
+  }
   std::map<Key, uint32_t> numbers;
   std::vector<Key> keys;                    // by value number - d
   std::vector<uint32_t> programs_using;     // by value number - d
@@ -95,10 +102,10 @@ SharedPrograms share_programs(const std::vector<const Program*>& programs) {
     if (programs_using[i] >= 2) shared_index[i] = static_cast<uint32_t>(shared++);
   }
   size_t max_registers = 0;
-  for (const Program* p : programs) max_registers = std::max(max_registers, p->num_registers);
-  if (shared > kMaxSharedValues || d + shared + max_registers >= kOutSlot) {
-    shared = 0;
-    std::fill(shared_index.begin(), shared_index.end(), kNone);
+  for (const auto& p : programs) max_registers = std::max(max_registers, p->num_registers);
+  if (shared == 0 || shared > kMaxSharedValues || d + shared + max_registers >= kOutSlot) {
+    sp.alone = programs;
+    return sp;
   }
   const auto shared_slot = [&](uint32_t vn) -> uint32_t {
     if (vn == kNone || vn < d) return kNone;
@@ -109,7 +116,7 @@ SharedPrograms share_programs(const std::vector<const Program*>& programs) {
   // The prelude: each shared value once, into its own register.
   sp.prelude.dimensions = d;
   sp.prelude.num_registers = shared;
-  for (size_t i = 0; i < keys.size() && shared > 0; ++i) {
+  for (size_t i = 0; i < keys.size(); ++i) {
     if (shared_index[i] == kNone) continue;
     const Key& k = keys[i];
     Instr ins;
@@ -193,6 +200,15 @@ SharedPrograms share_programs(const std::vector<const Program*>& programs) {
 
 void run_shared(const SharedPrograms& sp, size_t first, size_t count, const double* const* xs, size_t n,
                 double* const* out) {
+  if (!sp.alone.empty()) {
+    const double* shifted[kMaxInputs];
+    for (size_t start = 0; start < n; start += kBatch) {
+      const size_t m = std::min(kBatch, n - start);
+      for (size_t v = 0; v < sp.dimensions; ++v) shifted[v] = xs[v] + start;
+      for (size_t k = 0; k < count; ++k) run_batch(*sp.alone[first + k], shifted, m, out[k] + start);
+    }
+    return;
+  }
   const size_t d = sp.dimensions, shared = sp.shared();
   thread_local std::vector<double> values;
   thread_local std::vector<const double*> inputs;
@@ -202,7 +218,7 @@ void run_shared(const SharedPrograms& sp, size_t first, size_t count, const doub
   for (size_t start = 0; start < n; start += kBatch) {
     const size_t m = std::min(kBatch, n - start);
     for (size_t v = 0; v < d; ++v) inputs[v] = xs[v] + start;
-    if (shared > 0) run_batch_registers(sp.prelude, inputs.data(), m, values.data());
+    run_batch_registers(sp.prelude, inputs.data(), m, values.data());
     for (size_t k = 0; k < count; ++k) run_batch(sp.residual[first + k], inputs.data(), m, out[k] + start);
   }
 }

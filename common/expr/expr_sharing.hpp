@@ -16,6 +16,7 @@
 // 1,000 values of s — the sines and their sum are shared, each residual is a product and
 // an exp (docs/jobs.md, vector integrands).
 #include <cstddef>
+#include <memory>
 #include <vector>
 
 #include "common/expr/expr_program.hpp"
@@ -26,16 +27,21 @@ struct SharedPrograms {
   size_t dimensions = 0;
   Program prelude;                // dimensions d; register k holds shared value k
   std::vector<Program> residual;  // dimensions d + shared; one per program, in order
+  // Nothing shared (no value in common, or past the limits below): the programs
+  // themselves, run one by one (residual empty).
+  std::vector<std::shared_ptr<const Program>> alone;
   size_t shared() const { return prelude.num_registers; }
+  size_t size() const { return alone.empty() ? residual.size() : alone.size(); }
 };
 
-// Limits that keep slot numbers within uint16 and the prelude's registers (kBatch doubles
-// each) within 8 MiB a thread: beyond them nothing is shared (shared() == 0 and each
-// residual is its program with the same instructions).
+// Limits: the numbering's table (all the programs' instructions, about 80 bytes each while
+// it is built), slot numbers within uint16 and the prelude's registers (kBatch doubles
+// each) within 8 MiB a thread. Past them the programs run alone.
+inline constexpr size_t kMaxSharingInstructions = size_t{1} << 20;
 inline constexpr size_t kMaxSharedValues = 4096;
 
 // `programs` all have the same dimensions.
-SharedPrograms share_programs(const std::vector<const Program*>& programs);
+SharedPrograms share_programs(const std::vector<std::shared_ptr<const Program>>& programs);
 
 // out[k][i] = program first + k at point i, for k < count and i < n (any n): the prelude
 // once a batch, then those residuals. Thread-safe (thread_local scratch).

@@ -93,6 +93,15 @@ TEST(ExprSharing, ATemplateAtAThousandValuesRunsItsSharedPartOnce) {
   for (size_t n : {size_t{5}, size_t{256}, size_t{300}}) expect_bit_identical(exprs, n, 7);
 }
 
+TEST(ExprSharing, ExpressionsWithNothingInCommonRunAlone) {
+  const std::vector<CompiledExpression> exprs = {CompiledExpression::compile("x0 + 1", 2),
+                                                 CompiledExpression::compile("x1 * 2", 2),
+                                                 CompiledExpression::compile("sin(x0) - x1", 2)};
+  const CompiledExpressionSet set(exprs);
+  EXPECT_EQ(set.instructions_together(), set.instructions_alone());
+  for (size_t n : kSizes) expect_bit_identical(exprs, n, 5);
+}
+
 TEST(ExprSharing, OneExpressionAloneIsItsOwnProgram) {
   const std::vector<CompiledExpression> one = {CompiledExpression::compile("sin(x0)*x1 + 1", 2)};
   const CompiledExpressionSet set(one);

@@ -1,6 +1,7 @@
 // libFuzzer: the expression compiler. Oracles: muParser (compile() cross-checks the
-// compiled program against it and throws kind internal on a disagreement) and the
-// scalar path against the batch path, bit for bit.
+// compiled program against it and throws kind internal on a disagreement), the scalar
+// path against the batch path, and the expression evaluated in a set with two that
+// share its program (CompiledExpressionSet) against it alone, bit for bit.
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
@@ -43,6 +44,27 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     const bool same = (std::isnan(scalar) && std::isnan(batch[i])) ||
                       std::memcmp(&scalar, &batch[i], sizeof(double)) == 0;
     if (!same) tally::fuzz::fail("scalar and batch differ", std::to_string(scalar) + " vs " + std::to_string(batch[i]), text);
+  }
+  // In a set with (text)*x0 and x0 (each shares its program or a part of it): every
+  // member's result is its own, bit for bit (a NaN's payload included).
+  std::vector<CompiledExpression> set_members = {*e};
+  try {
+    set_members.push_back(CompiledExpression::compile("(" + text + ")*x0", dims));
+  } catch (const tally::ExprError& err) {
+    if (err.kind == tally::ExprErrorKind::internal) tally::fuzz::fail("internal error", err.what(), text);
+  }
+  set_members.push_back(CompiledExpression::compile("x0", dims));
+  const tally::CompiledExpressionSet set(set_members);
+  std::vector<std::vector<double>> together(set_members.size(), std::vector<double>(kN));
+  std::vector<double*> outs;
+  for (auto& o : together) outs.push_back(o.data());
+  set.evaluate_batch(xs.data(), kN, outs.data());
+  for (size_t c = 0; c < set_members.size(); ++c) {
+    double alone[kN];
+    set_members[c].evaluate_batch(xs.data(), kN, alone);
+    if (std::memcmp(alone, together[c].data(), sizeof(alone)) != 0) {
+      tally::fuzz::fail("a set member differs from itself alone", set_members[c].text(), text);
+    }
   }
   return 0;
 }
