@@ -3,8 +3,7 @@
 #include <algorithm>
 #include <bit>
 #include <cstdint>
-#include <map>
-#include <tuple>
+#include <utility>
 
 namespace tally::expr {
 
@@ -19,8 +18,50 @@ struct Key {
   uint8_t const_a = 0, const_b = 0;
   uint64_t a = 0, b = 0;  // an operand's value number, or an immediate's bits
   uint32_t c = kNone;     // select: the condition's value number
-  auto tie() const { return std::tie(op, const_a, const_b, a, b, c); }
-  bool operator<(const Key& o) const { return tie() < o.tie(); }
+  bool operator==(const Key&) const = default;
+  uint64_t hash() const {
+    uint64_t h = (static_cast<uint64_t>(op) << 16) ^ (static_cast<uint64_t>(const_a) << 8) ^ const_b;
+    for (uint64_t v : {a, b, static_cast<uint64_t>(c)}) {
+      h ^= v + 0x9e3779b97f4a7c15ULL + (h << 6) + (h >> 2);
+      h *= 0xff51afd7ed558ccdULL;
+    }
+    return h ^ (h >> 33);
+  }
+};
+
+// Value numbers by key: an open-addressing table of indices into `keys` (4 bytes a slot,
+// at most half full), so the numbering of 10,000 components costs little beside them.
+class Numbering {
+ public:
+  // The number of `k` (first: d + its index in keys()), and whether it is new.
+  std::pair<uint32_t, bool> number(const Key& k, uint32_t d) {
+    if (2 * (keys_.size() + 1) > table_.size()) grow();
+    const size_t mask = table_.size() - 1;
+    for (size_t i = k.hash() & mask;; i = (i + 1) & mask) {
+      const uint32_t e = table_[i];
+      if (e == kNone) {
+        table_[i] = static_cast<uint32_t>(keys_.size());
+        keys_.push_back(k);
+        return {static_cast<uint32_t>(d + keys_.size() - 1), true};
+      }
+      if (keys_[e] == k) return {d + e, false};
+    }
+  }
+  const std::vector<Key>& keys() const { return keys_; }
+
+ private:
+  void grow() {
+    std::vector<uint32_t> t(std::max<size_t>(64, 2 * table_.size()), kNone);
+    const size_t mask = t.size() - 1;
+    for (uint32_t e = 0; e < keys_.size(); ++e) {
+      size_t i = keys_[e].hash() & mask;
+      while (t[i] != kNone) i = (i + 1) & mask;
+      t[i] = e;
+    }
+    table_ = std::move(t);
+  }
+  std::vector<uint32_t> table_;
+  std::vector<Key> keys_;
 };
 
 bool reads_b(Op op) { return is_binary(op) || op == Op::select; }
@@ -44,8 +85,7 @@ SharedPrograms share_programs(const std::vector<std::shared_ptr<const Program>>&
     sp.alone = programs;
     return sp;
   }
-  std::map<Key, uint32_t> numbers;
-  std::vector<Key> keys;                    // by value number - d
+  Numbering numbering;
   std::vector<uint32_t> programs_using;     // by value number - d
   std::vector<uint32_t> last_program;       // by value number - d
   std::vector<std::vector<Numbered>> numbered(programs.size());
@@ -78,13 +118,12 @@ SharedPrograms share_programs(const std::vector<std::shared_ptr<const Program>>&
         nb.c = slot[ins.c];
         k.c = nb.c;
       }
-      auto [it, fresh] = numbers.emplace(k, static_cast<uint32_t>(d + keys.size()));
+      const auto [vn, fresh] = numbering.number(k, static_cast<uint32_t>(d));
       if (fresh) {
-        keys.push_back(k);
         programs_using.push_back(0);
         last_program.push_back(kNone);
       }
-      nb.vn = it->second;
+      nb.vn = vn;
       const size_t i = nb.vn - d;
       if (last_program[i] != p) {
         last_program[i] = static_cast<uint32_t>(p);
@@ -95,6 +134,7 @@ SharedPrograms share_programs(const std::vector<std::shared_ptr<const Program>>&
     }
   }
 
+  const std::vector<Key>& keys = numbering.keys();  // by value number - d
   // Shared values, in value-number order (operands are numbered before their users).
   std::vector<uint32_t> shared_index(keys.size(), kNone);
   size_t shared = 0;

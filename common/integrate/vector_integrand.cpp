@@ -12,19 +12,26 @@ namespace {
 class VectorExpressionIntegrand final : public Integrand {
  public:
   using Parameters = std::vector<std::pair<std::string, std::vector<double>>>;
+  // Keeps component 0 (evaluate_batch) and the set; the other compiled expressions are
+  // dropped once the set is built (its programs are theirs or their residuals), and their
+  // texts kept only when there is no template to describe them.
   explicit VectorExpressionIntegrand(std::vector<CompiledExpression> e, std::string tmpl = {},
                                      Parameters parameters = {})
-      : exprs_(std::move(e)), together_(exprs_), template_(std::move(tmpl)), parameters_(std::move(parameters)) {}
-  size_t dimensions() const override { return exprs_[0].dimensions(); }
-  size_t components() const override { return exprs_.size(); }
+      : first_(e.front()), together_(e), template_(std::move(tmpl)), parameters_(std::move(parameters)) {
+    if (parameters_.empty()) {
+      for (const auto& x : e) texts_.push_back(x.text());
+    }
+  }
+  size_t dimensions() const override { return first_.dimensions(); }
+  size_t components() const override { return together_.size(); }
   void evaluate_batch(const double* const* xs, size_t n, double* out) const override {
-    exprs_[0].evaluate_batch(xs, n, out);
+    first_.evaluate_batch(xs, n, out);
   }
   void evaluate_components(const double* const* xs, size_t n, double* const* out) const override {
     together_.evaluate_batch(xs, n, out);  // what the components share runs once
   }
   void evaluate_component_range(size_t first, size_t count, const double* const* xs, size_t n,
-                           double* const* out) const override {
+                                double* const* out) const override {
     together_.evaluate_batch(first, count, xs, n, out);
   }
   IntegrandInfo describe() const override {
@@ -34,13 +41,14 @@ class VectorExpressionIntegrand final : public Integrand {
       info.parameters = parameters_;
       return info;
     }
-    for (const auto& e : exprs_) info.expressions.push_back(e.text());
+    info.expressions = texts_;
     return info;
   }
 
  private:
-  std::vector<CompiledExpression> exprs_;
-  CompiledExpressionSet together_;  // the same expressions, evaluated together
+  CompiledExpression first_;
+  CompiledExpressionSet together_;  // every component, evaluated together
+  std::vector<std::string> texts_;  // without a template: each component's text
   std::string template_;
   Parameters parameters_;
 };
