@@ -48,6 +48,11 @@ EnvironmentMap::EnvironmentMap(int width, int height, std::span<const float> rgb
     cos_rot_ = std::cos(a), sin_rot_ = std::sin(a);
   }
 
+  float largest = 0;
+  for (const float f : rgb) {
+    if (std::isfinite(f)) largest = std::max(largest, f);
+  }
+  const float floor = -kNegativeTexelTolerance * largest;
   texels_.resize(w * h);
   for (size_t i = 0; i < w * h; ++i) {
     double c3[3];
@@ -57,11 +62,17 @@ EnvironmentMap::EnvironmentMap(int width, int height, std::span<const float> rgb
         throw std::invalid_argument(fmt::format("texel (column {}, row {}) channel {} is {}: radiance must be finite",
                                                 i % w, i / w, channel_name(c), f));
       }
-      if (f < 0) {
-        throw std::invalid_argument(fmt::format("texel (column {}, row {}) channel {} is {}: radiance must be >= 0",
-                                                i % w, i / w, channel_name(c), f));
+      if (f < 0 && f < floor) {
+        throw std::invalid_argument(fmt::format(
+            "texel (column {}, row {}) channel {} is {}: radiance must be >= 0 (values down to {} x the map's "
+            "largest, {}, are read as 0)",
+            i % w, i / w, channel_name(c), f, -kNegativeTexelTolerance, largest));
       }
-      c3[c] = static_cast<double>(f) * intensity;
+      if (f < 0) {
+        ++negative_texels_;
+        most_negative_ = std::min(most_negative_, f);
+      }
+      c3[c] = f < 0 ? 0.0 : static_cast<double>(f) * intensity;
     }
     texels_[i] = {c3[0], c3[1], c3[2]};  // finite: a float (< 3.5e38) times the spec's intensity (<= 1e12)
   }

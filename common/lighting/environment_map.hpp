@@ -50,9 +50,17 @@ class EnvironmentMap {
   };
 
   // rgb: 3 * width * height linear values, row-major from the top row (v = 0). Needs
-  // width == 2 * height >= 2, every value finite and >= 0, intensity finite and >= 0,
-  // rotation_deg finite. Throws std::invalid_argument saying which texel or parameter.
+  // width == 2 * height >= 2, every value finite and >= -kNegativeTexelTolerance x the
+  // map's largest value, intensity finite and >= 0, rotation_deg finite. Throws
+  // std::invalid_argument saying which texel or parameter. Values below 0 but within the
+  // tolerance (lossy compression and filtering leave them: every one of Blender's studio
+  // world maps has some, down to -0.004) are read as 0 and counted (negative_texels()).
   EnvironmentMap(int width, int height, std::span<const float> rgb, double intensity, double rotation_deg);
+
+  // Texel channels below 0 read as 0, and the most negative of them (0 if none).
+  size_t negative_texels() const { return negative_texels_; }
+  float most_negative() const { return most_negative_; }
+  static constexpr float kNegativeTexelTolerance = 1e-3f;
 
   int width() const { return width_; }
   int height() const { return height_; }
@@ -84,6 +92,8 @@ class EnvironmentMap {
   std::optional<PiecewiseConstant2D> dist_;
   std::optional<Rgb> constant_;
   Rgb mean_{};
+  size_t negative_texels_ = 0;
+  float most_negative_ = 0;
 };
 
 // The radiance a ray leaving the scene along w finds: the map, the constant sky, or 0.

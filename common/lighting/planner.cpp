@@ -74,6 +74,10 @@ Plan make_plan(const Scene& scene, const PlanQuery& q, bool full) {
   if (sky && scene.environment) {
     sky_why = fmt::format("the scene has an environment map ({}x{}, importance-sampled, MIS with the BSDF)",
                           scene.environment->width(), scene.environment->height());
+    if (const size_t n = scene.environment->negative_texels(); n > 0) {
+      sky_why += fmt::format("; {} slightly negative texel value{} (down to {}) read as 0", n, n == 1 ? "" : "s",
+                             scene.environment->most_negative());
+    }
   } else if (sky) {
     sky_why = "the scene has a sky";
   }

@@ -269,6 +269,9 @@ TEST(EnvMap, BadMapsAreRefusedNamingTheTexel) {
   m = constant_rgb(8, 4, 1, 1, 1);
   m[3 * 9 + 2] = -0.5f;
   EXPECT_NE(message(8, 4, m).find("texel (column 1, row 1) channel B is -0.5"), std::string::npos) << message(8, 4, m);
+  // Just below the tolerance (1e-3 x the largest value, here 1) is still refused.
+  m[3 * 9 + 2] = -1.01e-3f;
+  EXPECT_NE(message(8, 4, m).find("channel B is -0.00101"), std::string::npos) << message(8, 4, m);
   m[3 * 9 + 2] = std::numeric_limits<float>::infinity();
   EXPECT_NE(message(8, 4, m).find("must be finite"), std::string::npos);
   EXPECT_NE(message(6, 4, constant_rgb(6, 4, 1, 1, 1)).find("2:1"), std::string::npos);
@@ -459,6 +462,34 @@ TEST(EnvLight, BitIdenticalForAnyThreadCountAndPlanned) {
   const auto job = compile_lighting_job(open_image_spec(sky_map("m.exr")), dir.limits());
   const json plan = plan_json(*job);
   EXPECT_NE(plan.dump().find("environment map (32x16, importance-sampled"), std::string::npos) << plan.dump();
+}
+
+// Slightly negative texels (lossy compression leaves them; Blender's studio world maps
+// all have some) are read as 0 and counted, and the plan says so: the image is bit for bit
+// that of the same map with 0 there.
+TEST(EnvLight, SlightlyNegativeTexelsReadAsZeroAndThePlanSaysSo) {
+  TempDir dir("negative");
+  std::vector<float> m = test_map_rgb(32, 16);
+  float largest = 0;
+  for (float f : m) largest = std::max(largest, f);
+  std::vector<float> zeroed = m;
+  m[3 * (5 * 32 + 7) + 0] = -0.5e-3f * largest;
+  m[3 * (9 * 32 + 20) + 2] = -0.25e-3f * largest;
+  zeroed[3 * (5 * 32 + 7) + 0] = 0.0f;
+  zeroed[3 * (9 * 32 + 20) + 2] = 0.0f;
+  const EnvironmentMap direct(32, 16, m, 1.0, 0.0);
+  EXPECT_EQ(direct.negative_texels(), 2u);
+  EXPECT_EQ(direct.most_negative(), -0.5e-3f * largest);
+  EXPECT_EQ(direct.texel(7, 5).x, 0.0);
+  write_image(dir.assets() / "neg.exr", 32, 16, m);
+  write_image(dir.assets() / "zero.exr", 32, 16, zeroed);
+  const JobRun a = run_spec(open_image_spec(sky_map("neg.exr"), 4), 2, dir.limits());
+  const JobRun b = run_spec(open_image_spec(sky_map("zero.exr"), 4), 2, dir.limits());
+  EXPECT_EQ(test::differing_channels(a, b), 0u);
+  const json plan = plan_json(*compile_lighting_job(open_image_spec(sky_map("neg.exr")), dir.limits()));
+  EXPECT_NE(plan.dump().find("; 2 slightly negative texel values (down to -"), std::string::npos) << plan.dump();
+  const json clean = plan_json(*compile_lighting_job(open_image_spec(sky_map("zero.exr")), dir.limits()));
+  EXPECT_EQ(clean.dump().find("negative"), std::string::npos) << clean.dump();
 }
 
 std::string error_of(const json& spec, const JobLimits& limits, std::string* message = nullptr) {
