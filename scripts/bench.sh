@@ -26,8 +26,10 @@ benches=(
   "frame_4k|a 4K frame through the server: kill -9, resume, EXR|python3 $root/bench/frame_4k_e2e.py --build $build"
   "boundary_stall|request latency while a 1080p frame merges its passes|python3 $root/bench/boundary_stall.py --build $build"
   "higher_order_nets|interlaced vs plain scrambled Sobol' sd, d 2-16|python3 $root/bench/higher_order_nets.py --build $build"
+  "scene_suite|tally vs Cycles on the five suite scenes, depths 1/4/8 (~20-30 min)|python3 $root/bench/scene_suite/suite.py --build $build"
+  "scene_suite_quick|the scene suite at 64x48, depth 4, 16/64 spp (~1-3 min)|python3 $root/bench/scene_suite/suite.py --build $build --quick"
 )
-default=(integrate expr vector lighting frame_memory)
+default=(integrate expr vector lighting frame_memory scene_suite_quick)
 
 if [ "${1:-}" = "list" ]; then
   for e in "${benches[@]}"; do IFS='|' read -r n what _ <<<"$e"; printf '%-14s %s\n' "$n" "$what"; done

@@ -31,17 +31,20 @@ import sys
 import time
 from typing import Dict, List, Optional, Tuple
 
-import numpy as np
+try:
+    import numpy as np
+    import OpenImageIO as oiio
+except ImportError:
+    # A python3 on PATH without Debian's numpy/OpenImageIO bindings (e.g. pyenv's): run
+    # again with the system interpreter, which has them (python3-numpy, python3-openimageio).
+    if os.path.exists("/usr/bin/python3") and os.path.realpath(sys.executable) != os.path.realpath("/usr/bin/python3"):
+        os.execv("/usr/bin/python3", ["/usr/bin/python3"] + sys.argv)
+    raise
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 import scenes  # noqa: E402
-
-try:
-    import OpenImageIO as oiio
-except ImportError:  # pragma: no cover
-    oiio = None
 
 
 def read_exr(path: str) -> Dict[str, np.ndarray]:
@@ -308,14 +311,14 @@ def print_result(res: Dict, scene: scenes.Scene, args, out) -> None:
     p("  RMSE slopes vs spp: " + ", ".join("%s %.2f" % (k, v) for k, v in res["slopes"].items()))
     line = "  correctness: "
     if cyc:
-        line += ("Cycles/tally mean %.4f +- %.4f (R %.3f G %.3f B %.3f), Cycles ref vs tally ref RMSE %.5f; "
+        line += ("Cycles/tally mean %.4f +- %.2g (R %.3f G %.3f B %.3f), Cycles ref vs tally ref RMSE %.5f; "
                  % (res["mean_ratio"], res["mean_ratio_se"], *res["mean_ratio_rgb"], res["cycles_ref_rmse_vs_tally_ref"]))
     line += "tally z vs ref: sd %.3f mean %+.3f over %d values (t7 errors: sd 1.18 expected)" % (
         res["z_sd"], res["z_mean"], res["z_n"])
     p(line)
     mc = res.get("model_check")
     if mc:
-        p("  model check (dielectrics Lambert in both, depth %d): Cycles/tally mean %.4f +- %.4f (R %.3f G %.3f B %.3f), "
+        p("  model check (dielectrics Lambert in both, depth %d): Cycles/tally mean %.4f +- %.2g (R %.3f G %.3f B %.3f), "
           "RMSE between the two %.5f" % (mc["depth"], mc["ratio"], mc["se"], *mc["rgb"], mc["rmse"]))
 
 
@@ -323,7 +326,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--build", default=os.path.join(ROOT, "build"), help="tally's build directory")
     ap.add_argument("--tally", help="tally CLI (default BUILD/client/tally)")
-    ap.add_argument("--out", default=os.path.join(ROOT, "out", "scene_suite"))
+    ap.add_argument("--out", help="work directory (default out/scene_suite, --quick: out/scene_suite_quick)")
     ap.add_argument("--scenes", default=",".join(scenes.WRITERS), help="comma-separated: " + ",".join(scenes.WRITERS))
     ap.add_argument("--depths", default="1,4,8")
     ap.add_argument("--spp", default="16,64,256")
@@ -340,12 +343,11 @@ def main() -> int:
     args = ap.parse_args()
     if args.quick:
         args.resolution, args.depths, args.spp, args.ref_spp, args.cycles_ref_spp = "64x48", "4", "16,64", 256, 256
+    if args.out is None:
+        args.out = os.path.join(ROOT, "out", "scene_suite_quick" if args.quick else "scene_suite")
     args.resolution = tuple(int(x) for x in args.resolution.split("x"))
     args.depths = [int(x) for x in args.depths.split(",")]
     args.spp = [int(x) for x in args.spp.split(",")]
-    if oiio is None:
-        print("scene suite: OpenImageIO's Python bindings are missing (Debian: python3-openimageio)", file=sys.stderr)
-        return 1
     os.makedirs(args.out, exist_ok=True)
     run = Runner(args, args.out)
     if not os.access(run.tally, os.X_OK):
