@@ -287,6 +287,32 @@ def model_check(run: Runner, scene: scenes.Scene, args) -> Optional[Dict]:
             "rmse": rmse(cyc, ref_rgb)}
 
 
+def contact_sheet(work: str, names: List[str], depth: int, path: str) -> Optional[str]:
+    """One row per scene at `depth`: tally's reference | Cycles' high-spp image, each scene
+    exposed so that tally's mean is 0.18, clamped, sRGB-encoded, 2x nearest upscale."""
+    rows = []
+    for name in names:
+        d = os.path.join(work, "images", name, "d%d" % depth)
+        t, c = os.path.join(d, "tally_ref.exr"), os.path.join(d, "cycles_ref.exr")
+        if not (os.path.exists(t) and os.path.exists(c)):
+            continue
+        a, b = rgb(read_exr(t)), rgb(read_exr(c))
+        k = 0.18 / max(float(a.mean()), 1e-9)
+        row = np.concatenate([a * k, np.ones((a.shape[0], 2, 3)), b * k], axis=1)
+        rows += [row, np.ones((2, row.shape[1], 3))]
+    if not rows:
+        return None
+    img = np.concatenate(rows[:-1], axis=0)
+    img = np.clip(img, 0, 1)
+    img = np.where(img <= 0.0031308, 12.92 * img, 1.055 * img ** (1 / 2.4) - 0.055)
+    img = np.repeat(np.repeat(img, 2, 0), 2, 1)
+    out = oiio.ImageOutput.create(path)
+    out.open(path, oiio.ImageSpec(img.shape[1], img.shape[0], 3, "uint8"))
+    out.write_image(np.ascontiguousarray((img * 255 + 0.5).astype(np.uint8)))
+    out.close()
+    return path
+
+
 def print_result(res: Dict, scene: scenes.Scene, args, out) -> None:
     p = lambda s="": print(s, file=out, flush=True)  # noqa: E731
     p("\n%s, depth %d (tally max_depth %d = Cycles max_bounces %d), %dx%d, reference: tally %d spp (%.1f s)%s"
@@ -389,6 +415,11 @@ def main() -> int:
             results.append(res)
             print_result(res, s, args, sys.stdout)
     print("\nscene suite: %.0f s in all%s" % (time.perf_counter() - t0, ("; failed: " + ", ".join(failed)) if failed else ""))
+    if run.blender is not None and args.check_depth in args.depths:
+        sheet = contact_sheet(args.out, [s.name for s in suite], args.check_depth,
+                              os.path.join(args.out, "suite_d%d.png" % args.check_depth))
+        if sheet:
+            print("scene suite: tally's references | Cycles' images at depth %d: %s" % (args.check_depth, sheet))
     if args.json:
         with open(args.json, "w") as f:
             json.dump(results, f, indent=1)
