@@ -234,14 +234,17 @@ def run_scene_depth(run: Runner, scene: scenes.Scene, depth: int, args) -> Dict:
     ref_mean = float(ref_rgb.mean())
     ref_mean_se = float(np.sqrt((ref_se ** 2).sum()) / n)
     top = max(args.spp)
-    zs = []
+    zs, zimg = [], []
     for thr in (1, threads_all):
         img = tally_imgs[(top, thr)]
         den = np.sqrt(stderr(img) ** 2 + ref_se ** 2)
         ok = den > 0
         zs.append(((rgb(img) - ref_rgb)[ok] / den[ok]))
+        # The image mean against the reference's: unbiasedness, free of per-pixel skew.
+        zimg.append(float((rgb(img).mean() - ref_rgb.mean()) / (np.sqrt((den ** 2).sum()) / n)))
     z = np.concatenate(zs)
     res["z_sd"], res["z_mean"], res["z_n"] = float(z.std()), float(z.mean()), int(z.size)
+    res["z_image_mean"] = zimg
     res["ref_mean"], res["ref_mean_se"] = ref_mean, ref_mean_se
     if cyc:
         # Cycles' own noise from its two independent top-level images (seeds 1 and 2),
@@ -313,6 +316,38 @@ def contact_sheet(work: str, names: List[str], depth: int, path: str) -> Optiona
     return path
 
 
+def summary(results: List[Dict], out) -> None:
+    """A Markdown table of the run: per scene and depth, tally's time / Cycles' time to
+    tally's RMSE (wall, common reference) at each level, one thread and all threads; the
+    RMSE slopes; the correctness figures."""
+    if not results:
+        return
+    levels = sorted({lv["spp"] for r in results for lv in r["levels"]})
+    modes = []
+    for lv in results[0]["levels"]:
+        if lv["mode"] not in modes:
+            modes.append(lv["mode"])
+    head = ["scene", "depth"] + ["t/C %s" % m for m in modes] + ["slope tally / Cycles (1 thread)",
+                                                                  "Cycles/tally mean", "Lambert check", "tally z sd"]
+    print("| " + " | ".join(head) + " |", file=out)
+    print("|" + "---|" * len(head), file=out)
+    for r in results:
+        cells = [r["scene"], str(r["depth"])]
+        for m in modes:
+            by = {lv["spp"]: lv for lv in r["levels"] if lv["mode"] == m}
+            cells.append(" / ".join(by[s].get("ratio", "-") for s in levels if s in by))
+        sl = r["slopes"]
+        cells.append("%.2f / %s" % (sl.get("tally 1 thread", float("nan")),
+                                    ("%.2f" % sl["cycles 1 thread"]) if "cycles 1 thread" in sl else "-"))
+        cells.append("%.4f ± %.2g" % (r["mean_ratio"], r["mean_ratio_se"]) if "mean_ratio" in r else "-")
+        mc = r.get("model_check")
+        cells.append("%.4f ± %.2g" % (mc["ratio"], mc["se"]) if mc else "")
+        cells.append("%.3f" % r["z_sd"])
+        print("| " + " | ".join(cells) + " |", file=out)
+    print("\n(t/C: at %s spp; '<'/'>' extrapolated, '(far)' beyond 4x the measured times)"
+          % "/".join(str(x) for x in levels), file=out, flush=True)
+
+
 def print_result(res: Dict, scene: scenes.Scene, args, out) -> None:
     p = lambda s="": print(s, file=out, flush=True)  # noqa: E731
     p("\n%s, depth %d (tally max_depth %d = Cycles max_bounces %d), %dx%d, reference: tally %d spp (%.1f s)%s"
@@ -339,8 +374,9 @@ def print_result(res: Dict, scene: scenes.Scene, args, out) -> None:
     if cyc:
         line += ("Cycles/tally mean %.4f +- %.2g (R %.3f G %.3f B %.3f), Cycles ref vs tally ref RMSE %.5f; "
                  % (res["mean_ratio"], res["mean_ratio_se"], *res["mean_ratio_rgb"], res["cycles_ref_rmse_vs_tally_ref"]))
-    line += "tally z vs ref: sd %.3f mean %+.3f over %d values (t7 errors: sd 1.18 expected)" % (
-        res["z_sd"], res["z_mean"], res["z_n"])
+    line += ("tally %d spp vs ref: per-pixel z sd %.3f mean %+.3f over %d values (t7 errors: sd 1.18 expected), "
+             "z of the image mean %s" % (max(lv["spp"] for lv in res["levels"]), res["z_sd"], res["z_mean"], res["z_n"],
+                                         " / ".join("%+.2f" % x for x in res["z_image_mean"])))
     p(line)
     mc = res.get("model_check")
     if mc:
@@ -366,7 +402,12 @@ def main() -> int:
     ap.add_argument("--json", help="also write the results here")
     ap.add_argument("--check-depth", type=int, default=4, help="depth of the Lambert model check")
     ap.add_argument("--no-model-check", action="store_true")
+    ap.add_argument("--summary", metavar="JSON", help="print the summary table of an earlier run's --json and exit")
     args = ap.parse_args()
+    if args.summary:
+        with open(args.summary) as f:
+            summary(json.load(f), sys.stdout)
+        return 0
     if args.quick:
         args.resolution, args.depths, args.spp, args.ref_spp, args.cycles_ref_spp = "64x48", "4", "16,64", 256, 256
     if args.out is None:
@@ -415,6 +456,8 @@ def main() -> int:
             results.append(res)
             print_result(res, s, args, sys.stdout)
     print("\nscene suite: %.0f s in all%s" % (time.perf_counter() - t0, ("; failed: " + ", ".join(failed)) if failed else ""))
+    print()
+    summary(results, sys.stdout)
     if run.blender is not None and args.check_depth in args.depths:
         sheet = contact_sheet(args.out, [s.name for s in suite], args.check_depth,
                               os.path.join(args.out, "suite_d%d.png" % args.check_depth))
