@@ -198,42 +198,52 @@ def run_scene_depth(run: Runner, scene: scenes.Scene, depth: int, args) -> Dict:
             res["levels"].append({"spp": spp, "mode": mode, "threads": thr, "tally_s": tt, "tally_compute_s": tc,
                                   "cycles_s": ct})
     cyc_ref = None
+    top = max(args.spp)
+    # The references' own noise (per value, squared): tally's from its StdErr channels,
+    # Cycles' from its two independent top-level images (seeds 1 and 2), scaled by 1/n to
+    # its high-spp image (RQMC converges faster than 1/n, so this errs towards a larger
+    # noise: it favours Cycles in the noise-only columns).
+    ref_noise2 = float(np.mean(ref_se ** 2))
     if cyc:
         cp = os.path.join(d, "cycles_ref.exr")
         res["cycles_ref_seconds"] = run.cycles_run(scene, depth, args.cycles_ref_spp, threads_all, 1000, cp)
         cyc_ref = rgb(read_exr(cp))
+        var_top = (cyc_imgs[(top, 1)] - cyc_imgs[(top, threads_all)]) ** 2 / 2.0
+        cyc_ref_noise2 = float(np.mean(var_top)) * top / args.cycles_ref_spp
+        res["ref_noise"], res["cycles_ref_noise"] = math.sqrt(ref_noise2), math.sqrt(cyc_ref_noise2)
     for lv in res["levels"]:
         key = (lv["spp"], lv["threads"])
         ti = rgb(tally_imgs[key])
         lv["tally_rmse"] = rmse(ti, ref_rgb)
+        lv["tally_noise"] = math.sqrt(max(lv["tally_rmse"] ** 2 - ref_noise2, 1e-30))
         curves[lv["mode"]]["tally"].append((lv["tally_s"], lv["tally_rmse"]))
         if cyc:
             ci = cyc_imgs[key]
             lv["cycles_rmse"] = rmse(ci, ref_rgb)
             lv["cycles_rmse_own"] = rmse(ci, cyc_ref)
+            lv["cycles_noise"] = math.sqrt(max(lv["cycles_rmse_own"] ** 2 - cyc_ref_noise2, 1e-30))
             curves[lv["mode"]]["cycles"].append((lv["cycles_s"], lv["cycles_rmse"]))
-            curves[lv["mode"]]["cycles_own"].append((lv["cycles_s"], lv["cycles_rmse_own"]))
+            curves[lv["mode"]]["cycles_own"].append((lv["cycles_s"], lv["cycles_noise"]))
     if cyc:
         for lv in res["levels"]:
             c = curves[lv["mode"]]
             tc, mark = time_at(c["cycles"], lv["tally_rmse"])
             lv["ratio"] = fmt_ratio(lv["tally_s"], tc, mark)
             lv["ratio_compute"] = fmt_ratio(lv["tally_compute_s"], tc, mark)
-            tc, mark = time_at(c["cycles_own"], lv["tally_rmse"])
+            tc, mark = time_at(c["cycles_own"], lv["tally_noise"])
             lv["ratio_own"] = fmt_ratio(lv["tally_s"], tc, mark)
     # Slopes of RMSE against spp (log-log least squares), per renderer and mode.
     res["slopes"] = {}
     for mode, _ in modes:
         lv = [x for x in res["levels"] if x["mode"] == mode]
         xs = np.log([x["spp"] for x in lv])
-        for who, key in (("tally", "tally_rmse"), ("cycles", "cycles_rmse_own")):
+        for who, key in (("tally", "tally_noise"), ("cycles", "cycles_noise")):
             if key in lv[0] and len(lv) > 1:
                 res["slopes"]["%s %s" % (who, mode)] = float(np.polyfit(xs, np.log([x[key] for x in lv]), 1)[0])
     # Correctness.
     n = ref_rgb.size
     ref_mean = float(ref_rgb.mean())
     ref_mean_se = float(np.sqrt((ref_se ** 2).sum()) / n)
-    top = max(args.spp)
     zs, zimg = [], []
     for thr in (1, threads_all):
         img = tally_imgs[(top, thr)]
@@ -247,10 +257,6 @@ def run_scene_depth(run: Runner, scene: scenes.Scene, depth: int, args) -> Dict:
     res["z_image_mean"] = zimg
     res["ref_mean"], res["ref_mean_se"] = ref_mean, ref_mean_se
     if cyc:
-        # Cycles' own noise from its two independent top-level images (seeds 1 and 2),
-        # scaled by 1/n to its high-spp image.
-        a, b = cyc_imgs[(top, 1)], cyc_imgs[(top, threads_all)]
-        var_top = (a - b) ** 2 / 2.0
         cyc_mean = float(cyc_ref.mean())
         cyc_mean_se = float(np.sqrt((var_top * top / args.cycles_ref_spp).sum()) / n)
         ratio = cyc_mean / ref_mean
@@ -327,7 +333,8 @@ def summary(results: List[Dict], out) -> None:
     for lv in results[0]["levels"]:
         if lv["mode"] not in modes:
             modes.append(lv["mode"])
-    head = ["scene", "depth"] + ["t/C %s" % m for m in modes] + ["slope tally / Cycles (1 thread)",
+    head = ["scene", "depth"] + ["t/C %s" % m for m in modes] + ["t/C noise-only %s" % m for m in modes] + [
+        "slope tally / Cycles (1 thread)",
                                                                   "Cycles/tally mean", "Lambert check", "tally z sd"]
     print("| " + " | ".join(head) + " |", file=out)
     print("|" + "---|" * len(head), file=out)
@@ -336,6 +343,9 @@ def summary(results: List[Dict], out) -> None:
         for m in modes:
             by = {lv["spp"]: lv for lv in r["levels"] if lv["mode"] == m}
             cells.append(" / ".join(by[s].get("ratio", "-") for s in levels if s in by))
+        for m in modes:
+            by = {lv["spp"]: lv for lv in r["levels"] if lv["mode"] == m}
+            cells.append(" / ".join(by[s].get("ratio_own", "-") for s in levels if s in by))
         sl = r["slopes"]
         cells.append("%.2f / %s" % (sl.get("tally 1 thread", float("nan")),
                                     ("%.2f" % sl["cycles 1 thread"]) if "cycles 1 thread" in sl else "-"))
@@ -356,20 +366,24 @@ def print_result(res: Dict, scene: scenes.Scene, args, out) -> None:
          if "cycles_ref_seconds" in res else ""))
     cyc = "mean_ratio" in res
     if cyc:
-        p("  %-16s %5s | %9s %7s %7s | %9s %7s | %8s %8s | %9s %8s" % (
-            "threads", "spp", "tally RMSE", "wall s", "comp s", "Cyc RMSE", "Cyc s", "t/C wall", "t/C comp", "Cyc own",
-            "t/C own"))
+        p("  %-10s %5s | %9s %7s %7s | %9s %7s | %8s %8s | %8s %8s %8s" % (
+            "threads", "spp", "tally RMSE", "wall s", "comp s", "Cyc RMSE", "Cyc s", "t/C wall", "t/C comp", "tally nz",
+            "Cyc nz", "t/C nz"))
     else:
-        p("  %-16s %5s | %9s %7s %7s" % ("threads", "spp", "tally RMSE", "wall s", "comp s"))
+        p("  %-10s %5s | %9s %7s %7s" % ("threads", "spp", "tally RMSE", "wall s", "comp s"))
     for lv in res["levels"]:
         if cyc:
-            p("  %-16s %5d | %9.5f %7.3f %7.3f | %9.5f %7.3f | %8s %8s | %9.5f %8s" % (
+            p("  %-10s %5d | %9.5f %7.3f %7.3f | %9.5f %7.3f | %8s %8s | %8.5f %8.5f %8s" % (
                 lv["mode"], lv["spp"], lv["tally_rmse"], lv["tally_s"], lv["tally_compute_s"], lv["cycles_rmse"],
-                lv["cycles_s"], lv["ratio"], lv["ratio_compute"], lv["cycles_rmse_own"], lv["ratio_own"]))
+                lv["cycles_s"], lv["ratio"], lv["ratio_compute"], lv["tally_noise"], lv["cycles_noise"],
+                lv["ratio_own"]))
         else:
-            p("  %-16s %5d | %9.5f %7.3f %7.3f" % (lv["mode"], lv["spp"], lv["tally_rmse"], lv["tally_s"],
+            p("  %-10s %5d | %9.5f %7.3f %7.3f" % (lv["mode"], lv["spp"], lv["tally_rmse"], lv["tally_s"],
                                                   lv["tally_compute_s"]))
-    p("  RMSE slopes vs spp: " + ", ".join("%s %.2f" % (k, v) for k, v in res["slopes"].items()))
+    if "ref_noise" in res:
+        p("  noise of the references (RMS per value): tally %.2g, Cycles %.2g (subtracted in the 'nz' columns)"
+          % (res["ref_noise"], res["cycles_ref_noise"]))
+    p("  slopes of the noise-only RMSE vs spp: " + ", ".join("%s %.2f" % (k, v) for k, v in res["slopes"].items()))
     line = "  correctness: "
     if cyc:
         line += ("Cycles/tally mean %.4f +- %.2g (R %.3f G %.3f B %.3f), Cycles ref vs tally ref RMSE %.5f; "
@@ -393,7 +407,7 @@ def main() -> int:
     ap.add_argument("--depths", default="1,4,8")
     ap.add_argument("--spp", default="16,64,256")
     ap.add_argument("--ref-spp", type=int, default=2048, help="tally's reference spp")
-    ap.add_argument("--cycles-ref-spp", type=int, default=1024, help="Cycles' high-spp image")
+    ap.add_argument("--cycles-ref-spp", type=int, default=2048, help="Cycles' high-spp image")
     ap.add_argument("--resolution", default="96x72")
     ap.add_argument("--threads-all", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--no-cycles", action="store_true")
