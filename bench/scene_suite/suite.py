@@ -84,6 +84,16 @@ def clean_map(path: str) -> int:
     return neg
 
 
+def blender_env() -> Dict[str, str]:
+    """The environment for Blender: Debian's Blender embeds the system Python and finds
+    its prefix through PATH, so a pyenv (or other) python3 ahead of /usr/bin makes it lose
+    the system's numpy, which its glTF importer needs. Drop such entries."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYENV") and k not in ("PYTHONHOME", "PYTHONPATH")}
+    env["PATH"] = os.pathsep.join(d for d in os.environ.get("PATH", "").split(os.pathsep)
+                                  if d and ".pyenv" not in d and "virtualenv" not in d and "/venv" not in d)
+    return env
+
+
 class Runner:
     def __init__(self, args, work: str):
         self.args = args
@@ -123,7 +133,8 @@ class Runner:
         with open(path, "w") as f:
             json.dump(job, f)
         r = subprocess.run([self.blender, "-b", "--factory-startup", "-noaudio", "-P",
-                            os.path.join(HERE, "cycles_render.py"), "--", path], capture_output=True, text=True)
+                            os.path.join(HERE, "cycles_render.py"), "--", path], capture_output=True, text=True,
+                           env=blender_env())
         secs = None
         for line in r.stdout.splitlines():
             if line.startswith("SUITE_RENDER_SECONDS"):
