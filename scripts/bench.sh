@@ -27,8 +27,10 @@ benches=(
   "boundary_stall|request latency while a 1080p frame merges its passes|python3 $root/bench/boundary_stall.py --build $build"
   "auto_pilot_memo|a 1,000-component auto spec: validate, then submit (pilot remembered)|python3 $root/bench/auto_pilot_memo.py --build $build"
   "higher_order_nets|interlaced vs plain scrambled Sobol' sd, d 2-16|python3 $root/bench/higher_order_nets.py --build $build"
+  "scene_suite|tally vs Cycles on the five suite scenes, depths 1/4/8 (~20-30 min)|python3 $root/bench/scene_suite/suite.py --build $build"
+  "scene_suite_quick|the scene suite at 64x48, depth 4, 16/64 spp (~1-3 min)|python3 $root/bench/scene_suite/suite.py --build $build --quick"
 )
-default=(integrate expr vector lighting frame_memory)
+default=(integrate expr vector lighting frame_memory scene_suite_quick)
 
 if [ "${1:-}" = "list" ]; then
   for e in "${benches[@]}"; do IFS='|' read -r n what _ <<<"$e"; printf '%-14s %s\n' "$n" "$what"; done
