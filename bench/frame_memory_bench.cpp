@@ -42,7 +42,7 @@ namespace {
 using scenes::frame_spec;
 
 // The same scene for Cycles: a 6x6 diffuse floor at z = 0, a 1x1 emitter at z = 2
-// facing down, the camera at (0, -4.5, 3.2) looking at (0, 0, 0.6), 50 degrees.
+// facing down, the camera at (0, -4.5, 3.2) looking at (0, 0, 0.6), 50 degrees vertically.
 constexpr const char* kCyclesScript = R"PY(
 import bpy, sys, mathutils
 w, h, spp, out = int(sys.argv[-4]), int(sys.argv[-3]), int(sys.argv[-2]), sys.argv[-1]
@@ -80,7 +80,7 @@ cam = bpy.data.objects.new('cam', bpy.data.cameras.new('cam'))
 sc.collection.objects.link(cam); sc.camera = cam
 cam.location = (0, -4.5, 3.2)
 cam.rotation_euler = (mathutils.Vector((0, 0, 0.6)) - cam.location).to_track_quat('-Z', 'Y').to_euler()
-cam.data.sensor_fit = 'HORIZONTAL'
+cam.data.sensor_fit = 'VERTICAL'  # tally's fov_deg is vertical (scene.hpp)
 import math; cam.data.angle = math.radians(50)
 bpy.ops.render.render(write_still=True)
 )PY";
