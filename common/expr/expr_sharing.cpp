@@ -97,22 +97,18 @@ SharedPrograms share_programs(const std::vector<std::shared_ptr<const Program>>&
     for (const Instr& ins : prog.code) {
       Numbered nb;
       Key k;
+      // An operand's part of the key: the immediate's bits, or the number in its slot.
+      const auto operand = [&](bool immediate, double value, uint16_t slot_no, uint32_t& number) -> uint64_t {
+        if (immediate) return std::bit_cast<uint64_t>(value);
+        number = slot[slot_no];
+        return number;
+      };
       k.op = ins.op;
       k.const_a = ins.const_a;
-      if (ins.const_a) {
-        k.a = std::bit_cast<uint64_t>(ins.ka);
-      } else {
-        nb.a = slot[ins.a];
-        k.a = nb.a;
-      }
+      k.a = operand(ins.const_a != 0, ins.ka, ins.a, nb.a);
       if (reads_b(ins.op)) {
         k.const_b = ins.const_b;
-        if (ins.const_b) {
-          k.b = std::bit_cast<uint64_t>(ins.kb);
-        } else {
-          nb.b = slot[ins.b];
-          k.b = nb.b;
-        }
+        k.b = operand(ins.const_b != 0, ins.kb, ins.b, nb.b);
       }
       if (ins.op == Op::select) {
         nb.c = slot[ins.c];
