@@ -13,6 +13,7 @@
 #include <fstream>
 #include <iostream>
 #include <sstream>
+#include <thread>
 
 #include "client/exit_codes.hpp"
 #include "client/image_format.hpp"
@@ -87,6 +88,10 @@ int run(const RunOptions& o) {
     fmt::print(stderr, "tally run: {}\n", unknown_image_format_message(o.image_out));
     return exit_code::usage;
   }
+  // The image module loads beside the compile and the render, not after them (joined
+  // when this function returns; write_image waits for it through the module's own once).
+  std::jthread module_loader;
+  if (format) module_loader = std::jthread([] { preload_image_module(); });
   std::string text;
   if (o.path == "-") {
     std::stringstream ss;

@@ -124,6 +124,8 @@ std::string image_module_path() {
 
 std::string image_module_backend() { return api().backend; }
 
+void preload_image_module() { (void)loaded_module(); }
+
 double srgb_oetf(double x) {
   x = std::clamp(x, 0.0, 1.0);
   return x <= 0.0031308 ? 12.92 * x : 1.055 * std::pow(x, 1.0 / 2.4) - 0.055;

@@ -55,5 +55,10 @@ void write_image_files(const ImageSnapshot& image, const nlohmann::json& metadat
 // 3.1.5 + libpng 1.6.39"). Both load it; both throw ImageModuleUnavailable.
 std::string image_module_path();
 std::string image_module_backend();
+// Loads the image module now, on the calling thread, if no call has yet: a program that
+// will write an image calls it on a thread of its own while it computes (the OpenImageIO
+// module brings ~260 shared libraries, ~0.25 s to load). Never throws: a module that is
+// unavailable is reported by the first image call, as without it.
+void preload_image_module();
 
 }  // namespace tally
