@@ -17,7 +17,7 @@ build_pkgs=(cmake g++ make ninja-build pkg-config
 # llvm-14: llvm-symbolizer, so sanitizer reports name file:line
 test_pkgs=(python3 python3-pip python3-numpy python3-mypy openssl curl chromium nodejs redis-server clang-14 libclang-rt-14-dev llvm-14)
 command -v npm >/dev/null 2>&1 || test_pkgs+=(npm)  # nodesource's nodejs bundles npm
-bench_pkgs=(wrk python3-matplotlib python3-scipy python3-numpy)
+bench_pkgs=(wrk python3-matplotlib python3-scipy python3-numpy python3-openimageio)  # openimageio: the scene suite reads EXRs
 container_pkgs=(podman buildah runc debootstrap uidmap fuse-overlayfs slirp4netns docker-compose podman-compose
   golang-github-containernetworking-plugin-dnsname curl python3 openssl)
 
