@@ -88,10 +88,6 @@ int run(const RunOptions& o) {
     fmt::print(stderr, "tally run: {}\n", unknown_image_format_message(o.image_out));
     return exit_code::usage;
   }
-  // The image module loads beside the compile and the render, not after them (joined
-  // when this function returns; write_image waits for it through the module's own once).
-  std::jthread module_loader;
-  if (format) module_loader = std::jthread([] { preload_image_module(); });
   std::string text;
   if (o.path == "-") {
     std::stringstream ss;
@@ -132,6 +128,12 @@ int run(const RunOptions& o) {
     fmt::print(stderr, "tally run: invalid job: {} (at \"{}\")\n", e.detail(), e.pointer());
     return exit_code::usage;
   }
+  // The image module loads beside the render, not after it (joined when this function
+  // returns; write_image waits for it through the module's own once). Not beside the
+  // compile: a dlopen holds the loader's lock for its whole ~0.25 s, and the compile's
+  // Embree device dlopens TBB's libraries, so it would wait for the module instead.
+  std::jthread module_loader;
+  if (format) module_loader = std::jthread([] { preload_image_module(); });
   JobRunner runner(job->kernel(), job->stop_rule(), JobCaps{});
   LocalRunOptions lo;
   lo.threads = o.threads > 0 ? o.threads : available_cpus();
