@@ -123,6 +123,25 @@ def lambert_variant(doc: Dict[str, Any]) -> Dict[str, Any]:
     return doc
 
 
+def emitters_variant(doc: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+    """The emitter mask's scene: every non-emissive material black (base colour 0, no
+    texture, KHR_materials_specular specularFactor 0: a pure Lambertian surface of albedo
+    0), emitters unchanged. At depth 1 its image is the emission the camera sees directly
+    and nothing else, so its non-zero pixels are those that see an emitter. None when the
+    scene has no emissive material."""
+    doc = json.loads(json.dumps(doc))
+    if not any("emissiveFactor" in m for m in doc["materials"]):
+        return None
+    for m in doc["materials"]:
+        if "emissiveFactor" in m:
+            continue
+        m["pbrMetallicRoughness"] = {"baseColorFactor": [0.0, 0.0, 0.0, 1.0], "metallicFactor": 0.0,
+                                     "roughnessFactor": 1.0}
+        m.setdefault("extensions", {})["KHR_materials_specular"] = {"specularFactor": 0.0}
+    doc["extensionsUsed"] = sorted(set(doc.get("extensionsUsed", [])) | {"KHR_materials_specular"})
+    return doc
+
+
 def gltf_scene(name: str, what: str, directory: str, w: Writer, resolution, **kw) -> Scene:
     os.makedirs(directory, exist_ok=True)
     w.save(directory, name)
@@ -130,8 +149,25 @@ def gltf_scene(name: str, what: str, directory: str, w: Writer, resolution, **kw
         doc = json.load(f)
     with open(os.path.join(directory, name + "_lambert.gltf"), "w") as f:
         json.dump(lambert_variant(doc), f, indent=1)
+    em = emitters_variant(doc)
+    if em is not None:
+        with open(os.path.join(directory, name + "_emitters.gltf"), "w") as f:
+            json.dump(em, f, indent=1)
     shape = {"type": "gltf", "file": name + ".gltf", "camera": "view", "resolution": list(resolution)}
     return Scene(name, what, directory, {"shapes": [shape]}, gltf=name + ".gltf", **kw)
+
+
+def emitters(scene: Scene) -> Optional[Scene]:
+    """The scene's emitter-mask variant (written by gltf_scene), or None (no emissive
+    material, or not a glTF scene)."""
+    if not scene.gltf:
+        return None
+    em = scene.gltf.replace(".gltf", "_emitters.gltf")
+    if not os.path.exists(os.path.join(scene.directory, em)):
+        return None
+    t = json.loads(json.dumps(scene.tally_scene))
+    t["shapes"][0]["file"] = em
+    return Scene(scene.name + "_emitters", scene.what + " (emitters only)", scene.directory, t, gltf=em)
 
 
 def lambert(scene: Scene) -> Optional[Scene]:

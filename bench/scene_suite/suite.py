@@ -101,6 +101,26 @@ class Runner:
         self.tally = args.tally or os.path.join(args.build, "client", "tally")
         self.blender = shutil.which("blender") if not args.no_cycles else None
         self.log = open(os.path.join(work, "runs.jsonl"), "a")
+        self.masks: Dict[str, Optional[np.ndarray]] = {}
+
+    def emitter_mask(self, scene: scenes.Scene) -> Optional[np.ndarray]:
+        """Pixels that see an emitter directly (bool, height x width), from the scene's
+        emitters-only variant at depth 1 (scenes.emitters_variant); None for a scene
+        without one. Those pixels' noise is the camera's (how much of a pixel a small lamp
+        covers), which no light sampling changes, and on a scene of many small lamps it
+        is most of the RMSE: the suite reports the RMSE off them as well."""
+        if scene.name not in self.masks:
+            em = scenes.emitters(scene)
+            mask = None
+            if em is not None:
+                spp = max(64, self.args.ref_spp // 8)
+                d = os.path.join(self.work, "images", scene.name)
+                os.makedirs(d, exist_ok=True)
+                p = os.path.join(d, "emitters_%d.exr" % spp)
+                self.tally_run(em, 1, spp, self.args.threads_all, 1000, p)
+                mask = rgb(read_exr(p)).max(axis=-1) > 0
+            self.masks[scene.name] = mask
+        return self.masks[scene.name]
 
     def tally_run(self, scene: scenes.Scene, depth: int, spp: int, threads: int, seed: int, out: str) -> float:
         spec = {"kind": "lighting", "seed": seed, "scene": scene.tally_scene,
@@ -194,7 +214,10 @@ def run_scene_depth(run: Runner, scene: scenes.Scene, depth: int, args) -> Dict:
     ref_rgb, ref_se = rgb(ref), stderr(ref)
     cyc = run.blender is not None
     tally_imgs, cyc_imgs = {}, {}
-    curves = {m: {"tally": [], "cycles": [], "tally_own": [], "cycles_own": []} for m, _ in modes}
+    curves = {m: {"tally": [], "cycles": [], "tally_own": [], "cycles_own": [], "cycles_off": [], "cycles_own_off": []}
+              for m, _ in modes}
+    mask = run.emitter_mask(scene)
+    off = None if mask is None or not mask.any() else ~mask
     for spp in args.spp:
         for mi, (mode, thr) in enumerate(modes):
             seed = 1 + mi
@@ -222,12 +245,22 @@ def run_scene_depth(run: Runner, scene: scenes.Scene, depth: int, args) -> Dict:
         var_top = (cyc_imgs[(top, 1)] - cyc_imgs[(top, threads_all)]) ** 2 / 2.0
         cyc_ref_noise2 = float(np.mean(var_top)) * top / args.cycles_ref_spp
         res["ref_noise"], res["cycles_ref_noise"] = math.sqrt(ref_noise2), math.sqrt(cyc_ref_noise2)
+    if off is not None:
+        res["emitter_pixels"], res["pixels"] = int(mask.sum()), int(mask.size)
+        ref_noise2_off = float(np.mean(ref_se[off] ** 2))
+        if cyc:
+            cyc_ref_noise2_off = float(np.mean(var_top[off])) * top / args.cycles_ref_spp
     for lv in res["levels"]:
         key = (lv["spp"], lv["threads"])
         ti = rgb(tally_imgs[key])
         lv["tally_rmse"] = rmse(ti, ref_rgb)
         lv["tally_noise"] = math.sqrt(max(lv["tally_rmse"] ** 2 - ref_noise2, 1e-30))
         curves[lv["mode"]]["tally"].append((lv["tally_s"], lv["tally_rmse"]))
+        if off is not None:
+            lv["tally_rmse_off"] = rmse(ti[off], ref_rgb[off])
+            lv["tally_noise_off"] = math.sqrt(max(lv["tally_rmse_off"] ** 2 - ref_noise2_off, 1e-30))
+            # The share of tally's squared error in the pixels that see an emitter.
+            lv["emitter_error_share"] = float(((ti - ref_rgb)[mask] ** 2).sum() / max(((ti - ref_rgb) ** 2).sum(), 1e-300))
         if cyc:
             ci = cyc_imgs[key]
             lv["cycles_rmse"] = rmse(ci, ref_rgb)
@@ -235,6 +268,11 @@ def run_scene_depth(run: Runner, scene: scenes.Scene, depth: int, args) -> Dict:
             lv["cycles_noise"] = math.sqrt(max(lv["cycles_rmse_own"] ** 2 - cyc_ref_noise2, 1e-30))
             curves[lv["mode"]]["cycles"].append((lv["cycles_s"], lv["cycles_rmse"]))
             curves[lv["mode"]]["cycles_own"].append((lv["cycles_s"], lv["cycles_noise"]))
+            if off is not None:
+                lv["cycles_rmse_off"] = rmse(ci[off], ref_rgb[off])
+                lv["cycles_noise_off"] = math.sqrt(max(rmse(ci[off], cyc_ref[off]) ** 2 - cyc_ref_noise2_off, 1e-30))
+                curves[lv["mode"]]["cycles_off"].append((lv["cycles_s"], lv["cycles_rmse_off"]))
+                curves[lv["mode"]]["cycles_own_off"].append((lv["cycles_s"], lv["cycles_noise_off"]))
     if cyc:
         for lv in res["levels"]:
             c = curves[lv["mode"]]
@@ -243,6 +281,11 @@ def run_scene_depth(run: Runner, scene: scenes.Scene, depth: int, args) -> Dict:
             lv["ratio_compute"] = fmt_ratio(lv["tally_compute_s"], tc, mark)
             tc, mark = time_at(c["cycles_own"], lv["tally_noise"])
             lv["ratio_own"] = fmt_ratio(lv["tally_s"], tc, mark)
+            if off is not None:
+                tc, mark = time_at(c["cycles_off"], lv["tally_rmse_off"])
+                lv["ratio_off"] = fmt_ratio(lv["tally_s"], tc, mark)
+                tc, mark = time_at(c["cycles_own_off"], lv["tally_noise_off"])
+                lv["ratio_own_off"] = fmt_ratio(lv["tally_s"], tc, mark)
     # Slopes of RMSE against spp (log-log least squares), per renderer and mode.
     res["slopes"] = {}
     for mode, _ in modes:
@@ -345,6 +388,7 @@ def summary(results: List[Dict], out) -> None:
         if lv["mode"] not in modes:
             modes.append(lv["mode"])
     head = ["scene", "depth"] + ["t/C %s" % m for m in modes] + ["t/C noise-only %s" % m for m in modes] + [
+        "t/C noise-only off emitters, %s" % modes[0],
         "slope tally / Cycles (1 thread)",
                                                                   "Cycles/tally mean", "Lambert check", "tally z sd"]
     print("| " + " | ".join(head) + " |", file=out)
@@ -357,6 +401,9 @@ def summary(results: List[Dict], out) -> None:
         for m in modes:
             by = {lv["spp"]: lv for lv in r["levels"] if lv["mode"] == m}
             cells.append(" / ".join(by[s].get("ratio_own", "-") for s in levels if s in by))
+        by = {lv["spp"]: lv for lv in r["levels"] if lv["mode"] == modes[0]}
+        cells.append(" / ".join(by[s].get("ratio_own_off", "-") for s in levels if s in by)
+                     if "emitter_pixels" in r else "")
         sl = r["slopes"]
         cells.append("%.2f / %s" % (sl.get("tally 1 thread", float("nan")),
                                     ("%.2f" % sl["cycles 1 thread"]) if "cycles 1 thread" in sl else "-"))
@@ -365,8 +412,8 @@ def summary(results: List[Dict], out) -> None:
         cells.append("%.4f ± %.2g" % (mc["ratio"], mc["se"]) if mc else "")
         cells.append("%.3f" % r["z_sd"])
         print("| " + " | ".join(cells) + " |", file=out)
-    print("\n(t/C: at %s spp; '<'/'>' extrapolated, '(far)' beyond 4x the measured times)"
-          % "/".join(str(x) for x in levels), file=out, flush=True)
+    print("\n(t/C: at %s spp; '<'/'>' extrapolated, '(far)' beyond 4x the measured times; 'off emitters': "
+          "the pixels that see no emitter directly)" % "/".join(str(x) for x in levels), file=out, flush=True)
 
 
 def print_result(res: Dict, scene: scenes.Scene, args, out) -> None:
@@ -391,6 +438,18 @@ def print_result(res: Dict, scene: scenes.Scene, args, out) -> None:
         else:
             p("  %-10s %5d | %9.5f %7.3f %7.3f" % (lv["mode"], lv["spp"], lv["tally_rmse"], lv["tally_s"],
                                                   lv["tally_compute_s"]))
+    if "emitter_pixels" in res:
+        p("  off the emitters: %d of %d pixels see an emitter directly (the camera's noise there: how much of the "
+          "pixel a lamp covers); without them:" % (res["emitter_pixels"], res["pixels"]))
+        for lv in res["levels"]:
+            if cyc:
+                p("  %-10s %5d | %9.5f %7s %7s | %9.5f %7s | %8s %8s | %8.5f %8.5f %8s   (emitter pixels: %.0f%% of "
+                  "tally's squared error)" % (lv["mode"], lv["spp"], lv["tally_rmse_off"], "", "", lv["cycles_rmse_off"],
+                                             "", lv["ratio_off"], "", lv["tally_noise_off"], lv["cycles_noise_off"],
+                                             lv["ratio_own_off"], 100 * lv["emitter_error_share"]))
+            else:
+                p("  %-10s %5d | %9.5f   (emitter pixels: %.0f%% of tally's squared error)"
+                  % (lv["mode"], lv["spp"], lv["tally_rmse_off"], 100 * lv["emitter_error_share"]))
     if "ref_noise" in res:
         p("  noise of the references (RMS per value): tally %.2g, Cycles %.2g (subtracted in the 'nz' columns)"
           % (res["ref_noise"], res["cycles_ref_noise"]))

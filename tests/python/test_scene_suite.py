@@ -1,7 +1,8 @@
 """The scene suite's writers (bench/scene_suite/scenes.py) produce scenes tally accepts:
 each suite scene, and its Lambert variant, renders at 8x6, 8 spp, depth 4 with `tally run`
 (in-process, no server) to a finite, positive image; the glTF scenes bring their camera,
-the many-light scene turns the light tree on. The environment-lit scene needs one of
+the many-light scene turns the light tree on; a scene with emitters has an emitters-only
+variant (the suite's emitter mask) that renders darker than the scene itself. The environment-lit scene needs one of
 Blender's world maps (skipped without it, and without OpenImageIO's Python bindings, which
 clean its negative texels). A few seconds in all."""
 
@@ -34,9 +35,9 @@ def oiio_available() -> bool:
 
 @unittest.skipUnless(CLI_BIN and os.access(CLI_BIN, os.X_OK), "TALLY_CLI_BIN (the tally CLI) is not built")
 class SceneSuiteScenes(unittest.TestCase):
-    def render(self, scene: scenes.Scene, image: bool = False) -> dict:
+    def render(self, scene: scenes.Scene, image: bool = False, depth: int = 4) -> dict:
         spec = {"kind": "lighting", "seed": 1, "scene": scene.tally_scene,
-                "query": {"type": "image", "max_depth": 4, "russian_roulette": True},
+                "query": {"type": "image", "max_depth": depth, "russian_roulette": depth > 1},
                 "estimators": ["mis"], "stop": {"max_samples": 8}}
         path = os.path.join(scene.directory, "test_job.json")
         with open(path, "w") as f:
@@ -50,7 +51,9 @@ class SceneSuiteScenes(unittest.TestCase):
         res = json.loads(r.stdout[r.stdout.index("{"):])
         self.assertEqual(res["diagnostics"]["nonfinite"], 0, scene.name)
         mean = res["estimate"]["mean"]
-        self.assertTrue(math.isfinite(mean) and mean > 0, "%s: image mean %r" % (scene.name, mean))
+        self.assertTrue(math.isfinite(mean) and mean >= 0, "%s: image mean %r" % (scene.name, mean))
+        if not scene.name.endswith("_emitters"):
+            self.assertGreater(mean, 0, scene.name)
         self.assertEqual(res["plan"]["image"]["width"], 8)
         self.assertEqual(res["plan"]["image"]["height"], 6)
         if image:
@@ -78,6 +81,17 @@ class SceneSuiteScenes(unittest.TestCase):
                     lam = scenes.lambert(s)
                     if lam is not None:
                         self.render(lam)
+                    # The emitter mask's variant: every scene with an emissive material has
+                    # one, with every other surface black, so at depth 1 its image is the
+                    # directly seen emission alone: less than the scene's own depth-1 image.
+                    em = scenes.emitters(s)
+                    self.assertEqual(em is None, name in ("lecture", "envlight"), name)
+                    if em is not None:
+                        whole = self.render(s, depth=1)["estimate"]["mean"]
+                        only = self.render(em, depth=1)["estimate"]["mean"]
+                        self.assertLess(only, whole, name)
+                        if name in ("cornell", "many_lights"):  # their camera sees the panel / lamps
+                            self.assertGreater(only, 0, name)
 
 
 if __name__ == "__main__":
