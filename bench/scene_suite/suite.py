@@ -168,6 +168,19 @@ class Runner:
         return secs
 
 
+# Student t quantile for a two-sided 95% interval with 7 degrees of freedom: tally's
+# per-pixel error bars come from K = 8 replicate means.
+T7_975 = 2.364624
+
+
+def coverage(img: Dict[str, np.ndarray], ref_rgb: np.ndarray, ref_se: np.ndarray) -> float:
+    """The fraction of pixel values whose 95% interval (t7 x the standard error from the
+    image's StdErr channels, combined with the reference's) holds the reference: 0.95 for
+    honest error bars (a little less, as the reference's own error bar has 7 dof too)."""
+    den = np.sqrt(stderr(img) ** 2 + ref_se ** 2)
+    return float(np.mean(np.abs(rgb(img) - ref_rgb) <= T7_975 * den))
+
+
 def rmse(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean((a - b) ** 2)))
 
@@ -254,6 +267,7 @@ def run_scene_depth(run: Runner, scene: scenes.Scene, depth: int, args) -> Dict:
         key = (lv["spp"], lv["threads"])
         ti = rgb(tally_imgs[key])
         lv["tally_rmse"] = rmse(ti, ref_rgb)
+        lv["tally_coverage"] = coverage(tally_imgs[key], ref_rgb, ref_se)
         lv["tally_noise"] = math.sqrt(max(lv["tally_rmse"] ** 2 - ref_noise2, 1e-30))
         curves[lv["mode"]]["tally"].append((lv["tally_s"], lv["tally_rmse"]))
         if off is not None:
@@ -390,7 +404,7 @@ def summary(results: List[Dict], out) -> None:
     head = ["scene", "depth"] + ["t/C %s" % m for m in modes] + ["t/C noise-only %s" % m for m in modes] + [
         "t/C noise-only off emitters, %s" % modes[0],
         "slope tally / Cycles (1 thread)",
-                                                                  "Cycles/tally mean", "Lambert check", "tally z sd"]
+                                                                  "Cycles/tally mean", "Lambert check", "tally z sd", "tally coverage (1 thread)"]
     print("| " + " | ".join(head) + " |", file=out)
     print("|" + "---|" * len(head), file=out)
     for r in results:
@@ -411,6 +425,7 @@ def summary(results: List[Dict], out) -> None:
         mc = r.get("model_check")
         cells.append("%.4f ± %.2g" % (mc["ratio"], mc["se"]) if mc else "")
         cells.append("%.3f" % r["z_sd"])
+        cells.append(" / ".join("%.2f" % by[s]["tally_coverage"] for s in levels if s in by and "tally_coverage" in by[s]))
         print("| " + " | ".join(cells) + " |", file=out)
     print("\n(t/C: at %s spp; '<'/'>' extrapolated, '(far)' beyond 4x the measured times; 'off emitters': "
           "the pixels that see no emitter directly)" % "/".join(str(x) for x in levels), file=out, flush=True)
@@ -462,6 +477,8 @@ def print_result(res: Dict, scene: scenes.Scene, args, out) -> None:
              "z of the image mean %s" % (max(lv["spp"] for lv in res["levels"]), res["z_sd"], res["z_mean"], res["z_n"],
                                          " / ".join("%+.2f" % x for x in res["z_image_mean"])))
     p(line)
+    p("  coverage of tally's 95% error bars (t7) against the reference: " + ", ".join(
+        "%d spp %s %.3f" % (lv["spp"], lv["mode"], lv["tally_coverage"]) for lv in res["levels"]))
     mc = res.get("model_check")
     if mc:
         p("  model check (dielectrics Lambert in both, depth %d): Cycles/tally mean %.4f +- %.2g (R %.3f G %.3f B %.3f), "
