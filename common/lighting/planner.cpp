@@ -63,10 +63,34 @@ Plan make_plan(const Scene& scene, const PlanQuery& q, bool full) {
     glossy = glossy || scene.materials[m].type == MaterialType::metallic_roughness ||
              scene.materials[m].type == MaterialType::phong;
   }
-  add("specular", p.specular, mirror,
+  std::string specular_why =
       mirror ? "a mirror material is present"
              : (glossy ? "no mirror materials (glossy surfaces are sampled through their lobes, not followed as delta bounces)"
-                       : "no mirror materials"));
+                       : "no mirror materials");
+  // Not an effect to switch: a caveat on the error bars. Light that reaches a surface
+  // through a narrow glossy lobe (a lamp's image in a polished metal) is found only by a
+  // BSDF-sampled bounce that happens to head for it; where that is rare per pixel, the
+  // spread of the replicates, none of which found it, is too small (docs/lighting.md,
+  // "Coverage on the suite").
+  if (q.max_depth >= 2) {
+    std::vector<std::string> narrow;
+    size_t count = 0;
+    for (size_t m = 0; m < scene.materials.size(); ++m) {
+      const Material& mat = scene.materials[m];
+      const bool used = std::any_of(scene.shapes.begin(), scene.shapes.end(),
+                                    [&](const Shape& s) { return s.material == m; }) ||
+                        std::find(q.point_materials.begin(), q.point_materials.end(), m) != q.point_materials.end();
+      if (!used || mat.type != MaterialType::metallic_roughness || mat.roughness >= kNarrowGlossRoughness) continue;
+      if (++count <= 3) narrow.push_back(fmt::format("\"{}\" {}", mat.name, mat.roughness));
+    }
+    if (count > 0) {
+      specular_why += fmt::format(
+          "; light reaching other surfaces through the {} glossy material{} of roughness < {} ({}{}) is found by "
+          "BSDF sampling alone: where few paths find it, low-spp error bars under-cover it",
+          count, count == 1 ? "" : "s", kNarrowGlossRoughness, fmt::join(narrow, ", "), count > 3 ? ", ..." : "");
+    }
+  }
+  add("specular", p.specular, mirror, std::move(specular_why));
 
   // sky
   const bool sky = sky_emits(scene);

@@ -119,5 +119,35 @@ TEST(Planner, ImageOfLectureSceneMatchesFull) {
   }
 }
 
+TEST(Planner, NarrowGlossyLobesGetACaveatOnTheErrorBars) {
+  // A polished metal wall beside the receiver: from max_depth 2 light can reach the
+  // receiver through the wall's narrow lobe, found by BSDF sampling alone; the specular
+  // line says so, naming the material. Not at depth 1, not for a rough metal, and no
+  // effect switches (the answer is the same as with "plan": "full").
+  auto spec_with = [](double roughness, int depth) {
+    json scene = lecture_scene();
+    scene["materials"]["polished silver"] = {{"type", "metallic_roughness"}, {"base_color", {0.97, 0.96, 0.91}},
+                                             {"metallic", 1.0}, {"roughness", roughness}};
+    scene["shapes"].push_back({{"type", "quad"}, {"corner", {-1, -1, 0}}, {"edge_u", {0, 2, 0}},
+                               {"edge_v", {0, 0, 2}}, {"material", "polished silver"}});
+    json spec = point_spec(scene, {"mis"}, 2000);
+    spec["query"]["max_depth"] = depth;
+    return spec;
+  };
+  const std::string caveat = "found by BSDF sampling alone";
+  const JobRun narrow = run_spec(spec_with(0.08, 2));
+  const std::string why = effect(narrow, "specular")["why"].get<std::string>();
+  EXPECT_NE(why.find("glossy surfaces are sampled through their lobes"), std::string::npos) << why;
+  EXPECT_NE(why.find(caveat), std::string::npos) << why;
+  EXPECT_NE(why.find("1 glossy material of roughness < 0.3 (\"polished silver\" 0.08)"), std::string::npos) << why;
+  EXPECT_FALSE(effect(narrow, "specular")["on"].get<bool>());
+  EXPECT_TRUE(effect(narrow, "indirect")["on"].get<bool>());
+
+  const std::string direct = effect(run_spec(spec_with(0.08, 1)), "specular")["why"].get<std::string>();
+  EXPECT_EQ(direct.find(caveat), std::string::npos) << direct;
+  const std::string rough = effect(run_spec(spec_with(0.5, 3)), "specular")["why"].get<std::string>();
+  EXPECT_EQ(rough.find(caveat), std::string::npos) << rough;
+}
+
 }  // namespace
 }  // namespace tally::test
