@@ -73,21 +73,24 @@ Plan make_plan(const Scene& scene, const PlanQuery& q, bool full) {
   // spread of the replicates, none of which found it, is too small (docs/lighting.md,
   // "Coverage on the suite").
   if (q.max_depth >= 2) {
-    std::vector<std::string> narrow;
     size_t count = 0;
+    double lowest = kNarrowGlossRoughness;
     for (size_t m = 0; m < scene.materials.size(); ++m) {
       const Material& mat = scene.materials[m];
       const bool used = std::any_of(scene.shapes.begin(), scene.shapes.end(),
                                     [&](const Shape& s) { return s.material == m; }) ||
                         std::find(q.point_materials.begin(), q.point_materials.end(), m) != q.point_materials.end();
       if (!used || mat.type != MaterialType::metallic_roughness || mat.roughness >= kNarrowGlossRoughness) continue;
-      if (++count <= 3) narrow.push_back(fmt::format("\"{}\" {}", mat.name, mat.roughness));
+      ++count;
+      lowest = std::min(lowest, mat.roughness);
     }
+    // Counts and roughness only, no names: a glTF scene and the same scene in JSON plan
+    // alike (their materials' names differ).
     if (count > 0) {
       specular_why += fmt::format(
-          "; light reaching other surfaces through the {} glossy material{} of roughness < {} ({}{}) is found by "
-          "BSDF sampling alone: where few paths find it, low-spp error bars under-cover it",
-          count, count == 1 ? "" : "s", kNarrowGlossRoughness, fmt::join(narrow, ", "), count > 3 ? ", ..." : "");
+          "; light reaching other surfaces through glossy materials of roughness < {} ({}, the lowest {}) is found "
+          "by BSDF sampling alone: where few paths find it, low-spp error bars under-cover it",
+          kNarrowGlossRoughness, count == 1 ? std::string("1 material") : fmt::format("{} materials", count), lowest);
     }
   }
   add("specular", p.specular, mirror, std::move(specular_why));
