@@ -25,16 +25,28 @@ constexpr double kConeSlack = 1e-9;
 
 }  // namespace
 
-double light_importance(const LightBounds& b, const Vec3& p) {
+LightTree::Importance LightTree::prepare(const LightBounds& b) {
+  Importance m;
+  m.centre = (b.lo + b.hi) * 0.5;
+  m.radius = 0.5 * length(b.hi - b.lo);
+  m.radius2 = m.radius * m.radius;
+  m.phi = b.phi;
+  m.w = b.w;
+  m.cos_o = b.cos_o;
+  m.sin_o = safe_sqrt(1.0 - b.cos_o * b.cos_o);
+  m.cos_e = b.cos_e;
+  m.two_sided = b.two_sided;
+  return m;
+}
+
+double LightTree::importance(const Importance& b, const Vec3& p) {
   if (!(b.phi > 0)) return 0.0;
-  const Vec3 pc = (b.lo + b.hi) * 0.5;
-  const Vec3 to_p = p - pc;
+  const Vec3 to_p = p - b.centre;
   const double dist2 = dot(to_p, to_p);
-  const double radius = 0.5 * length(b.hi - b.lo);
-  const double d2 = std::max(dist2, radius);  // pbrt-v4: max(d^2, |diagonal| / 2)
+  const double d2 = std::max(dist2, b.radius);  // pbrt-v4: max(d^2, |diagonal| / 2)
   // The angle theta_b the bounding sphere subtends at p (all directions from inside).
   double cos_b = -1.0;
-  if (dist2 > radius * radius) cos_b = safe_sqrt(1.0 - radius * radius / dist2);
+  if (dist2 > b.radius2) cos_b = safe_sqrt(1.0 - b.radius2 / dist2);
   const double sin_b = safe_sqrt(1.0 - cos_b * cos_b);
   // theta_w: between the cone's axis and the direction from the centre to p.
   double cos_w = 1.0;
@@ -42,13 +54,16 @@ double light_importance(const LightBounds& b, const Vec3& p) {
   if (b.two_sided) cos_w = std::fabs(cos_w);
   cos_w = std::clamp(cos_w, -1.0, 1.0);
   const double sin_w = safe_sqrt(1.0 - cos_w * cos_w);
-  const double sin_o = safe_sqrt(1.0 - b.cos_o * b.cos_o);
-  const double cos_x = cos_sub_clamped(sin_w, cos_w, sin_o, b.cos_o);
-  const double sin_x = sin_sub_clamped(sin_w, cos_w, sin_o, b.cos_o);
+  const double cos_x = cos_sub_clamped(sin_w, cos_w, b.sin_o, b.cos_o);
+  const double sin_x = sin_sub_clamped(sin_w, cos_w, b.sin_o, b.cos_o);
   const double cos_p = cos_sub_clamped(sin_x, cos_x, sin_b, cos_b);
   if (cos_p <= b.cos_e) return 0.0;
   const double importance = b.phi * cos_p / d2;
   return std::isfinite(importance) && importance > 0 ? importance : 0.0;
+}
+
+double light_importance(const LightBounds& b, const Vec3& p) {
+  return LightTree::importance(LightTree::prepare(b), p);
 }
 
 LightBounds merge_light_bounds(const LightBounds& a, const LightBounds& b) {
@@ -96,6 +111,8 @@ LightTree::LightTree(const std::vector<LightBounds>& leaves) : node_of_leaf_(lea
   if (ids.empty()) return;
   nodes_.reserve(2 * ids.size());
   root_ = build(ids, 0, ids.size(), leaves, -1);
+  importance_.reserve(nodes_.size());
+  for (const Node& n : nodes_) importance_.push_back(prepare(n.b));
 }
 
 int32_t LightTree::build(std::vector<uint32_t>& ids, size_t begin, size_t end, const std::vector<LightBounds>& leaves,
@@ -140,10 +157,10 @@ int32_t LightTree::build(std::vector<uint32_t>& ids, size_t begin, size_t end, c
 }
 
 double LightTree::left_probability(const Node& n, const Vec3& p) const {
-  const LightBounds& l = nodes_[static_cast<size_t>(n.left)].b;
-  const LightBounds& r = nodes_[static_cast<size_t>(n.right)].b;
-  const double il = light_importance(l, p);
-  const double ir = light_importance(r, p);
+  const Importance& l = importance_[static_cast<size_t>(n.left)];
+  const Importance& r = importance_[static_cast<size_t>(n.right)];
+  const double il = importance(l, p);
+  const double ir = importance(r, p);
   if (il + ir > 0) return il / (il + ir);
   // Neither child can light p (the parent's looser bound let the walk get here): go by
   // power, so the pmf stays a distribution over all leaves (the sample is wasted, as

@@ -76,6 +76,22 @@ class LightTree {
     int32_t parent = -1;
     uint32_t leaf = 0;  // leaves only
   };
+  // What light_importance derives from a node's bounds before it looks at p (centre,
+  // bounding radius, sin of the cone's spread), computed once per node with the same
+  // arithmetic, so the importances are bit for bit light_importance's. The traversal
+  // reads only these (a third of a many-light render's time was light_importance
+  // recomputing them).
+  struct Importance {
+    Vec3 centre{};
+    double radius = 0.0, radius2 = 0.0;
+    double phi = 0.0;
+    Vec3 w{0, 0, 1};
+    double cos_o = 1.0, sin_o = 0.0, cos_e = 0.0;
+    bool two_sided = false;
+  };
+  static Importance prepare(const LightBounds& b);
+  static double importance(const Importance& b, const Vec3& p);
+  friend double light_importance(const LightBounds& b, const Vec3& p);
   int32_t build(std::vector<uint32_t>& ids, size_t begin, size_t end, const std::vector<LightBounds>& leaves,
                 int32_t parent);
   // Probability of going to the left child of `n` at p (importance ratio; power ratio
@@ -83,6 +99,7 @@ class LightTree {
   double left_probability(const Node& n, const Vec3& p) const;
 
   std::vector<Node> nodes_;
+  std::vector<Importance> importance_;  // per node, as nodes_
   std::vector<int32_t> node_of_leaf_;  // -1: not in the tree (phi <= 0)
   int32_t root_ = -1;
 };
