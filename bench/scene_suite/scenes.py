@@ -157,29 +157,27 @@ def gltf_scene(name: str, what: str, directory: str, w: Writer, resolution, **kw
     return Scene(name, what, directory, {"shapes": [shape]}, gltf=name + ".gltf", **kw)
 
 
-def emitters(scene: Scene) -> Optional[Scene]:
-    """The scene's emitter-mask variant (written by gltf_scene), or None (no emissive
-    material, or not a glTF scene)."""
+def variant(scene: Scene, suffix: str, what: str, **kw) -> Optional[Scene]:
+    """The scene with its glTF file swapped for NAME_SUFFIX.gltf (written by gltf_scene),
+    or None for a scene without a glTF file or without that variant."""
     if not scene.gltf:
         return None
-    em = scene.gltf.replace(".gltf", "_emitters.gltf")
-    if not os.path.exists(os.path.join(scene.directory, em)):
+    gl = scene.gltf.replace(".gltf", "_%s.gltf" % suffix)
+    if not os.path.exists(os.path.join(scene.directory, gl)):
         return None
     t = json.loads(json.dumps(scene.tally_scene))
-    t["shapes"][0]["file"] = em
-    return Scene(scene.name + "_emitters", scene.what + " (emitters only)", scene.directory, t, gltf=em)
+    t["shapes"][0]["file"] = gl
+    return Scene("%s_%s" % (scene.name, suffix), "%s (%s)" % (scene.what, what), scene.directory, t, gltf=gl, **kw)
+
+
+def emitters(scene: Scene) -> Optional[Scene]:
+    """The scene's emitter-mask variant, or None (no emissive material, or not a glTF scene)."""
+    return variant(scene, "emitters", "emitters only")
 
 
 def lambert(scene: Scene) -> Optional[Scene]:
-    """The scene's Lambert variant (written next to it by gltf_scene), or None (the lecture
-    scene is Lambert already)."""
-    if not scene.gltf:
-        return None
-    t = json.loads(json.dumps(scene.tally_scene))
-    gl = scene.gltf.replace(".gltf", "_lambert.gltf")
-    t["shapes"][0]["file"] = gl
-    return Scene(scene.name + "_lambert", scene.what + " (dielectrics Lambert)", scene.directory, t, gltf=gl,
-                 env=scene.env, notes=list(scene.notes))
+    """The scene's Lambert variant, or None (the lecture scene is Lambert already)."""
+    return variant(scene, "lambert", "dielectrics Lambert", env=scene.env, notes=list(scene.notes))
 
 
 # ---------------------------------------------------------------------------- the scenes

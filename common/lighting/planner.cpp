@@ -73,14 +73,15 @@ Plan make_plan(const Scene& scene, const PlanQuery& q, bool full) {
   // spread of the replicates, none of which found it, is too small (docs/lighting.md,
   // "Coverage on the suite").
   if (q.max_depth >= 2) {
+    // The materials in use: one pass over the shapes, then the query points'.
+    std::vector<bool> used(scene.materials.size(), false);
+    for (const Shape& s : scene.shapes) used[s.material] = true;
+    for (uint32_t m : q.point_materials) used[m] = true;
     size_t count = 0;
     double lowest = kNarrowGlossRoughness;
     for (size_t m = 0; m < scene.materials.size(); ++m) {
       const Material& mat = scene.materials[m];
-      const bool used = std::any_of(scene.shapes.begin(), scene.shapes.end(),
-                                    [&](const Shape& s) { return s.material == m; }) ||
-                        std::find(q.point_materials.begin(), q.point_materials.end(), m) != q.point_materials.end();
-      if (!used || mat.type != MaterialType::metallic_roughness || mat.roughness >= kNarrowGlossRoughness) continue;
+      if (!used[m] || mat.type != MaterialType::metallic_roughness || mat.roughness >= kNarrowGlossRoughness) continue;
       ++count;
       lowest = std::min(lowest, mat.roughness);
     }

@@ -122,8 +122,8 @@ TEST(Planner, ImageOfLectureSceneMatchesFull) {
 TEST(Planner, NarrowGlossyLobesGetACaveatOnTheErrorBars) {
   // A polished metal wall beside the receiver: from max_depth 2 light can reach the
   // receiver through the wall's narrow lobe, found by BSDF sampling alone; the specular
-  // line says so, with the count and the lowest roughness. Not at depth 1, not for a rough metal, and no
-  // effect switches (the answer is the same as with "plan": "full").
+  // line says so, with the count and the lowest roughness. Not at depth 1, not for a
+  // rough metal; it is a caveat, so no effect switches (specular stays off, indirect on).
   auto spec_with = [](double roughness, int depth) {
     json scene = lecture_scene();
     scene["materials"]["polished silver"] = {{"type", "metallic_roughness"}, {"base_color", {0.97, 0.96, 0.91}},
