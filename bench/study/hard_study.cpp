@@ -8,7 +8,8 @@
 // half-width. Options (environment; the full study is not small):
 //   TALLY_HARD_DIMS=8,12,16,32  TALLY_HARD_TARGETS=5e-6,5e-8  TALLY_STUDY_INSTANCES=3
 //   TALLY_HARD_SECONDS=10 (cap per method and instance)  TALLY_STUDY_FAMILIES=name,...
-//   TALLY_HARD_METHODS=tally,gsl_plain,gsl_miser,gsl_vegas,hcubature,pcubature
+//   TALLY_HARD_METHODS=tally,gsl_plain,gsl_miser,gsl_vegas,hcubature,pcubature (and tally_cone:
+//   the qmc estimator's cone rule, `"error": "cone"`, not in the default set)
 // SciPy's qmc_quad runs on the same instances afterwards: bench/peers/scipy_peer.py DIR --hard
 // (reads DIR/hard_instances.json, written below; writes DIR/hard_scipy.csv).
 #include <fmt/format.h>
@@ -114,6 +115,18 @@ void run_hard_study(const Options& o) {
                    r.runner->stop_reason() == StopReason::error_target,
                    fmt::format("{} auto->{}{} n={}", stop_reason_name(r.runner->stop_reason()), plan.type,
                                plan.periodize ? "/" + *plan.periodize : "", plan.points_per_sample.value_or(1)));
+          }
+          if (method_selected(methods, "tally_cone")) {
+            // The cone rule (one randomization doubled to its Walsh-coefficient bound):
+            // one block, so the time cap does not interrupt it; 2^24 points at most.
+            const json stop = {{"rel_error", target}, {"max_samples", uint64_t{1} << 24}};
+            const JobRun r = run_spec(genz_spec(p, {{"type", "qmc"}, {"error", "cone"}}, stop,
+                                                static_cast<uint64_t>(k + 1)),
+                                      o.threads);
+            const ErrorSummary e = r.runner->error();
+            record("tally_cone", e.mean, e.abs_error, r.seconds, r.evaluations(),
+                   r.runner->stop_reason() == StopReason::error_target,
+                   fmt::format("{} n={}", stop_reason_name(r.runner->stop_reason()), r.evaluations()));
           }
           const peers::GenzScalar g = peer_integrand(p);
           for (peers::GslMethod m : {peers::GslMethod::plain, peers::GslMethod::miser, peers::GslMethod::vegas}) {

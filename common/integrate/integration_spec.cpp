@@ -1,5 +1,6 @@
 #include "common/integrate/integration_spec.hpp"
 
+#include <bit>
 #include <cmath>
 #include <fmt/format.h>
 #include <numbers>
@@ -15,6 +16,7 @@
 #include "common/integrate/integrand.hpp"
 #include "common/integrate/vector_integrand.hpp"
 #include "common/integrate/auto_estimator.hpp"
+#include "common/integrate/cone_rule.hpp"
 #include "common/integrate/cubature.hpp"
 #include "common/integrate/vegas.hpp"
 #include "common/sampling/qmc.hpp"
@@ -249,6 +251,53 @@ void use_qmc(EstimatorChoice& c, const IntegrationProblem& prob, uint32_t points
   c.sweep = true;
 }
 
+// `"error": "cone"`: one scrambled Sobol' sequence, points doubling until the cone rule's
+// bound (cone_rule.hpp) meets the stop rule's abs_error or rel_error, up to max_samples
+// evaluations (one block: bounded like cubature's).
+void use_cone_rule(EstimatorChoice& c, SpecReader& r, const IntegrationProblem& prob, const StopRule& stop,
+                   bool stop_has_max_samples) {
+  for (const char* field : {"points", "scramble", "interlacing"}) {
+    if (r.has(field)) {
+      throw SpecError(r.pointer_of(field),
+                      "the cone rule takes no points, scramble or interlacing: it doubles one affinely scrambled "
+                      "Sobol' sequence from 1024 points up to the stop rule's max_samples");
+    }
+  }
+  if (prob.integrand->components() > 1) {
+    throw SpecError(r.pointer_of("error"), fmt::format("the cone rule takes a scalar integrand, not {} components; "
+                                                       "vector integrands use the randomizations' error bar",
+                                                       prob.integrand->components()));
+  }
+  if (prob.domain->uniforms() > kRqmcMaxDimensions) {
+    throw SpecError(r.pointer_of("type"), fmt::format("qmc supports at most {} dimensions", kRqmcMaxDimensions));
+  }
+  ConeRuleOptions o;
+  uint64_t cap = uint64_t{1} << o.m_max;
+  if (stop_has_max_samples) {
+    if (stop.max_samples < (uint64_t{1} << o.m_min) || stop.max_samples > kMaxConeEvaluations) {
+      throw SpecError("/stop/max_samples",
+                      fmt::format("the cone rule evaluates between {} and {} points (one block, 12 bytes a point, "
+                                  "so that cancel stays prompt and memory bounded); got {}",
+                                  uint64_t{1} << o.m_min, kMaxConeEvaluations, stop.max_samples));
+    }
+    o.m_max = static_cast<uint32_t>(std::bit_width(stop.max_samples) - 1);  // the largest 2^m within the cap
+    cap = uint64_t{1} << o.m_max;
+  }
+  o.abs_error = stop.abs_error;
+  o.rel_error = stop.rel_error;
+  c.plan.sequence = "sobol (random linear scramble + digital shift, Joe-Kuo directions), natural order";
+  c.plan.scramble = "affine";
+  c.plan.rule = fmt::format(
+      "cone rule (Hickernell & Jimenez Rugama, cubSobol_g): one randomization, 2^{}..2^{} points doubling until "
+      "{} * 2^-m * (sum of |Walsh coefficients| {} levels below) meets the target",
+      o.m_min, o.m_max, o.fudge, o.lag);
+  c.plan.max_evaluations = cap;
+  c.plan.error = "bound from the Walsh coefficients, guaranteed for integrands in the cone (not a confidence "
+                 "interval; a warning says when a necessary condition of the cone fails)";
+  c.kernel = make_cone_kernel(prob, o);
+  c.deterministic = true;
+}
+
 // `rule`: one already built for (n, weights) (the auto pilot's), else CBC builds it.
 void use_lattice(EstimatorChoice& c, const IntegrationProblem& prob, uint32_t n, const std::vector<double>& weights,
                  const std::string& per, std::optional<LatticeRule> rule = std::nullopt) {
@@ -390,6 +439,8 @@ EstimatorChoice parse_estimator(const json& spec, const json* node, const std::s
     c.plan.points_per_sample = points;
     c.kernel = make_stratified_kernel(prob, k, s);
     c.sweep = true;
+  } else if (type == "qmc" && r.enumeration_or("error", "randomizations", {"randomizations", "cone"}) == "cone") {
+    use_cone_rule(c, r, prob, stop, stop_has_max_samples);
   } else if (type == "qmc") {
     const uint32_t points = static_cast<uint32_t>(r.integer_or("points", 1024, 1, kMaxQmcPoints));
     if (D.uniforms() > 1024) throw SpecError(pointer, "qmc supports at most 1024 dimensions");
