@@ -293,7 +293,7 @@ void use_cone_rule(EstimatorChoice& c, SpecReader& r, const IntegrationProblem& 
       o.m_min, o.m_max, o.fudge, o.lag);
   c.plan.max_evaluations = cap;
   c.plan.error = "bound from the Walsh coefficients, guaranteed for integrands in the cone (not a confidence "
-                 "interval; a warning says when a necessary condition of the cone fails)";
+                 "interval; whether an integrand is in the cone is not checked)";
   c.kernel = make_cone_kernel(prob, o);
   c.deterministic = true;
 }
