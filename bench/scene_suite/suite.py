@@ -173,12 +173,15 @@ class Runner:
 T7_975 = 2.364624
 
 
-def coverage(img: Dict[str, np.ndarray], ref_rgb: np.ndarray, ref_se: np.ndarray) -> float:
+def coverage(img: Dict[str, np.ndarray], ref_rgb: np.ndarray, ref_se: np.ndarray,
+             where: Optional[np.ndarray] = None) -> float:
     """The fraction of pixel values whose 95% interval (t7 x the standard error from the
     image's StdErr channels, combined with the reference's) holds the reference: 0.95 for
-    honest error bars (a little less, as the reference's own error bar has 7 dof too)."""
+    honest error bars (a little less, as the reference's own error bar has 7 dof too).
+    `where`: only those pixels (a boolean image)."""
     den = np.sqrt(stderr(img) ** 2 + ref_se ** 2)
-    return float(np.mean(np.abs(rgb(img) - ref_rgb) <= T7_975 * den))
+    inside = np.abs(rgb(img) - ref_rgb) <= T7_975 * den
+    return float(np.mean(inside if where is None else inside[where]))
 
 
 def rmse(a: np.ndarray, b: np.ndarray) -> float:
@@ -271,6 +274,7 @@ def run_scene_depth(run: Runner, scene: scenes.Scene, depth: int, args) -> Dict:
         lv["tally_noise"] = math.sqrt(max(lv["tally_rmse"] ** 2 - ref_noise2, 1e-30))
         curves[lv["mode"]]["tally"].append((lv["tally_s"], lv["tally_rmse"]))
         if off is not None:
+            lv["tally_coverage_off"] = coverage(tally_imgs[key], ref_rgb, ref_se, off)
             lv["tally_rmse_off"] = rmse(ti[off], ref_rgb[off])
             lv["tally_noise_off"] = math.sqrt(max(lv["tally_rmse_off"] ** 2 - ref_noise2_off, 1e-30))
             # The share of tally's squared error in the pixels that see an emitter.
@@ -478,7 +482,9 @@ def print_result(res: Dict, scene: scenes.Scene, args, out) -> None:
                                          " / ".join("%+.2f" % x for x in res["z_image_mean"])))
     p(line)
     p("  coverage of tally's 95% error bars (t7) against the reference: " + ", ".join(
-        "%d spp %s %.3f" % (lv["spp"], lv["mode"], lv["tally_coverage"]) for lv in res["levels"]))
+        "%d spp %s %.3f%s" % (lv["spp"], lv["mode"], lv["tally_coverage"],
+                              " (%.3f off the emitters)" % lv["tally_coverage_off"] if "tally_coverage_off" in lv else "")
+        for lv in res["levels"]))
     mc = res.get("model_check")
     if mc:
         p("  model check (dielectrics Lambert in both, depth %d): Cycles/tally mean %.4f +- %.2g (R %.3f G %.3f B %.3f), "
