@@ -11,6 +11,7 @@
 #include "common/engine/block_abandon.hpp"
 #include "common/engine/job_state.hpp"
 #include "common/integrate/integration_counters.hpp"
+#include "common/integrate/rule_kernel.hpp"
 #include "common/rng/counter_rng.hpp"
 #include "common/sampling/qmc.hpp"
 
@@ -110,21 +111,14 @@ constexpr size_t kB = kIntegrandBatch;
 // cubature: the coefficients live in memory for the rule's length, not checkpointed;
 // the block polls block_abandoned() between batches, so cancel stays prompt). Channels:
 // 0 the mean, 1 the error bound.
-class ConeKernel final : public Kernel {
+class ConeKernel final : public RuleKernelBase {
  public:
-  ConeKernel(IntegrationProblem p, ConeRuleOptions o) : p_(std::move(p)), o_(o) {
+  ConeKernel(IntegrationProblem p, ConeRuleOptions o) : RuleKernelBase(1), p_(std::move(p)), o_(o) {
     if (p_.integrand->components() != 1) throw std::invalid_argument("the cone rule takes a scalar integrand");
   }
 
-  size_t channel_count() const override { return 2; }
-  std::span<const std::string_view> counter_names() const override { return integration_counter_names(); }
-  std::vector<std::string> warnings(const JobState& st) const override { return integration_counter_warnings(st); }
-  PassSchedule schedule() const override { return {1, 1, 1}; }
-
-  void run_block(const Block& b, BlockResult& out) const override {
-    out.first_channel = 0;
-    out.tallies.assign(channel_count(), Tally{});
-    if (b.first_sample > 0) return;  // deterministic: a second "sample" would repeat the first
+ protected:
+  void run_rule(BlockResult& out) const override {
     const Domain& D = *p_.domain;
     const uint32_t U = D.uniforms();
     const size_t dims = D.dimensions();
@@ -176,24 +170,6 @@ class ConeKernel final : public Kernel {
     if (r.aborted) return;  // a fault (out.fault says where) or an abandoned block (dropped)
     out.tallies[0].add(r.mean);
     out.tallies[1].add(r.error_bound);
-  }
-
-  std::optional<Headline> headline(const JobState& st) const override {
-    if (st.channels.size() != channel_count() || st.channels[0].n == 0) return std::nullopt;
-    return Headline{st.channels[0].mean, std::numeric_limits<double>::quiet_NaN()};
-  }
-
-  // The bound (not a confidence half-width: it holds for integrands in the cone).
-  ErrorSummary error_summary(const JobState& st, double) const override {
-    ErrorSummary e;
-    e.abs_error = e.rel_error = std::numeric_limits<double>::infinity();
-    e.sigma = std::numeric_limits<double>::quiet_NaN();
-    if (st.channels.size() != channel_count() || st.channels[0].n == 0) return e;
-    e.mean = st.channels[0].mean;
-    e.abs_error = st.channels[1].mean;
-    e.rel_error = e.mean != 0.0 ? e.abs_error / std::fabs(e.mean)
-                                : (e.abs_error == 0.0 ? 0.0 : std::numeric_limits<double>::infinity());
-    return e;
   }
 
  private:

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "common/integrate/integration_counters.hpp"
+#include "common/integrate/rule_kernel.hpp"
 
 namespace tally {
 
@@ -74,23 +75,16 @@ int evaluate(unsigned dim, size_t npts, const double* x, void* data, unsigned fd
   return 0;
 }
 
-class CubatureKernel final : public Kernel {
+class CubatureKernel final : public RuleKernelBase {
  public:
   CubatureKernel(IntegrationProblem p, CubatureOptions o)
-      : p_(std::move(p)), o_(o), d_(p_.domain->dimensions()), m_(p_.integrand->components()) {
+      : RuleKernelBase(p.integrand->components()), p_(std::move(p)), o_(o), d_(p_.domain->dimensions()) {
     if (!p_.domain->is_box()) throw std::invalid_argument("cubature needs a box domain");
     if (d_ > kMaxCubatureDimensions) throw std::invalid_argument("cubature supports at most 8 dimensions");
   }
 
-  size_t channel_count() const override { return 2 * m_; }
-  std::span<const std::string_view> counter_names() const override { return integration_counter_names(); }
-  std::vector<std::string> warnings(const JobState& st) const override { return integration_counter_warnings(st); }
-  PassSchedule schedule() const override { return {1, 1, 1}; }
-
-  void run_block(const Block& b, BlockResult& out) const override {
-    out.first_channel = 0;
-    out.tallies.assign(channel_count(), Tally{});
-    if (b.first_sample > 0) return;  // deterministic: a second "sample" would repeat the first
+ protected:
+  void run_rule(BlockResult& out) const override {
     CallbackData cd;
     cd.f = p_.integrand.get();
     cd.D = p_.domain.get();
@@ -125,34 +119,10 @@ class CubatureKernel final : public Kernel {
     }
   }
 
-  std::optional<Headline> headline(const JobState& st) const override {
-    if (st.channels.size() != channel_count() || st.channels[0].n == 0) return std::nullopt;
-    return Headline{st.channels[0].mean, std::numeric_limits<double>::quiet_NaN()};
-  }
-
-  // The worst component's error estimate (not a confidence half-width: no confidence).
-  ErrorSummary error_summary(const JobState& st, double) const override {
-    ErrorSummary e;
-    e.abs_error = e.rel_error = std::numeric_limits<double>::infinity();
-    e.sigma = std::numeric_limits<double>::quiet_NaN();
-    if (st.channels.size() != channel_count() || st.channels[0].n == 0) return e;
-    e.mean = st.channels[0].mean;
-    for (size_t c = 0; c < m_; ++c) {
-      const double v = st.channels[c].mean, err = st.channels[m_ + c].mean;
-      const double rel = v != 0.0 ? err / std::fabs(v) : (err == 0.0 ? 0.0 : std::numeric_limits<double>::infinity());
-      if (c == 0 || err > e.abs_error) {
-        e.abs_error = err;
-        e.mean = v;
-      }
-      if (c == 0 || rel > e.rel_error) e.rel_error = rel;
-    }
-    return e;
-  }
-
  private:
   IntegrationProblem p_;
   CubatureOptions o_;
-  size_t d_, m_;
+  size_t d_;
 };
 
 }  // namespace
