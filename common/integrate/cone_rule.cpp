@@ -1,10 +1,8 @@
 #include "common/integrate/cone_rule.hpp"
 
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <fmt/format.h>
-#include <limits>
 #include <stdexcept>
 #include <vector>
 
@@ -124,7 +122,7 @@ class ConeKernel final : public RuleKernelBase {
     const size_t dims = D.dimensions();
     // One randomization, seeded as the qmc estimator's first point set.
     const ScrambledSobolSet set(mix64(stream_key(p_.seed, 0) ^ mix64(0 + 0x51ed27)), U);
-    std::vector<double> u(U * kB), x(dims * kB), f(kB), pos(kB);
+    std::vector<double> u(U * kB), x(dims * kB), f(kB);
     std::vector<double*> urow(U), xrow(dims);
     std::vector<const double*> ucrow(U), xcrow(dims);
     for (uint32_t k = 0; k < U; ++k) ucrow[k] = urow[k] = u.data() + k * kB;
