@@ -21,9 +21,11 @@ void walsh_hadamard_normalized(std::span<double> y) {
   for (size_t h = 1; h < n; h *= 2) {
     for (size_t b = 0; b < n; b += 2 * h) {
       for (size_t i = b; i < b + h; ++i) {
-        const double a = y[i], c = y[i + h];
-        y[i] = 0.5 * (a + c);
-        y[i + h] = 0.5 * (a - c);
+        // Halved first: the same bits as 0.5 * (a + c) (halving is exact above the
+        // subnormals), but values near the largest double do not overflow.
+        const double a = 0.5 * y[i], c = 0.5 * y[i + h];
+        y[i] = a + c;
+        y[i + h] = a - c;
       }
     }
   }
@@ -80,10 +82,10 @@ ConeRuleResult run_cone_rule(const ConeRuleOptions& o, const ConeValues& values)
         return r;
       }
       walsh_hadamard_normalized(std::span<double>(y).subspan(h, h));
-      for (size_t i = 0; i < h; ++i) {
-        const double a = y[i], c = y[i + h];
-        y[i] = 0.5 * (a + c);
-        y[i + h] = 0.5 * (a - c);
+      for (size_t i = 0; i < h; ++i) {  // as in walsh_hadamard_normalized
+        const double a = 0.5 * y[i], c = 0.5 * y[i + h];
+        y[i] = a + c;
+        y[i + h] = a - c;
       }
       kappa.resize(n);
       for (size_t i = 0; i < h; ++i) kappa[h + i] = kappa[i] + static_cast<uint32_t>(h);

@@ -86,6 +86,17 @@ TEST(ConeRule, ConstantsAreExactAndTheBoundSumsTheRightBand) {
   EXPECT_NEAR(r.error_bound, o.fudge / 64.0 * band, 1e-15);
   EXPECT_FALSE(r.met);
 
+  // Values near the largest double: the transform halves before it adds, so the mean is
+  // exact and the bound 0 (0.5 * (a + c) would overflow to inf, the bound to NaN).
+  o.m_max = 10;
+  r = run_cone_rule(o, [](uint64_t, uint64_t n, double* out) {
+    std::fill(out, out + n, 1.5e308);
+    return true;
+  });
+  EXPECT_EQ(r.mean, 1.5e308);
+  EXPECT_EQ(r.error_bound, 0.0);
+  EXPECT_TRUE(r.met);
+
   // A callback that stops (a fault, an abandoned block) stops the rule.
   o.m_max = 10;
   o.abs_error = 0.0;  // no target: it would double to 2^10
