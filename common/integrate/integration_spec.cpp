@@ -272,7 +272,6 @@ void use_cone_rule(EstimatorChoice& c, SpecReader& r, const IntegrationProblem& 
     throw SpecError(r.pointer_of("type"), fmt::format("qmc supports at most {} dimensions", kRqmcMaxDimensions));
   }
   ConeRuleOptions o;
-  uint64_t cap = uint64_t{1} << o.m_max;
   if (stop_has_max_samples) {
     if (stop.max_samples < (uint64_t{1} << o.m_min) || stop.max_samples > kMaxConeEvaluations) {
       throw SpecError("/stop/max_samples",
@@ -281,7 +280,6 @@ void use_cone_rule(EstimatorChoice& c, SpecReader& r, const IntegrationProblem& 
                                   uint64_t{1} << o.m_min, kMaxConeEvaluations, stop.max_samples));
     }
     o.m_max = static_cast<uint32_t>(std::bit_width(stop.max_samples) - 1);  // the largest 2^m within the cap
-    cap = uint64_t{1} << o.m_max;
   }
   o.abs_error = stop.abs_error;
   o.rel_error = stop.rel_error;
@@ -291,7 +289,7 @@ void use_cone_rule(EstimatorChoice& c, SpecReader& r, const IntegrationProblem& 
       "cone rule (Hickernell & Jimenez Rugama, cubSobol_g): one randomization, 2^{}..2^{} points doubling until "
       "{} * 2^-m * (sum of |Walsh coefficients| {} levels below) meets the target",
       o.m_min, o.m_max, o.fudge, o.lag);
-  c.plan.max_evaluations = cap;
+  c.plan.max_evaluations = uint64_t{1} << o.m_max;
   c.plan.error = "bound from the Walsh coefficients, guaranteed for integrands in the cone (not a confidence "
                  "interval; whether an integrand is in the cone is not checked)";
   c.kernel = make_cone_kernel(prob, o);
