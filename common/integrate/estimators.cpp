@@ -626,12 +626,7 @@ class LatticeKernel final : public SweepKernelBase {
         const uint64_t m = (j0 + i) * z % N;  // exact: j0 + i < n < 2^32, z < n
         double u = static_cast<double>(m) * inv_n + delta;
         u -= u >= 1.0 ? 1.0 : 0.0;
-        if (per_ == Periodization::baker) {
-          u = 1.0 - std::fabs(2.0 * u - 1.0);
-        } else if (per_ == Periodization::cubic) {
-          s.pdf[i] *= 6.0 * u * (1.0 - u);
-          u = u * u * (3.0 - 2.0 * u);
-        }
+        u = periodized(u, per_, &s.pdf[i]);
         // Inside the open cube, as every other estimator's points (1/x, log x stay finite).
         row[i] = std::clamp(u, 0x1.0p-54, 1.0 - 0x1.0p-53);
       }
