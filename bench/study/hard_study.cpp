@@ -8,8 +8,9 @@
 // half-width. Options (environment; the full study is not small):
 //   TALLY_HARD_DIMS=8,12,16,32  TALLY_HARD_TARGETS=5e-6,5e-8  TALLY_STUDY_INSTANCES=3
 //   TALLY_HARD_SECONDS=10 (cap per method and instance)  TALLY_STUDY_FAMILIES=name,...
-//   TALLY_HARD_METHODS=tally,gsl_plain,gsl_miser,gsl_vegas,hcubature,pcubature (and tally_cone:
-//   the qmc estimator's cone rule, `"error": "cone"`, not in the default set)
+//   TALLY_HARD_METHODS=tally,gsl_plain,gsl_miser,gsl_vegas,hcubature,pcubature (and tally_cone,
+//   tally_cone_lattice: the qmc and lattice estimators' cone rules, `"error": "cone"`, not in
+//   the default set)
 // SciPy's qmc_quad runs on the same instances afterwards: bench/peers/scipy_peer.py DIR --hard
 // (reads DIR/hard_instances.json, written below; writes DIR/hard_scipy.csv).
 #include <fmt/format.h>
@@ -24,7 +25,9 @@
 #include "bench/peers/cubature_peer.hpp"
 #include "bench/peers/gsl_peers.hpp"
 #include "bench/study/study_support.hpp"
+#include "common/integrate/cone_rule.hpp"
 #include "common/integrate/integration_job.hpp"
+#include "common/integrate/lattice_rule.hpp"
 
 namespace tally::study {
 
@@ -74,6 +77,16 @@ void run_hard_study(const Options& o) {
                                "note"});
   std::map<std::string, Row> summary;  // "family d target method"
   json inst = json::array();           // for bench/peers/scipy_peer.py --hard (SciPy's qmc_quad)
+  if (method_selected(methods, "tally_cone_lattice")) {
+    // The embedded lattice is built once per dimension and process (remembered), before
+    // the runs: its construction is printed here and is not in the runs' times.
+    for (size_t d : dims) {
+      Stopwatch sw;
+      embedded_lattice_rule_remembered(10, kLatticeConeLog2, std::vector<double>(d, kDefaultLatticeWeight));
+      fmt::print("embedded lattice CBC, 2^10..2^{}, d = {}: {:.2f} s (once per process; not in the times below)\n",
+                 kLatticeConeLog2, d, sw.seconds());
+    }
+  }
   for (size_t fi = 0; fi < genz_family_names().size(); ++fi) {
     const auto f = static_cast<GenzFamily>(fi);
     if (!family_selected(f)) continue;
@@ -125,6 +138,18 @@ void run_hard_study(const Options& o) {
                                       o.threads);
             const ErrorSummary e = r.runner->error();
             record("tally_cone", e.mean, e.abs_error, r.seconds, r.evaluations(),
+                   r.runner->stop_reason() == StopReason::error_target,
+                   fmt::format("{} n={}", stop_reason_name(r.runner->stop_reason()), r.evaluations()));
+          }
+          if (method_selected(methods, "tally_cone_lattice")) {
+            // The lattice form: the embedded lattice through the baker's transform, doubled to
+            // its Fourier-coefficient bound; 2^20 points at most (the lattice's size).
+            const json stop = {{"rel_error", target}, {"max_samples", uint64_t{1} << kLatticeConeLog2}};
+            const JobRun r = run_spec(genz_spec(p, {{"type", "lattice"}, {"error", "cone"}}, stop,
+                                                static_cast<uint64_t>(k + 1)),
+                                      o.threads);
+            const ErrorSummary e = r.runner->error();
+            record("tally_cone_lattice", e.mean, e.abs_error, r.seconds, r.evaluations(),
                    r.runner->stop_reason() == StopReason::error_target,
                    fmt::format("{} n={}", stop_reason_name(r.runner->stop_reason()), r.evaluations()));
           }

@@ -7,7 +7,9 @@
 
 #include <bit>
 #include <cmath>
+#include <complex>
 #include <cstring>
+#include <numbers>
 #include <fmt/format.h>
 #include <vector>
 
@@ -15,6 +17,7 @@
 #include "common/integrate/genz.hpp"
 #include "common/integrate/integration_counters.hpp"
 #include "common/rng/counter_rng.hpp"
+#include "common/sampling/sobol_burley.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "integrate/run_support.hpp"
 
@@ -221,6 +224,140 @@ TEST(ConeRule, BadSpecsNameTheField) {
                     {"estimator", {{"type", "qmc"}, {"error", "cone"}}},
                     {"stop", {{"rel_error", 1e-3}}}};
   expect_refused(vec, "/estimator/error", "scalar integrand");
+}
+
+// ---- The lattice form: `"estimator": {"type": "lattice", "error": "cone"}` ----
+
+const json kLatticeCone = {{"type", "lattice"}, {"error", "cone"}};
+
+// Values given in radical-inverse order (position p holds natural index bitreverse_m(p))
+// come out as the normalised DFT of the natural order: y_k = 2^-m sum_j x_j e^{-2 pi i jk/n}.
+TEST(LatticeConeRule, DftMatchesTheDefinition) {
+  const size_t m = 6, n = size_t{1} << m;
+  std::vector<double> x(n);
+  for (size_t j = 0; j < n; ++j) x[j] = SampleRng(stream_key(5, 0), j).uniform(0) - 0.4;
+  std::vector<std::complex<double>> y(n);
+  for (size_t p = 0; p < n; ++p) y[p] = x[sobol_burley::reverse_bits(static_cast<uint32_t>(p)) >> (32 - m)];
+  lattice_dft_normalized(y);
+  for (size_t k = 0; k < n; ++k) {
+    std::complex<double> s = 0.0;
+    for (size_t j = 0; j < n; ++j) s += x[j] * std::polar(1.0, -2.0 * std::numbers::pi * double(j * k % n) / n);
+    EXPECT_NEAR(std::abs(y[k] - s / double(n)), 0.0, 1e-15) << k;
+  }
+  std::vector<std::complex<double>> bad(6);
+  EXPECT_THROW(lattice_dft_normalized(bad), std::invalid_argument);
+}
+
+// Doubling (the new half's transform, one more level) gives the same mean, bit for bit,
+// as one transform of all points.
+TEST(LatticeConeRule, DoublingGivesTheSameMeanAsOneTransform) {
+  auto f = [](uint64_t first, uint64_t n, double* out) {
+    for (uint64_t i = 0; i < n; ++i) out[i] = std::exp(std::sin(0.37 * static_cast<double>(first + i)));
+    return true;
+  };
+  ConeRuleOptions doubling;
+  doubling.basis = ConeBasis::fourier;
+  doubling.m_min = 8;
+  doubling.m_max = 13;
+  ConeRuleOptions once = doubling;
+  once.m_min = 13;
+  const ConeRuleResult a = run_cone_rule(doubling, f), b = run_cone_rule(once, f);
+  EXPECT_EQ(a.m, 13u);
+  EXPECT_EQ(std::memcmp(&a.mean, &b.mean, sizeof(double)), 0) << a.mean << " vs " << b.mean;
+}
+
+// A trigonometric polynomial whose frequencies the lattice does not alias (h . z != 0
+// mod 2^m for every h in it) is integrated exactly whatever the shift: with z_1 = 1,
+// 1 + cos(2 pi x0) has mean 1 on every level, unperiodized.
+TEST(LatticeConeRule, IntegratesUnaliasedFrequenciesExactly) {
+  const json spec = {{"kind", "integrate"},
+                     {"seed", 17},
+                     {"integrand", {{"expression", "1 + cos(6.283185307179586*x0) + 0*x1*x2"}}},
+                     {"domain", {{"type", "box"}, {"lower", {0, 0, 0}}, {"upper", {1, 1, 1}}}},
+                     {"estimator", {{"type", "lattice"}, {"error", "cone"}, {"periodize", "none"}}},
+                     {"stop", {{"abs_error", 1e-9}}}};
+  const auto r = testing::run_spec(spec);
+  EXPECT_EQ(r->stop_reason(), StopReason::error_target);
+  EXPECT_NEAR(r->error().mean, 1.0, 1e-13);
+  EXPECT_LE(r->error().abs_error, 1e-9);
+}
+
+// Smooth Genz families in d = 4 and 8 at relative 1e-4, through the baker's transform:
+// the job stops on its target and the closed form lies within the bound.
+TEST(LatticeConeRule, SmoothGenzIntegralsLieWithinTheBound) {
+  for (size_t d : {4u, 8u}) {
+    for (GenzFamily f : {GenzFamily::oscillatory, GenzFamily::product_peak, GenzFamily::corner_peak,
+                         GenzFamily::gaussian}) {
+      const GenzParams p = genz_random_instance(f, d, 7);
+      const double exact = genz_exact(p);
+      const auto r = testing::run_spec(genz_spec(p, {{"rel_error", 1e-4}}, kLatticeCone));
+      const std::string what = fmt::format("{} d={}", genz_family_name(f), d);
+      EXPECT_EQ(r->stop_reason(), StopReason::error_target) << what;
+      const ErrorSummary e = r->error();
+      EXPECT_LE(e.rel_error, 1e-4) << what;
+      EXPECT_LE(std::fabs(e.mean - exact), e.abs_error) << what << " mean " << e.mean << " exact " << exact;
+      const uint64_t evals = r->state().counters[IntegrationCounter::evaluations];
+      EXPECT_TRUE(std::has_single_bit(evals) && evals >= 1024) << what << " " << evals;
+    }
+  }
+}
+
+// The plan names the rule and the lattice; the same bits on 1 and 2 threads; a smaller
+// cap takes the first points of the same lattice (the same mean where both stop).
+TEST(LatticeConeRule, ReportsABoundBitIdentically) {
+  const GenzParams p = genz_random_instance(GenzFamily::gaussian, 6, 3);
+  const json spec = genz_spec(p, {{"rel_error", 1e-6}}, kLatticeCone);
+  const auto a = testing::run_spec(spec, 1), b = testing::run_spec(spec, 2);
+  const double ma = a->error().mean, mb = b->error().mean, ea = a->error().abs_error, eb = b->error().abs_error;
+  EXPECT_EQ(std::memcmp(&ma, &mb, sizeof ma), 0);
+  EXPECT_EQ(std::memcmp(&ea, &eb, sizeof ea), 0);
+  const json res = kind_result_json(*a.job, *a.runner);
+  ASSERT_TRUE(res.contains("error_estimate")) << res.dump();
+  EXPECT_FALSE(res.contains("ci"));
+  EXPECT_NE(res["estimator"]["rule"].get<std::string>().find("cubLattice_g"), std::string::npos);
+  EXPECT_NE(res["estimator"]["construction"].get<std::string>().find("embedded rank-1 lattice"), std::string::npos);
+  EXPECT_EQ(res["estimator"]["generating_vector"].size(), 6u);
+  EXPECT_EQ(res["estimator"]["periodize"], "baker");
+
+  const uint64_t used = a->state().counters[IntegrationCounter::evaluations];
+  const auto capped = testing::run_spec(genz_spec(p, {{"rel_error", 1e-6}, {"max_samples", used}}, kLatticeCone));
+  const double mc = capped->error().mean;
+  EXPECT_EQ(std::memcmp(&ma, &mc, sizeof ma), 0);
+}
+
+TEST(LatticeConeRule, BadSpecsNameTheField) {
+  const GenzParams p = genz_random_instance(GenzFamily::gaussian, 3, 1);
+  expect_refused(genz_spec(p, {{"rel_error", 1e-4}}, {{"type", "lattice"}, {"error", "cone"}, {"points", 2048}}),
+                 "/estimator/points", "takes no points");
+  expect_refused(genz_spec(p, {{"rel_error", 1e-4}}, {{"type", "lattice"}, {"error", "cones"}}), "/estimator/error",
+                 "randomizations");
+  expect_refused(genz_spec(p, {{"rel_error", 1e-4}, {"max_samples", 1000}}, kLatticeCone), "/stop/max_samples",
+                 "between 1024");
+  expect_refused(genz_spec(p, {{"rel_error", 1e-4}, {"max_samples", (1 << 20) + 1}}, kLatticeCone),
+                 "/stop/max_samples", "1048576");
+  expect_refused(genz_spec(p, {{"rel_error", 1e-4}}, {{"type", "lattice"}, {"error", "cone"}, {"weights", -1}}),
+                 "/estimator/weights", "");
+  const GenzParams big = genz_random_instance(GenzFamily::gaussian, 33, 1);
+  expect_refused(genz_spec(big, {{"rel_error", 1e-4}}, kLatticeCone), "/estimator/error", "at most 32 dimensions");
+  const json vec = {{"kind", "integrate"},
+                    {"integrand", {{"expressions", {"x0", "x0*x0"}}}},
+                    {"domain", {{"type", "interval"}, {"lower", 0.0}, {"upper", 1.0}}},
+                    {"estimator", kLatticeCone},
+                    {"stop", {{"rel_error", 1e-3}}}};
+  expect_refused(vec, "/estimator/error", "scalar integrand");
+}
+
+// A NaN fails the job naming the point and the lattice.
+TEST(LatticeConeRule, ANanFailsTheJobWithThePoint) {
+  const json spec = {{"kind", "integrate"},
+                     {"integrand", {{"expression", "log(x0 - 0.5)"}}},
+                     {"domain", {{"type", "interval"}, {"lower", 0.0}, {"upper", 1.0}}},
+                     {"estimator", kLatticeCone},
+                     {"stop", {{"rel_error", 1e-3}}}};
+  const auto r = testing::run_spec(spec);
+  EXPECT_EQ(r->stop_reason(), StopReason::failed);
+  ASSERT_TRUE(r->error_message().has_value());
+  EXPECT_NE(r->error_message()->find("of the cone rule's lattice"), std::string::npos) << *r->error_message();
 }
 
 }  // namespace
