@@ -54,7 +54,8 @@ TEST(LatticeRule, PrimesAndPrimitiveRoots) {
 }
 
 TEST(LatticeRule, FastCbcChoosesThePlainCbcVector) {
-  for (uint32_t n : {101u, 251u, 1009u}) {
+  // 17 and 257: (n - 1) / 2 is a power of two, the circulant's unpadded FFT.
+  for (uint32_t n : {17u, 101u, 251u, 257u, 1009u}) {
     for (const std::vector<double>& w :
          {std::vector<double>(8, 0.1), std::vector<double>{1.0, 0.25, 1.0 / 9, 1.0 / 16, 0.04, 1.0 / 36, 1.0 / 49}}) {
       const LatticeRule fast = cbc_lattice_rule(n, w);
