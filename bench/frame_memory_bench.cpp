@@ -5,10 +5,11 @@
 // peak RSS (wait4's ru_maxrss) is its own; bytes per pixel are the slope between the two
 // resolutions, which cancels each program's fixed cost (code, scene, BVH).
 //
-//   frame_memory_bench [--small 512] [--large 2048|1920x1080] [--spp 8]
+//   frame_memory_bench [--small 512] [--large 2048|1920x1080] [--spp 8] [--replicates 8]
 //
 // tally: `tally run`'s path in process (compile_lighting_job, run_local, 1 thread),
-// the default sobol sampler (K = 8 replicates, so at least 8 samples a pixel), direct
+// the default sobol sampler (K = 8 replicates, so at least 8 samples a pixel; --replicates
+// sets the spec's "replicates": a pixel's state is 3 K floats), direct
 // light (max_depth 1), twice: the render alone, and the render with `tally run --image`'s
 // EXR written (write_exr_file: streamed a strip of rows at a time), as Cycles writes its EXR. Cycles: 1 thread,
 // the given spp, the same quads and camera.
@@ -140,9 +141,15 @@ JobLimits unlimited_state() {
   return l;
 }
 
+json spec_with(int w, int h, uint64_t spp, uint32_t replicates) {
+  json spec = frame_spec(w, h, spp);
+  spec["replicates"] = replicates;
+  return spec;
+}
+
 // `exr`: "" renders only; else the image is written there as `tally run --image` does.
-int child_main(int w, int h, uint64_t spp, const std::string& exr) {
-  auto job = compile_lighting_job(frame_spec(w, h, spp), unlimited_state());
+int child_main(int w, int h, uint64_t spp, uint32_t replicates, const std::string& exr) {
+  auto job = compile_lighting_job(spec_with(w, h, spp, replicates), unlimited_state());
   JobRunner runner(job->kernel(), job->stop_rule(), JobCaps{});
   LocalRunOptions o;
   o.threads = 1;
@@ -188,26 +195,30 @@ Size parse_size(const std::string& s) {
 int main(int argc, char** argv) {
   Size small{512, 512}, large{2048, 2048};
   uint64_t spp = 8;
+  uint32_t replicates = 8;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string f = argv[i];
-    if (f == "--child" && i + 3 < argc) {
+    if (f == "--child" && i + 4 < argc) {
       return child_main(std::atoi(argv[i + 1]), std::atoi(argv[i + 2]), std::strtoull(argv[i + 3], nullptr, 10),
-                        i + 4 < argc ? argv[i + 4] : "");
+                        static_cast<uint32_t>(std::atoi(argv[i + 4])), i + 5 < argc ? argv[i + 5] : "");
     }
     if (f == "--small") small = parse_size(argv[i + 1]);
     else if (f == "--large") large = parse_size(argv[i + 1]);
     else if (f == "--spp") spp = std::strtoull(argv[i + 1], nullptr, 10);
+    else if (f == "--replicates") replicates = static_cast<uint32_t>(std::atoi(argv[i + 1]));
   }
-  if (small.w <= 0 || small.h <= 0 || large.pixels() <= small.pixels()) {
-    std::fprintf(stderr, "usage: frame_memory_bench [--small 512] [--large 2048|1920x1080] [--spp 8]\n");
+  if (small.w <= 0 || small.h <= 0 || large.pixels() <= small.pixels() || replicates < 2 || spp < replicates) {
+    std::fprintf(stderr,
+                 "usage: frame_memory_bench [--small 512] [--large 2048|1920x1080] [--spp 8] [--replicates 8] "
+                 "(2 <= replicates <= spp)\n");
     return 2;
   }
   const uint64_t ps = small.pixels(), pl = large.pixels();
-  std::printf("frame_memory_bench: %s and %s, %llu spp, 1 thread, direct light\n", small.text().c_str(),
-              large.text().c_str(), static_cast<unsigned long long>(spp));
-  // The state estimate as the limits compute it (32-pixel tiles, K = 8).
+  std::printf("frame_memory_bench: %s and %s, %llu spp, %u replicates, 1 thread, direct light\n",
+              small.text().c_str(), large.text().c_str(), static_cast<unsigned long long>(spp), replicates);
+  // The state estimate as the limits compute it (32-pixel tiles).
   const auto state = [&](Size s) {
-    auto job = compile_lighting_job(frame_spec(s.w, s.h, spp), unlimited_state());
+    auto job = compile_lighting_job(spec_with(s.w, s.h, spp, replicates), unlimited_state());
     return job_state_bytes(job->kernel()->channel_count(), job->kernel()->partition_count(), job->kernel()->sum_count());
   };
   const uint64_t ss = state(small), sl = state(large);
@@ -219,7 +230,8 @@ int main(int argc, char** argv) {
   std::filesystem::create_directories(dir);
   if (cycles) std::ofstream(dir / "scene.py") << kCyclesScript;
   const auto tally_run = [&](Size s, bool exr) {
-    std::vector<std::string> args = {self, "--child", std::to_string(s.w), std::to_string(s.h), std::to_string(spp)};
+    std::vector<std::string> args = {self,          "--child",           std::to_string(s.w), std::to_string(s.h),
+                                     std::to_string(spp), std::to_string(replicates)};
     if (exr) args.push_back((dir / "tally.exr").string());
     return run_child(args, false);
   };

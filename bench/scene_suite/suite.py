@@ -126,6 +126,8 @@ class Runner:
         spec = {"kind": "lighting", "seed": seed, "scene": scene.tally_scene,
                 "query": {"type": "image", "max_depth": depth, "russian_roulette": depth > 1},
                 "estimators": ["mis"], "stop": {"max_samples": spp}}
+        if self.args.replicates is not None:
+            spec["replicates"] = self.args.replicates
         path = os.path.join(scene.directory, "job_d%d_s%d_%d.json" % (depth, spp, seed))
         with open(path, "w") as f:
             json.dump(spec, f)
@@ -168,19 +170,20 @@ class Runner:
         return secs
 
 
-# Student t quantile for a two-sided 95% interval with 7 degrees of freedom: tally's
-# per-pixel error bars come from K = 8 replicate means.
-T7_975 = 2.364624
+# Student t quantiles for a two-sided 95% interval with K - 1 degrees of freedom: tally's
+# per-pixel error bars come from K replicate means (K = 8 unless --replicates).
+T_975 = {2: 12.706205, 3: 4.302653, 4: 3.182446, 8: 2.364624, 16: 2.131450}
+T7_975 = T_975[8]
 
 
 def coverage(img: Dict[str, np.ndarray], ref_rgb: np.ndarray, ref_se: np.ndarray,
-             where: Optional[np.ndarray] = None) -> float:
-    """The fraction of pixel values whose 95% interval (t7 x the standard error from the
-    image's StdErr channels, combined with the reference's) holds the reference: 0.95 for
-    honest error bars (a little less, as the reference's own error bar has 7 dof too).
-    `where`: only those pixels (a boolean image)."""
+             where: Optional[np.ndarray] = None, t975: float = T7_975) -> float:
+    """The fraction of pixel values whose 95% interval (t with K - 1 dof x the standard error
+    from the image's StdErr channels, combined with the reference's) holds the reference:
+    0.95 for honest error bars (a little less, as the reference's own error bar has K - 1
+    dof too). `where`: only those pixels (a boolean image)."""
     den = np.sqrt(stderr(img) ** 2 + ref_se ** 2)
-    inside = np.abs(rgb(img) - ref_rgb) <= T7_975 * den
+    inside = np.abs(rgb(img) - ref_rgb) <= t975 * den
     return float(np.mean(inside if where is None else inside[where]))
 
 
@@ -270,11 +273,12 @@ def run_scene_depth(run: Runner, scene: scenes.Scene, depth: int, args) -> Dict:
         key = (lv["spp"], lv["threads"])
         ti = rgb(tally_imgs[key])
         lv["tally_rmse"] = rmse(ti, ref_rgb)
-        lv["tally_coverage"] = coverage(tally_imgs[key], ref_rgb, ref_se)
+        t975 = T_975[args.replicates or 8]
+        lv["tally_coverage"] = coverage(tally_imgs[key], ref_rgb, ref_se, t975=t975)
         lv["tally_noise"] = math.sqrt(max(lv["tally_rmse"] ** 2 - ref_noise2, 1e-30))
         curves[lv["mode"]]["tally"].append((lv["tally_s"], lv["tally_rmse"]))
         if off is not None:
-            lv["tally_coverage_off"] = coverage(tally_imgs[key], ref_rgb, ref_se, off)
+            lv["tally_coverage_off"] = coverage(tally_imgs[key], ref_rgb, ref_se, off, t975=t975)
             lv["tally_rmse_off"] = rmse(ti[off], ref_rgb[off])
             lv["tally_noise_off"] = math.sqrt(max(lv["tally_rmse_off"] ** 2 - ref_noise2_off, 1e-30))
             # The share of tally's squared error in the pixels that see an emitter.
@@ -504,6 +508,7 @@ def main() -> int:
     ap.add_argument("--resolution", default="96x72")
     ap.add_argument("--threads-all", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--no-cycles", action="store_true")
+    ap.add_argument("--replicates", type=int, choices=sorted(T_975), help="tally's replicates K (default: the spec's, 8)")
     ap.add_argument("--quick", action="store_true",
                     help="64x48, depth 4, 16/64 spp, references 256 spp: under ~3 minutes")
     ap.add_argument("--json", help="also write the results here")

@@ -87,13 +87,15 @@ std::vector<double> exact_pixels(int w, int h) {
 struct Coverage {
   uint64_t inside = 0, total = 0;
   double sum_abs_z = 0;  // distinguishes runs with equal counts
+  double sum_sq_error = 0;  // of the pixel means: the image's RMSE
   double fraction() const { return static_cast<double>(inside) / static_cast<double>(total); }
 };
 
-void count_image(const JobRun& r, const std::vector<double>& exact, int w, int h, Coverage& cov) {
+void count_image(const JobRun& r, const std::vector<double>& exact, int w, int h, uint32_t replicates,
+                 Coverage& cov) {
   const auto* img = dynamic_cast<const ImageKernel*>(r.job->image());
   ASSERT_NE(img, nullptr);
-  ASSERT_EQ(img->replicates(), kDefaultReplicates);
+  ASSERT_EQ(img->replicates(), replicates);
   const JobState& st = r.runner->state();
   for (int y = 0; y < h; ++y) {
     for (int x = 0; x < w; ++x) {
@@ -102,24 +104,32 @@ void count_image(const JobRun& r, const std::vector<double>& exact, int w, int h
       const double ex = exact[static_cast<size_t>(y) * static_cast<size_t>(w) + static_cast<size_t>(x)];
       cov.inside += std::fabs(e.mean - ex) <= e.half_width(0.95) ? 1 : 0;
       cov.sum_abs_z += std::fabs(e.mean - ex) / e.std_error;
+      cov.sum_sq_error += (e.mean - ex) * (e.mean - ex);
       cov.total += 1;
     }
   }
 }
 
-void expect_image_coverage(const std::string& estimator, uint64_t spp, int seeds) {
+// `replicates`: the spec's "replicates" K (t with K - 1 dof), the default when it is the default.
+void expect_image_coverage(const std::string& estimator, uint64_t spp, int seeds,
+                           uint32_t replicates = kDefaultReplicates) {
   constexpr int w = 32, h = 32;
   const std::vector<double> exact = exact_pixels(w, h);
   Coverage cov;
   for (int s = 0; s < seeds; ++s) {
-    const JobRun r = run_spec(image_spec(w, h, 1000 + static_cast<uint64_t>(s), estimator, {{"max_samples", spp}}));
+    json spec = image_spec(w, h, 1000 + static_cast<uint64_t>(s), estimator, {{"max_samples", spp}});
+    if (replicates != kDefaultReplicates) spec["replicates"] = replicates;
+    const JobRun r = run_spec(spec);
     ASSERT_EQ(r.runner->state().samples, spp);
     EXPECT_EQ(r.counter(LightingCounter::shadow_rays), 0u);
-    count_image(r, exact, w, h, cov);
+    count_image(r, exact, w, h, replicates, cov);
   }
-  std::printf("  %s %llu spp: %llu / %llu pixel-seed intervals contain the exact value (%.4f); mean |z| %.4f\n",
-              estimator.c_str(), static_cast<unsigned long long>(spp), static_cast<unsigned long long>(cov.inside),
-              static_cast<unsigned long long>(cov.total), cov.fraction(), cov.sum_abs_z / static_cast<double>(cov.total));
+  std::printf("  %s %llu spp, K = %u: %llu / %llu pixel-seed intervals contain the exact value (%.4f); mean |z| %.4f; "
+              "RMSE %.4g\n",
+              estimator.c_str(), static_cast<unsigned long long>(spp), replicates,
+              static_cast<unsigned long long>(cov.inside),
+              static_cast<unsigned long long>(cov.total), cov.fraction(), cov.sum_abs_z / static_cast<double>(cov.total),
+              std::sqrt(cov.sum_sq_error / static_cast<double>(cov.total)));
   EXPECT_GE(cov.fraction(), 0.93);
   EXPECT_LE(cov.fraction(), 0.97);
 }
@@ -144,6 +154,9 @@ TEST(QmcCoverage, ExactPixelValuesAreRight) {
 TEST(QmcCoverage, ImageIntervals16spp) { expect_image_coverage("light_area", 16, 8); }
 TEST(QmcCoverage, ImageIntervals256spp) { expect_image_coverage("light_area", 256, 8); }
 TEST(QmcCoverage, ImageIntervalsMis16spp) { expect_image_coverage("mis", 16, 8); }
+// K = 4 replicates (half the state a pixel: 48 bytes, docs/performance.md), t with 3 dof.
+TEST(QmcCoverage, ImageIntervalsFourReplicates16spp) { expect_image_coverage("mis", 16, 8, 4); }
+TEST(QmcCoverage, ImageIntervalsFourReplicates256spp) { expect_image_coverage("mis", 256, 8, 4); }
 
 Vec3 query_point(size_t i) { return {-0.7 + 0.2 * static_cast<double>(i), 0.4 + 0.25 * static_cast<double>(i), 0}; }
 
