@@ -481,11 +481,13 @@ def print_result(res: Dict, scene: scenes.Scene, args, out) -> None:
     if cyc:
         line += ("Cycles/tally mean %.4f +- %.2g (R %.3f G %.3f B %.3f), Cycles ref vs tally ref RMSE %.5f; "
                  % (res["mean_ratio"], res["mean_ratio_se"], *res["mean_ratio_rgb"], res["cycles_ref_rmse_vs_tally_ref"]))
-    line += ("tally %d spp vs ref: per-pixel z sd %.3f mean %+.3f over %d values (t7 errors: sd 1.18 expected), "
+    nu = (args.replicates or 8) - 1  # the error bars' degrees of freedom
+    expected_sd = "%.2f" % math.sqrt(nu / (nu - 2)) if nu > 2 else "unbounded"
+    line += ("tally %d spp vs ref: per-pixel z sd %.3f mean %+.3f over %d values (t%d errors: sd %s expected), "
              "z of the image mean %s" % (max(lv["spp"] for lv in res["levels"]), res["z_sd"], res["z_mean"], res["z_n"],
-                                         " / ".join("%+.2f" % x for x in res["z_image_mean"])))
+                                         nu, expected_sd, " / ".join("%+.2f" % x for x in res["z_image_mean"])))
     p(line)
-    p("  coverage of tally's 95% error bars (t7) against the reference: " + ", ".join(
+    p("  coverage of tally's 95%% error bars (t%d) against the reference: " % nu + ", ".join(
         "%d spp %s %.3f%s" % (lv["spp"], lv["mode"], lv["tally_coverage"],
                               " (%.3f off the emitters)" % lv["tally_coverage_off"] if "tally_coverage_off" in lv else "")
         for lv in res["levels"]))

@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 #include <numbers>
 #include <optional>
+#include <string_view>
 
 #include "common/engine/component_targets.hpp"
 #include "common/engine/job_state.hpp"
@@ -251,6 +252,29 @@ void use_qmc(EstimatorChoice& c, const IntegrationProblem& prob, uint32_t points
   c.sweep = true;
 }
 
+// The cone rule's options from the stop rule (both forms): a scalar integrand, the
+// evaluation cap max_samples within [2^m_min, most] (the largest 2^m within it), the targets.
+ConeRuleOptions cone_options(SpecReader& r, const IntegrationProblem& prob, const StopRule& stop,
+                             bool stop_has_max_samples, uint64_t most, std::string_view why_most) {
+  if (prob.integrand->components() > 1) {
+    throw SpecError(r.pointer_of("error"), fmt::format("the cone rule takes a scalar integrand, not {} components; "
+                                                       "vector integrands use the randomizations' error bar",
+                                                       prob.integrand->components()));
+  }
+  ConeRuleOptions o;
+  o.m_max = static_cast<uint32_t>(std::min<int>(static_cast<int>(o.m_max), std::bit_width(most) - 1));
+  if (stop_has_max_samples) {
+    if (stop.max_samples < (uint64_t{1} << o.m_min) || stop.max_samples > most) {
+      throw SpecError("/stop/max_samples", fmt::format("the cone rule evaluates between {} and {} points ({}); got {}",
+                                                       uint64_t{1} << o.m_min, most, why_most, stop.max_samples));
+    }
+    o.m_max = static_cast<uint32_t>(std::bit_width(stop.max_samples) - 1);  // the largest 2^m within the cap
+  }
+  o.abs_error = stop.abs_error;
+  o.rel_error = stop.rel_error;
+  return o;
+}
+
 // `"error": "cone"`: one scrambled Sobol' sequence, points doubling until the cone rule's
 // bound (cone_rule.hpp) meets the stop rule's abs_error or rel_error, up to max_samples
 // evaluations (one block: bounded like cubature's).
@@ -263,26 +287,11 @@ void use_cone_rule(EstimatorChoice& c, SpecReader& r, const IntegrationProblem& 
                       "Sobol' sequence from 1024 points up to the stop rule's max_samples");
     }
   }
-  if (prob.integrand->components() > 1) {
-    throw SpecError(r.pointer_of("error"), fmt::format("the cone rule takes a scalar integrand, not {} components; "
-                                                       "vector integrands use the randomizations' error bar",
-                                                       prob.integrand->components()));
-  }
+  ConeRuleOptions o = cone_options(r, prob, stop, stop_has_max_samples, kMaxConeEvaluations,
+                                   "one block, 12 bytes a point, so that cancel stays prompt and memory bounded");
   if (prob.domain->uniforms() > kRqmcMaxDimensions) {
     throw SpecError(r.pointer_of("type"), fmt::format("qmc supports at most {} dimensions", kRqmcMaxDimensions));
   }
-  ConeRuleOptions o;
-  if (stop_has_max_samples) {
-    if (stop.max_samples < (uint64_t{1} << o.m_min) || stop.max_samples > kMaxConeEvaluations) {
-      throw SpecError("/stop/max_samples",
-                      fmt::format("the cone rule evaluates between {} and {} points (one block, 12 bytes a point, "
-                                  "so that cancel stays prompt and memory bounded); got {}",
-                                  uint64_t{1} << o.m_min, kMaxConeEvaluations, stop.max_samples));
-    }
-    o.m_max = static_cast<uint32_t>(std::bit_width(stop.max_samples) - 1);  // the largest 2^m within the cap
-  }
-  o.abs_error = stop.abs_error;
-  o.rel_error = stop.rel_error;
   c.plan.sequence = "sobol (random linear scramble + digital shift, Joe-Kuo directions), natural order";
   c.plan.scramble = "affine";
   c.plan.rule = fmt::format(
@@ -305,32 +314,15 @@ void use_lattice_cone_rule(EstimatorChoice& c, SpecReader& r, const IntegrationP
                     "the lattice cone rule takes no points: it doubles one embedded lattice from 1024 points up to "
                     "the stop rule's max_samples");
   }
-  if (prob.integrand->components() > 1) {
-    throw SpecError(r.pointer_of("error"), fmt::format("the cone rule takes a scalar integrand, not {} components; "
-                                                       "vector integrands use the randomizations' error bar",
-                                                       prob.integrand->components()));
-  }
+  ConeRuleOptions o = cone_options(r, prob, stop, stop_has_max_samples, uint64_t{1} << kLatticeConeLog2,
+                                   fmt::format("one embedded lattice of 2^{}", kLatticeConeLog2));
+  o.basis = ConeBasis::fourier;
   if (prob.domain->uniforms() > kMaxLatticeConeDimensions) {
     throw SpecError(r.pointer_of("error"),
                     fmt::format("the lattice cone rule supports at most {} dimensions (its embedded CBC costs about "
                                 "0.13 s of CPU a dimension); got {}",
                                 kMaxLatticeConeDimensions, prob.domain->uniforms()));
   }
-  ConeRuleOptions o;
-  o.basis = ConeBasis::fourier;
-  o.m_max = kLatticeConeLog2;
-  if (stop_has_max_samples) {
-    const uint64_t most = uint64_t{1} << kLatticeConeLog2;
-    if (stop.max_samples < (uint64_t{1} << o.m_min) || stop.max_samples > most) {
-      throw SpecError("/stop/max_samples",
-                      fmt::format("the lattice cone rule evaluates between {} and {} points (one embedded lattice "
-                                  "of 2^{}); got {}",
-                                  uint64_t{1} << o.m_min, most, kLatticeConeLog2, stop.max_samples));
-    }
-    o.m_max = static_cast<uint32_t>(std::bit_width(stop.max_samples) - 1);
-  }
-  o.abs_error = stop.abs_error;
-  o.rel_error = stop.rel_error;
   // Always the 2^20 rule, whatever the cap: a smaller cap takes its first points.
   const auto rule = embedded_lattice_rule_remembered(o.m_min, kLatticeConeLog2, weights);
   c.plan.construction = fmt::format(

@@ -115,12 +115,13 @@ TEST(ConeRule, ConstantsAreExactAndTheBoundSumsTheRightBand) {
 
 // Doubling (transform the new half, one more butterfly level) gives the same mean, bit for
 // bit, as transforming all 2^m values at once: the same operations in the same order.
-TEST(ConeRule, DoublingGivesTheSameMeanAsOneTransform) {
+void expect_doubling_same_mean(ConeBasis basis) {
   auto f = [](uint64_t first, uint64_t n, double* out) {
     for (uint64_t i = 0; i < n; ++i) out[i] = std::exp(std::sin(0.37 * static_cast<double>(first + i)));
     return true;
   };
   ConeRuleOptions doubling;
+  doubling.basis = basis;
   doubling.m_min = 8;
   doubling.m_max = 13;
   ConeRuleOptions once = doubling;
@@ -130,16 +131,18 @@ TEST(ConeRule, DoublingGivesTheSameMeanAsOneTransform) {
   EXPECT_EQ(std::memcmp(&a.mean, &b.mean, sizeof(double)), 0) << a.mean << " vs " << b.mean;
 }
 
+TEST(ConeRule, DoublingGivesTheSameMeanAsOneTransform) { expect_doubling_same_mean(ConeBasis::walsh); }
+
 // The smooth Genz families in d = 4 and 8 at relative 1e-4: the job stops on its target,
-// the bound is within it, and the closed form lies within the bound.
-TEST(ConeRule, SmoothGenzIntegralsLieWithinTheBound) {
+// the bound is within it, and the closed form lies within the bound (`est`: either form).
+void expect_smooth_genz_within_bound(const json& stop, const json& est) {
   for (size_t d : {4u, 8u}) {
     for (GenzFamily f : {GenzFamily::oscillatory, GenzFamily::product_peak, GenzFamily::corner_peak,
                          GenzFamily::gaussian}) {
       const GenzParams p = genz_random_instance(f, d, 7);
       const double exact = genz_exact(p);
-      const auto r = testing::run_spec(genz_spec(p, {{"rel_error", 1e-4}, {"max_samples", 1 << 22}}));
-      const std::string what = fmt::format("{} d={}", genz_family_name(f), d);
+      const auto r = testing::run_spec(genz_spec(p, stop, est));
+      const std::string what = fmt::format("{} {} d={}", est["type"].get<std::string>(), genz_family_name(f), d);
       EXPECT_EQ(r->stop_reason(), StopReason::error_target) << what;
       const ErrorSummary e = r->error();
       EXPECT_LE(e.rel_error, 1e-4) << what;
@@ -148,6 +151,10 @@ TEST(ConeRule, SmoothGenzIntegralsLieWithinTheBound) {
       EXPECT_TRUE(std::has_single_bit(evals) && evals >= 1024) << what << " " << evals;
     }
   }
+}
+
+TEST(ConeRule, SmoothGenzIntegralsLieWithinTheBound) {
+  expect_smooth_genz_within_bound({{"rel_error", 1e-4}, {"max_samples", 1 << 22}}, {{"type", "qmc"}, {"error", "cone"}});
 }
 
 // The result says what the error is: a bound, no interval; one "rule" sample; the plan
@@ -183,19 +190,21 @@ TEST(ConeRule, StopsAtTheBudgetWithTheBoundItHas) {
   EXPECT_GT(r->error().abs_error, 0.0);
 }
 
-// A NaN fails the job naming the point and the rule, like every other estimator.
-TEST(ConeRule, ANanFailsTheJobWithThePoint) {
+// A NaN fails the job naming the point and the rule's point set, like every other estimator.
+void expect_nan_named(const json& est, const std::string& point_set) {
   const json spec = {{"kind", "integrate"},
                      {"integrand", {{"expression", "log(x0 - 0.5)"}}},
                      {"domain", {{"type", "interval"}, {"lower", 0.0}, {"upper", 1.0}}},
-                     {"estimator", {{"type", "qmc"}, {"error", "cone"}}},
+                     {"estimator", est},
                      {"stop", {{"rel_error", 1e-3}}}};
   const auto r = testing::run_spec(spec);
   EXPECT_EQ(r->stop_reason(), StopReason::failed);
   ASSERT_TRUE(r->error_message().has_value());
   EXPECT_NE(r->error_message()->find("NaN at x0 = "), std::string::npos) << *r->error_message();
-  EXPECT_NE(r->error_message()->find("cone rule"), std::string::npos) << *r->error_message();
+  EXPECT_NE(r->error_message()->find("of the cone rule's " + point_set), std::string::npos) << *r->error_message();
 }
+
+TEST(ConeRule, ANanFailsTheJobWithThePoint) { expect_nan_named({{"type", "qmc"}, {"error", "cone"}}, "Sobol' set"); }
 
 void expect_refused(const json& spec, const std::string& pointer, const std::string& words) {
   try {
@@ -248,23 +257,7 @@ TEST(LatticeConeRule, DftMatchesTheDefinition) {
   EXPECT_THROW(lattice_dft_normalized(bad), std::invalid_argument);
 }
 
-// Doubling (the new half's transform, one more level) gives the same mean, bit for bit,
-// as one transform of all points.
-TEST(LatticeConeRule, DoublingGivesTheSameMeanAsOneTransform) {
-  auto f = [](uint64_t first, uint64_t n, double* out) {
-    for (uint64_t i = 0; i < n; ++i) out[i] = std::exp(std::sin(0.37 * static_cast<double>(first + i)));
-    return true;
-  };
-  ConeRuleOptions doubling;
-  doubling.basis = ConeBasis::fourier;
-  doubling.m_min = 8;
-  doubling.m_max = 13;
-  ConeRuleOptions once = doubling;
-  once.m_min = 13;
-  const ConeRuleResult a = run_cone_rule(doubling, f), b = run_cone_rule(once, f);
-  EXPECT_EQ(a.m, 13u);
-  EXPECT_EQ(std::memcmp(&a.mean, &b.mean, sizeof(double)), 0) << a.mean << " vs " << b.mean;
-}
+TEST(LatticeConeRule, DoublingGivesTheSameMeanAsOneTransform) { expect_doubling_same_mean(ConeBasis::fourier); }
 
 // A trigonometric polynomial whose frequencies the lattice does not alias (h . z != 0
 // mod 2^m for every h in it) is integrated exactly whatever the shift: with z_1 = 1,
@@ -282,24 +275,9 @@ TEST(LatticeConeRule, IntegratesUnaliasedFrequenciesExactly) {
   EXPECT_LE(r->error().abs_error, 1e-9);
 }
 
-// Smooth Genz families in d = 4 and 8 at relative 1e-4, through the baker's transform:
-// the job stops on its target and the closed form lies within the bound.
+// The same through the embedded lattice and the baker's transform.
 TEST(LatticeConeRule, SmoothGenzIntegralsLieWithinTheBound) {
-  for (size_t d : {4u, 8u}) {
-    for (GenzFamily f : {GenzFamily::oscillatory, GenzFamily::product_peak, GenzFamily::corner_peak,
-                         GenzFamily::gaussian}) {
-      const GenzParams p = genz_random_instance(f, d, 7);
-      const double exact = genz_exact(p);
-      const auto r = testing::run_spec(genz_spec(p, {{"rel_error", 1e-4}}, kLatticeCone));
-      const std::string what = fmt::format("{} d={}", genz_family_name(f), d);
-      EXPECT_EQ(r->stop_reason(), StopReason::error_target) << what;
-      const ErrorSummary e = r->error();
-      EXPECT_LE(e.rel_error, 1e-4) << what;
-      EXPECT_LE(std::fabs(e.mean - exact), e.abs_error) << what << " mean " << e.mean << " exact " << exact;
-      const uint64_t evals = r->state().counters[IntegrationCounter::evaluations];
-      EXPECT_TRUE(std::has_single_bit(evals) && evals >= 1024) << what << " " << evals;
-    }
-  }
+  expect_smooth_genz_within_bound({{"rel_error", 1e-4}}, kLatticeCone);
 }
 
 // The plan names the rule and the lattice; the same bits on 1 and 2 threads; a smaller
@@ -347,18 +325,7 @@ TEST(LatticeConeRule, BadSpecsNameTheField) {
   expect_refused(vec, "/estimator/error", "scalar integrand");
 }
 
-// A NaN fails the job naming the point and the lattice.
-TEST(LatticeConeRule, ANanFailsTheJobWithThePoint) {
-  const json spec = {{"kind", "integrate"},
-                     {"integrand", {{"expression", "log(x0 - 0.5)"}}},
-                     {"domain", {{"type", "interval"}, {"lower", 0.0}, {"upper", 1.0}}},
-                     {"estimator", kLatticeCone},
-                     {"stop", {{"rel_error", 1e-3}}}};
-  const auto r = testing::run_spec(spec);
-  EXPECT_EQ(r->stop_reason(), StopReason::failed);
-  ASSERT_TRUE(r->error_message().has_value());
-  EXPECT_NE(r->error_message()->find("of the cone rule's lattice"), std::string::npos) << *r->error_message();
-}
+TEST(LatticeConeRule, ANanFailsTheJobWithThePoint) { expect_nan_named(kLatticeCone, "lattice"); }
 
 }  // namespace
 }  // namespace tally
