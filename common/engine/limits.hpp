@@ -19,6 +19,10 @@ struct JobCaps {
 
 struct JobLimits {
   size_t max_dimensions = 64;
+  // Dimensions of the embedded lattice the lattice cone rule builds when its spec compiles
+  // (a fast CBC over 2^20 points: about 0.1 s of CPU a dimension, tens under sanitizers;
+  // the fuzz harness lowers it so that a valid spec stays quick).
+  size_t max_embedded_lattice_dimensions = 32;
   // Bytes of one job's state in memory (job_state_bytes, common/engine/job_state.hpp):
   // an image's pixels or a point query's points over it are refused naming the field.
   // This is the engine's fallback; tally-server, tally-worker and `tally run` replace it

@@ -308,7 +308,8 @@ void use_cone_rule(EstimatorChoice& c, SpecReader& r, const IntegrationProblem& 
 // `"type": "lattice", "error": "cone"`: the embedded lattice (built for 2^20 points),
 // points doubling until the cone rule's Fourier bound meets the target, up to max_samples.
 void use_lattice_cone_rule(EstimatorChoice& c, SpecReader& r, const IntegrationProblem& prob, const StopRule& stop,
-                           bool stop_has_max_samples, const std::vector<double>& weights, const std::string& per) {
+                           bool stop_has_max_samples, const std::vector<double>& weights, const std::string& per,
+                           size_t max_dimensions) {
   if (r.has("points")) {
     throw SpecError(r.pointer_of("points"),
                     "the lattice cone rule takes no points: it doubles one embedded lattice from 1024 points up to "
@@ -317,11 +318,11 @@ void use_lattice_cone_rule(EstimatorChoice& c, SpecReader& r, const IntegrationP
   ConeRuleOptions o = cone_options(r, prob, stop, stop_has_max_samples, uint64_t{1} << kLatticeConeLog2,
                                    fmt::format("one embedded lattice of 2^{}", kLatticeConeLog2));
   o.basis = ConeBasis::fourier;
-  if (prob.domain->uniforms() > kMaxLatticeConeDimensions) {
+  if (prob.domain->uniforms() > max_dimensions) {
     throw SpecError(r.pointer_of("error"),
                     fmt::format("the lattice cone rule supports at most {} dimensions (its embedded CBC costs about "
-                                "0.13 s of CPU a dimension); got {}",
-                                kMaxLatticeConeDimensions, prob.domain->uniforms()));
+                                "0.1 s of CPU a dimension); got {}",
+                                max_dimensions, prob.domain->uniforms()));
   }
   // Always the 2^20 rule, whatever the cap: a smaller cap takes its first points.
   const auto rule = embedded_lattice_rule_remembered(o.m_min, kLatticeConeLog2, weights);
@@ -527,7 +528,8 @@ EstimatorChoice parse_estimator(const json& spec, const json* node, const std::s
     }
     const std::string per = r.enumeration_or("periodize", "baker", {"none", "baker", "cubic"});
     if (cone) {
-      use_lattice_cone_rule(c, r, prob, stop, stop_has_max_samples, weights, per);
+      use_lattice_cone_rule(c, r, prob, stop, stop_has_max_samples, weights, per,
+                            std::min<size_t>(limits.max_embedded_lattice_dimensions, kMaxLatticeConeDimensions));
     } else {
       const auto requested = static_cast<uint32_t>(r.integer_or("points", 1021, 5, kMaxLatticePoints));
       const uint32_t n = largest_prime_at_most(requested);

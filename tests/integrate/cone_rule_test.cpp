@@ -317,6 +317,16 @@ TEST(LatticeConeRule, BadSpecsNameTheField) {
                  "/estimator/weights", "");
   const GenzParams big = genz_random_instance(GenzFamily::gaussian, 33, 1);
   expect_refused(genz_spec(big, {{"rel_error", 1e-4}}, kLatticeCone), "/estimator/error", "at most 32 dimensions");
+  // A deployment (or the fuzz harness) may lower the construction's dimensions.
+  JobLimits small;
+  small.max_embedded_lattice_dimensions = 2;
+  try {
+    compile_job(genz_spec(p, {{"rel_error", 1e-4}}, kLatticeCone), small);
+    ADD_FAILURE() << "a 3-dimensional lattice cone rule was accepted with a limit of 2";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.pointer(), "/estimator/error");
+    EXPECT_NE(std::string(e.what()).find("at most 2 dimensions"), std::string::npos) << e.what();
+  }
   const json vec = {{"kind", "integrate"},
                     {"integrand", {{"expressions", {"x0", "x0*x0"}}}},
                     {"domain", {{"type", "interval"}, {"lower", 0.0}, {"upper", 1.0}}},
