@@ -5,10 +5,10 @@
 // peak RSS (wait4's ru_maxrss) is its own; bytes per pixel are the slope between the two
 // resolutions, which cancels each program's fixed cost (code, scene, BVH).
 //
-//   frame_memory_bench [--small 512] [--large 2048|1920x1080] [--spp 8] [--replicates 8]
+//   frame_memory_bench [--small 512] [--large 2048|1920x1080] [--spp 8] [--replicates 4]
 //
 // tally: `tally run`'s path in process (compile_lighting_job, run_local, 1 thread),
-// the default sobol sampler (K = 8 replicates, so at least 8 samples a pixel; --replicates
+// the default sobol sampler (K = 4 replicates, an image's default; --replicates
 // sets the spec's "replicates": a pixel's state is 3 K floats), direct
 // light (max_depth 1), twice: the render alone, and the render with `tally run --image`'s
 // EXR written (write_exr_file: streamed a strip of rows at a time), as Cycles writes its EXR. Cycles: 1 thread,
@@ -33,6 +33,7 @@
 #include "common/engine/pass_loop.hpp"
 #include "common/image/image_io.hpp"
 #include "common/lighting/lighting_spec.hpp"
+#include "common/lighting/pixel_sampler.hpp"
 #include "tests/support/frame_scene.hpp"
 
 using namespace tally;
@@ -195,7 +196,7 @@ Size parse_size(const std::string& s) {
 int main(int argc, char** argv) {
   Size small{512, 512}, large{2048, 2048};
   uint64_t spp = 8;
-  uint32_t replicates = 8;
+  uint32_t replicates = kDefaultImageReplicates;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string f = argv[i];
     if (f == "--child" && i + 4 < argc) {
@@ -209,7 +210,7 @@ int main(int argc, char** argv) {
   }
   if (small.w <= 0 || small.h <= 0 || large.pixels() <= small.pixels() || replicates < 2 || spp < replicates) {
     std::fprintf(stderr,
-                 "usage: frame_memory_bench [--small 512] [--large 2048|1920x1080] [--spp 8] [--replicates 8] "
+                 "usage: frame_memory_bench [--small 512] [--large 2048|1920x1080] [--spp 8] [--replicates 4] "
                  "(2 <= replicates <= spp)\n");
     return 2;
   }

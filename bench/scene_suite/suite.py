@@ -171,7 +171,9 @@ class Runner:
 
 
 # Student t quantiles for a two-sided 95% interval with K - 1 degrees of freedom: tally's
-# per-pixel error bars come from K replicate means (K = 8 unless --replicates).
+# per-pixel error bars come from K replicate means (K = 4, an image's default, unless --replicates).
+# An image's default replicates (common/lighting/pixel_sampler.hpp, kDefaultImageReplicates).
+DEFAULT_REPLICATES = 4
 T_975 = {2: 12.706205, 3: 4.302653, 4: 3.182446, 8: 2.364624, 16: 2.131450}
 T7_975 = T_975[8]
 
@@ -273,7 +275,7 @@ def run_scene_depth(run: Runner, scene: scenes.Scene, depth: int, args) -> Dict:
         key = (lv["spp"], lv["threads"])
         ti = rgb(tally_imgs[key])
         lv["tally_rmse"] = rmse(ti, ref_rgb)
-        t975 = T_975[args.replicates or 8]
+        t975 = T_975[args.replicates or DEFAULT_REPLICATES]
         lv["tally_coverage"] = coverage(tally_imgs[key], ref_rgb, ref_se, t975=t975)
         lv["tally_noise"] = math.sqrt(max(lv["tally_rmse"] ** 2 - ref_noise2, 1e-30))
         curves[lv["mode"]]["tally"].append((lv["tally_s"], lv["tally_rmse"]))
@@ -481,7 +483,7 @@ def print_result(res: Dict, scene: scenes.Scene, args, out) -> None:
     if cyc:
         line += ("Cycles/tally mean %.4f +- %.2g (R %.3f G %.3f B %.3f), Cycles ref vs tally ref RMSE %.5f; "
                  % (res["mean_ratio"], res["mean_ratio_se"], *res["mean_ratio_rgb"], res["cycles_ref_rmse_vs_tally_ref"]))
-    nu = (args.replicates or 8) - 1  # the error bars' degrees of freedom
+    nu = (args.replicates or DEFAULT_REPLICATES) - 1  # the error bars' degrees of freedom
     expected_sd = "%.2f" % math.sqrt(nu / (nu - 2)) if nu > 2 else "unbounded"
     line += ("tally %d spp vs ref: per-pixel z sd %.3f mean %+.3f over %d values (t%d errors: sd %s expected), "
              "z of the image mean %s" % (max(lv["spp"] for lv in res["levels"]), res["z_sd"], res["z_mean"], res["z_n"],
@@ -510,7 +512,7 @@ def main() -> int:
     ap.add_argument("--resolution", default="96x72")
     ap.add_argument("--threads-all", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--no-cycles", action="store_true")
-    ap.add_argument("--replicates", type=int, choices=sorted(T_975), help="tally's replicates K (default: the spec's, 8)")
+    ap.add_argument("--replicates", type=int, choices=sorted(T_975), help=f"tally's replicates K (default: the spec's, {DEFAULT_REPLICATES})")
     ap.add_argument("--quick", action="store_true",
                     help="64x48, depth 4, 16/64 spp, references 256 spp: under ~3 minutes")
     ap.add_argument("--json", help="also write the results here")

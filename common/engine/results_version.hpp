@@ -15,11 +15,12 @@
 // 2^20 points, a third pilot size for large jobs) changed what an "auto" spec computes;
 // 3, an image with replicates keeps a sum per replicate channel (a replicate's mean is
 // its sum over its count, not a running mean; a non-finite sample counts as 0); 4, those
-// sums are kept in single precision, rounded once per merged result group.
+// sums are kept in single precision, rounded once per merged result group; 5, an image
+// job's default replicates went from 8 to 4 (a sobol image spec without "replicates").
 #include <cstdint>
 
 namespace tally {
 
-inline constexpr uint32_t kResultsVersion = 4;
+inline constexpr uint32_t kResultsVersion = 5;
 
 }  // namespace tally

@@ -33,12 +33,13 @@ Strategy strategy_of(const std::string& name) {
 
 std::string name_of(Strategy s) { return kEstimatorNames[static_cast<size_t>(s)]; }
 
-// "sampler": "sobol" (default) | "independent"; "replicates": K (sobol only, 2..256).
-SamplerSettings parse_sampler(SpecReader& root) {
+// "sampler": "sobol" (default) | "independent"; "replicates": K (sobol only, 2..256;
+// default 4 for images, 8 for point queries: pixel_sampler.hpp).
+SamplerSettings parse_sampler(SpecReader& root, bool image) {
   SamplerSettings s;
   const std::string kind = root.enumeration_or("sampler", "sobol", {"sobol", "independent"});
   s.kind = kind == "independent" ? SamplerKind::independent : SamplerKind::sobol;
-  s.replicates = kDefaultReplicates;
+  s.replicates = image ? kDefaultImageReplicates : kDefaultPointReplicates;
   if (root.has("replicates")) {
     if (s.kind == SamplerKind::independent) {
       throw SpecError(root.pointer_of("replicates"), "needs \"sampler\": \"sobol\" (independent samples need no replicates)");
@@ -88,7 +89,6 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
   SpecReader scene_reader = root.object("scene");
   Scene scene = parse_scene(scene_reader, limits);
   const std::vector<Strategy> strategies = parse_estimators(root);
-  const SamplerSettings sampler = parse_sampler(root);
   {
     SpecReader stop = root.object("stop");
     stop_rule = parse_stop_rule(stop, limits);
@@ -99,6 +99,7 @@ std::unique_ptr<LightingJob> compile_lighting_job(const nlohmann::json& spec, co
 
   SpecReader q = root.object("query");
   const std::string type = q.enumeration("type", {"points", "image"});
+  const SamplerSettings sampler = parse_sampler(root, type == "image");
   const int max_depth = static_cast<int>(q.integer_or("max_depth", 1, 1, 64));
   const bool rr = q.boolean_or("russian_roulette", false);
   PlanQuery pq;

@@ -87,6 +87,21 @@ std::unique_ptr<JobDefinition> compile_job(const json& spec, const JobLimits& li
   throw SpecError("/kind", fmt::format("must be one of {}; got \"{}\"", names_list(false), name));
 }
 
+json spec_as_of(const json& spec, uint32_t results_version) {
+  json out = spec;
+  // Results version 5 changed the sobol sampler's default replicates for images from 8
+  // to 4 (point queries kept 8).
+  const auto image_query = [&] {
+    const auto q = out.find("query");
+    return q != out.end() && q->is_object() && q->value("type", json()) == "image";
+  };
+  if (results_version < 5 && out.is_object() && out.value("kind", json()) == "lighting" && !out.contains("replicates") &&
+      out.value("sampler", json("sobol")) == "sobol" && image_query()) {
+    out["replicates"] = 8;
+  }
+  return out;
+}
+
 json kind_progress_json(const JobDefinition& job, const JobRunner& runner) {
   for (const JobKind& k : kKinds) {
     if (auto j = k.progress(job, runner)) return std::move(*j);

@@ -16,6 +16,14 @@ namespace tally {
 // and compiles it with the reader of the kind spec["kind"] names.
 std::unique_ptr<JobDefinition> compile_job(const nlohmann::json& spec, const JobLimits& limits);
 
+// A stored spec as the engine of `results_version` read it: each default that changed
+// since then is written in, so the spec compiles to the layout of the state that version
+// computed (results versions 0-4 read a sobol image job without "replicates" as 8
+// replicates; 5 as 4). Server recovery compiles this for a job with stored state: a job
+// computed before an upgrade stays readable and resumes bit-identically. Anything else is
+// returned unchanged (not an object, no "kind", the current version).
+nlohmann::json spec_as_of(const nlohmann::json& spec, uint32_t results_version);
+
 // The kind's plan document (status, validate, `tally run --json`) and result fields.
 // A job of no registered kind (e.g. a test's fake job) shows {"kind": ...} as its plan
 // and an empty result.

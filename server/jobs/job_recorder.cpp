@@ -5,6 +5,7 @@
 #include "common/engine/checkpoint.hpp"
 #include "common/log/log.hpp"
 #include "common/protocol/job_json.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "common/spec/stop_rule_json.hpp"
 
@@ -19,6 +20,22 @@ std::string dump(const json& j) { return j.dump(-1, ' ', false, json::error_hand
 struct CheckpointAbandoned : std::exception {
   const char* what() const noexcept override { return "checkpoint abandoned: the state changed while it was written"; }
 };
+
+// The results version of a stored job's state: its running state's, or a finished job's
+// (its facts'; 0, unknown, for a job finished before facts were stored); nullopt for a
+// job with no state (queued: it will compute with this build).
+std::optional<uint32_t> stored_results_version(const StoredJob& row, const std::optional<JobState>& resumed) {
+  if (resumed) return resumed->results_version;
+  if (!is_terminal(parse_job_status(row.state).value_or(JobStatus::failed))) return std::nullopt;
+  if (row.facts.empty()) return 0u;
+  try {
+    return json::parse(row.facts).value("results_version", 0u);
+  } catch (const std::exception& e) {
+    log::job(log::Level::warn, row.id, "stored facts are unreadable ({}); the results version is unknown", e.what());
+    return 0u;
+  }
+}
+
 }  // namespace
 
 JobRecorder::Pending JobRecorder::take(Job& job, bool with_checkpoint, const JobEnding* ending) const {
@@ -305,11 +322,24 @@ JobRecorder::Recovered JobRecorder::recover() {
                e.what());
       spec = row.spec;
     }
+    const auto status = parse_job_status(row.state).value_or(JobStatus::failed);
+    // A running job's state, read once here (its runner adopts it below).
+    std::optional<JobState> resumed;
+    std::optional<std::string> corrupt;
+    if (!is_terminal(status) && row.checkpoint) {
+      try {
+        resumed = decode_checkpoint(*row.checkpoint);
+      } catch (const CheckpointError& e) {
+        corrupt = e.what();
+      }
+    }
+    // The spec as the engine that computed the job's state read it (a default changed
+    // since is written in): the job shows and runs that spec.
+    if (const std::optional<uint32_t> v = stored_results_version(row, resumed)) spec = spec_as_of(spec, *v);
     auto job = std::make_shared<Job>(row.id, row.seq, spec, row.priority, row.created_at, out.epoch, event_buffer_,
                                      row.owner);
     job->caps_ = limits_.caps();
     job->stored_bytes_ = row.stored_bytes;
-    const auto status = parse_job_status(row.state).value_or(JobStatus::failed);
     job->status_ = status;
     job->error_ = row.error;
     job->started_at_ = row.started_at;
@@ -324,6 +354,7 @@ JobRecorder::Recovered JobRecorder::recover() {
     }
     std::string problem;
     try {
+      if (corrupt) throw CheckpointError(*corrupt);
       job->def_ = compiler_(spec, limits_);
       StopRule rule = job->def_->stop_rule();
       try {
@@ -358,9 +389,8 @@ JobRecorder::Recovered JobRecorder::recover() {
             to_save.push_back(job);
           }
         }
-      } else if (row.checkpoint) {
-        JobState st = decode_checkpoint(*row.checkpoint);
-        job->runner_ = std::make_unique<JobRunner>(job->def_->kernel(), rule, limits_.caps(), std::move(st));
+      } else if (resumed) {
+        job->runner_ = std::make_unique<JobRunner>(job->def_->kernel(), rule, limits_.caps(), std::move(*resumed));
         job->build_idle_views_locked();  // here, not in the first status read (seconds at 4K)
       } else {
         // Queued and never started: its state is allocated when it starts.

@@ -16,9 +16,9 @@ namespace {
 
 using nlohmann::json;
 
-// One pass of 8 samples a pixel (one per sobol replicate), direct light only: a few
-// seconds of work on two threads.
-json frame_spec(int w, int h) { return scenes::frame_spec(w, h, 8); }
+// One pass of 4 samples a pixel (one per sobol replicate: an image's default K = 4),
+// direct light only: a few seconds of work on two threads.
+json frame_spec(int w, int h) { return scenes::frame_spec(w, h, 4); }
 
 // The job's whole event stream, replayed from the start of its epoch (Last-Event-ID =
 // epoch x 10^9; a new watcher of a finished job would get a snapshot without tiles). A
@@ -74,11 +74,11 @@ TEST(FramesE2E, FullHdImageRunsWithDefaultLimits) {
   HttpClient c = server.client(60);
   const std::string id = submit(c, frame_spec(1920, 1080));
   const json st = wait_state(c, id, "succeeded", 240);
-  EXPECT_EQ(st.at("samples"), 8) << st.dump();
+  EXPECT_EQ(st.at("samples"), 4) << st.dump();
   EXPECT_EQ(st.at("passes"), 1) << st.dump();
   expect_one_tiles_event_a_pass(c, id, 1920, 1080, 1);
   server.kill9();
-  // Its final state is stored in pieces: 1920 x 1080 x 24 sums of 4 bytes and the rest
+  // Its final state is stored in pieces: 1920 x 1080 x 12 sums of 4 bytes and the rest
   // (a frame's checkpoint may be over SQLite's 1e9-byte limit for one blob: a 4K frame's
   // was 1.6e9 bytes with 8-byte sums; a save in one blob used to fail with "string or
   // blob too big"; it is stored in pieces whatever its size).
@@ -87,13 +87,13 @@ TEST(FramesE2E, FullHdImageRunsWithDefaultLimits) {
   q.bind(1, id);
   ASSERT_TRUE(q.executeStep());
   EXPECT_GT(q.getColumn(0).getInt64(), 1);
-  EXPECT_GT(q.getColumn(1).getInt64(), int64_t{1920} * 1080 * 24 * 4);
-  EXPECT_LT(q.getColumn(1).getInt64(), int64_t{1920} * 1080 * 24 * 4 + (1 << 20));
+  EXPECT_GT(q.getColumn(1).getInt64(), int64_t{1920} * 1080 * 12 * 4);
+  EXPECT_LT(q.getColumn(1).getInt64(), int64_t{1920} * 1080 * 12 * 4 + (1 << 20));
 }
 
 TEST(FramesE2E, FrameOverMaxStateBytesIs422WithTheBytes) {
   TempDir tmp;
-  ServerProcess server(tmp.path / "data", {"--max-state-bytes", "512MiB"});
+  ServerProcess server(tmp.path / "data", {"--max-state-bytes", "256MiB"});
   HttpClient c = server.client();
   const ClientResponse r =
       c.request("POST", "/v1/jobs", frame_spec(1920, 1080).dump(), {{"Content-Type", "application/json"}});
@@ -101,16 +101,16 @@ TEST(FramesE2E, FrameOverMaxStateBytesIs422WithTheBytes) {
   EXPECT_EQ(r.header("Content-Type"), "application/problem+json");
   const json p = json::parse(r.body);
   EXPECT_EQ(p.at("pointer"), "/scene/camera/resolution") << r.body;
-  // 3 x 8 x 1920 x 1080 sums of 4 + 8 bytes (the state's and a pass's results') + 2 x 60
+  // 3 x 4 x 1920 x 1080 sums of 4 + 8 bytes (the state's and a pass's results') + 2 x 60
   // x 34 tiles' counts of 8 bytes.
   EXPECT_EQ(p.at("detail"),
-            "1920x1080 pixels x 3 colours x 8 replicates need 597229440 bytes of job state; the limit is 536870912 "
+            "1920x1080 pixels x 3 colours x 4 replicates need 298631040 bytes of job state; the limit is 268435456 "
             "bytes")
       << r.body;
   EXPECT_EQ(get_json(c, "/v1/jobs").at("jobs").size(), 0u);
   // A frame within it is admitted.
   const std::string id = submit(c, frame_spec(640, 360));
-  EXPECT_EQ(wait_state(c, id, "succeeded", 120).at("samples"), 8);
+  EXPECT_EQ(wait_state(c, id, "succeeded", 120).at("samples"), 4);
 }
 
 }  // namespace

@@ -305,8 +305,8 @@ TEST(Hardening, HeavyValidatesDoNotDelayASubmit) {
   EXPECT_EQ(wait_state(c, id, "succeeded", 60).at("state"), "succeeded");
 }
 
-// The heaviest block a legal spec allows: one 256×256 tile at 8 spp (the default
-// 8 replicates), paths bouncing between two huge diffuse planes up to depth 64 —
+// The heaviest block a legal spec allows: one 256×256 tile at 8 spp (8 replicates: the
+// first pass is one sample a replicate), paths bouncing between two huge diffuse planes up to depth 64 —
 // 5·10^5 paths of up to 64 bounces in one block, minutes of work on this machine.
 // Before the fix cancel and SIGTERM waited for the block (4 min measured).
 json heaviest_block_image() {
@@ -327,6 +327,7 @@ json heaviest_block_image() {
               {{"type", "quad"}, {"corner", {5, -0.5, 0.5}}, {"edge_u", {0, 1, 0}}, {"edge_v", {0, 0, 1}},
                {"material", "lamp"}}}}}},
           {"query", {{"type", "image"}, {"tile_size", 256}, {"max_pass_spp", 8}, {"max_depth", 64}}},
+          {"replicates", 8},
           {"estimators", {"mis"}},
           {"stop", {{"max_samples", 64}}}};
 }

@@ -21,6 +21,7 @@
 #include <boost/math/quadrature/gauss.hpp>
 
 #include "common/engine/checkpoint.hpp"
+#include "common/protocol/job_kinds.hpp"
 #include "common/spec/spec_reader.hpp"
 #include "common/lighting/image_kernel.hpp"
 #include "common/lighting/point_kernel.hpp"
@@ -112,13 +113,13 @@ void count_image(const JobRun& r, const std::vector<double>& exact, int w, int h
 
 // `replicates`: the spec's "replicates" K (t with K - 1 dof), the default when it is the default.
 void expect_image_coverage(const std::string& estimator, uint64_t spp, int seeds,
-                           uint32_t replicates = kDefaultReplicates) {
+                           uint32_t replicates = kDefaultImageReplicates, double lowest = 0.93) {
   constexpr int w = 32, h = 32;
   const std::vector<double> exact = exact_pixels(w, h);
   Coverage cov;
   for (int s = 0; s < seeds; ++s) {
     json spec = image_spec(w, h, 1000 + static_cast<uint64_t>(s), estimator, {{"max_samples", spp}});
-    if (replicates != kDefaultReplicates) spec["replicates"] = replicates;
+    if (replicates != kDefaultImageReplicates) spec["replicates"] = replicates;
     const JobRun r = run_spec(spec);
     ASSERT_EQ(r.runner->state().samples, spp);
     EXPECT_EQ(r.counter(LightingCounter::shadow_rays), 0u);
@@ -130,7 +131,7 @@ void expect_image_coverage(const std::string& estimator, uint64_t spp, int seeds
               static_cast<unsigned long long>(cov.inside),
               static_cast<unsigned long long>(cov.total), cov.fraction(), cov.sum_abs_z / static_cast<double>(cov.total),
               std::sqrt(cov.sum_sq_error / static_cast<double>(cov.total)));
-  EXPECT_GE(cov.fraction(), 0.93);
+  EXPECT_GE(cov.fraction(), lowest);
   EXPECT_LE(cov.fraction(), 0.97);
 }
 
@@ -154,9 +155,19 @@ TEST(QmcCoverage, ExactPixelValuesAreRight) {
 TEST(QmcCoverage, ImageIntervals16spp) { expect_image_coverage("light_area", 16, 8); }
 TEST(QmcCoverage, ImageIntervals256spp) { expect_image_coverage("light_area", 256, 8); }
 TEST(QmcCoverage, ImageIntervalsMis16spp) { expect_image_coverage("mis", 16, 8); }
-// K = 4 replicates (half the state a pixel: 48 bytes, docs/performance.md), t with 3 dof.
-TEST(QmcCoverage, ImageIntervalsFourReplicates16spp) { expect_image_coverage("mis", 16, 8, 4); }
-TEST(QmcCoverage, ImageIntervalsFourReplicates256spp) { expect_image_coverage("mis", 256, 8, 4); }
+TEST(QmcCoverage, ImageIntervalsMis256spp) { expect_image_coverage("mis", 256, 8); }
+// The BSDF-sampled estimators find the small light by chance: with the default K = 4 their
+// 256-spp intervals cover 0.936 (uniform) and 0.924 (cosine), K = 8 0.945 / 0.944 (at
+// 16 spp both K cover under 0.5: most replicates see no light). Stated, not hidden
+// (docs/lighting.md): the bound here is 0.90, about 4 sd of the 8,192 pixel-seed pairs
+// below what is measured.
+TEST(QmcCoverage, HemisphereImageIntervals256sppUnderCoverWithFourReplicates) {
+  expect_image_coverage("uniform_hemisphere", 256, 8, kDefaultImageReplicates, 0.90);
+  expect_image_coverage("cosine_hemisphere", 256, 8, kDefaultImageReplicates, 0.90);
+}
+// K = 8 replicates (the default before results version 5; twice the state a pixel), t with 7 dof.
+TEST(QmcCoverage, ImageIntervalsEightReplicates16spp) { expect_image_coverage("mis", 16, 8, 8); }
+TEST(QmcCoverage, ImageIntervalsEightReplicates256spp) { expect_image_coverage("mis", 256, 8, 8); }
 
 Vec3 query_point(size_t i) { return {-0.7 + 0.2 * static_cast<double>(i), 0.4 + 0.25 * static_cast<double>(i), 0}; }
 
@@ -187,7 +198,7 @@ TEST(QmcCoverage, PointQueriesOverAThousandSeeds) {
   for (uint64_t s = 0; s < 1000; ++s) {
     const JobRun r = run_spec(point_query_spec(s + 1, 128, est, json::object()));
     const auto& pk = dynamic_cast<const PointKernel&>(r.runner->kernel());
-    ASSERT_EQ(pk.replicates(), kDefaultReplicates);
+    ASSERT_EQ(pk.replicates(), kDefaultPointReplicates);
     for (size_t e = 0; e < est.size(); ++e) {
       for (size_t k = 0; k < 8; ++k) {
         const ReplicatedEstimate x = pk.estimate(r.runner->state(), e, k, 0);
@@ -296,7 +307,7 @@ TEST(QmcDeterminism, ImageBitIdenticalOneVsTwoThreads) {
   const JobRun a = run_spec(cornell_qmc_spec(), 1);
   const JobRun b = run_spec(cornell_qmc_spec(), 2);
   EXPECT_EQ(a.runner->state().samples, 40u);
-  EXPECT_EQ(a.runner->state().sums.size(), 24u * 20u * 3u * kDefaultReplicates);
+  EXPECT_EQ(a.runner->state().sums.size(), 24u * 20u * 3u * kDefaultImageReplicates);
   EXPECT_EQ(differing_channels(a, b), 0u);
   EXPECT_TRUE(a.runner->state().counters == b.runner->state().counters);
 }
@@ -424,10 +435,43 @@ TEST(QmcSpec, SamplerIsCheckedAndReported) {
   EXPECT_EQ(plan_json(*job)["sampler"]["type"], "sobol");
   EXPECT_EQ(plan_json(*job)["sampler"]["replicates"], 4);
   EXPECT_EQ(job->kernel()->sum_count(), 24u * 20u * 3u * 4u);
-  // The default is sobol with kDefaultReplicates.
+  // The default is sobol with 4 replicates for an image, 8 for points.
   spec.erase("sampler");
   spec.erase("replicates");
-  EXPECT_EQ(plan_json(*compile_lighting_job(spec, JobLimits{}))["sampler"]["replicates"], kDefaultReplicates);
+  EXPECT_EQ(plan_json(*compile_lighting_job(spec, JobLimits{}))["sampler"]["replicates"], 4);
+  EXPECT_EQ(kDefaultImageReplicates, 4u);
+  const json points = point_query_spec(4, 1024, {"light_area"}, json::object());
+  EXPECT_EQ(plan_json(*compile_lighting_job(points, JobLimits{}))["sampler"]["replicates"], 8);
+  EXPECT_EQ(kDefaultPointReplicates, 8u);
+}
+
+// A spec stored by an older build reads as that build read it (job_kinds.hpp,
+// spec_as_of): up to results version 4 a sobol image job without "replicates" had 8;
+// anything else is left as it is (point queries have 8 in both).
+TEST(QmcSpec, SpecAsOfAnOlderVersionWritesInTheReplicatesItHad) {
+  const json spec = {{"kind", "lighting"}, {"seed", 1}, {"query", {{"type", "image"}}}};
+  for (const uint32_t v : {0u, 1u, 4u}) EXPECT_EQ(spec_as_of(spec, v).at("replicates"), 8) << v;
+  EXPECT_EQ(spec_as_of(spec, kResultsVersion), spec);
+  json sobol = spec;
+  sobol["sampler"] = "sobol";
+  EXPECT_EQ(spec_as_of(sobol, 4).at("replicates"), 8);
+  json given = spec;
+  given["replicates"] = 16;
+  EXPECT_EQ(spec_as_of(given, 4), given);
+  json independent = spec;
+  independent["sampler"] = "independent";
+  EXPECT_EQ(spec_as_of(independent, 4), independent);
+  const json points = point_query_spec(4, 1024, {"light_area"}, json::object());
+  EXPECT_EQ(spec_as_of(points, 4), points);
+  json odd = spec;
+  odd["query"] = "image";  // not an object: the spec reader names it, spec_as_of leaves it
+  EXPECT_EQ(spec_as_of(odd, 4), odd);
+  const json integral = {{"kind", "integration"}, {"seed", 1}};
+  EXPECT_EQ(spec_as_of(integral, 4), integral);
+  EXPECT_EQ(spec_as_of(json("not an object"), 4), json("not an object"));
+  json image = image_spec(8, 8, 1, "mis", {{"max_samples", 16}});
+  EXPECT_EQ(plan_json(*compile_job(spec_as_of(image, 4), JobLimits{}))["sampler"]["replicates"], 8);
+  EXPECT_EQ(plan_json(*compile_job(image, JobLimits{}))["sampler"]["replicates"], 4);
 }
 
 TEST(QmcSpec, PointResultsReportTheVarianceOfTheEstimate) {
@@ -441,7 +485,7 @@ TEST(QmcSpec, PointResultsReportTheVarianceOfTheEstimate) {
   EXPECT_DOUBLE_EQ(e["std_error"][0].get<double>(), x.std_error);
   EXPECT_DOUBLE_EQ(e["variance"][0].get<double>(), 1024 * x.std_error * x.std_error);
   EXPECT_NEAR(e["ci_hi"][0].get<double>() - e["mean"][0].get<double>(),
-              critical_value(0.95, kDefaultReplicates) * x.std_error, 1e-15);
+              critical_value(0.95, kDefaultPointReplicates) * x.std_error, 1e-15);
 }
 
 }  // namespace

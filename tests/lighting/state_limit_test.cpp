@@ -24,16 +24,16 @@ json frame_spec(int w, int h) { return scenes::frame_spec(w, h, 8); }
 constexpr uint64_t kHalfOf24GB = 12ULL << 30;
 
 TEST(StateLimit, FullHdAndFourKFitHalfOf24GB) {
-  // 3 colours x 8 replicates x (a 4-byte sum in the state + an 8-byte one in a pass's
-  // results) + 8 bytes a 32-pixel tile, twice.
-  EXPECT_EQ(job_state_bytes(0, 60 * 34, uint64_t{3} * 8 * 1920 * 1080), 597229440ULL);
-  EXPECT_EQ(job_state_bytes(0, 120 * 68, uint64_t{3} * 8 * 3840 * 2160), 2388917760ULL);
+  // 3 colours x 4 replicates (an image's default) x (a 4-byte sum in the state + an
+  // 8-byte one in a pass's results) + 8 bytes a 32-pixel tile, twice.
+  EXPECT_EQ(job_state_bytes(0, 60 * 34, uint64_t{3} * 4 * 1920 * 1080), 298631040ULL);
+  EXPECT_EQ(job_state_bytes(0, 120 * 68, uint64_t{3} * 4 * 3840 * 2160), 1194524160ULL);
   JobLimits limits;
   limits.max_state_bytes = kHalfOf24GB;
   for (const auto& [w, h] : {std::pair{1920, 1080}, std::pair{3840, 2160}}) {
     const auto def = compile_lighting_job(frame_spec(w, h), limits);
     EXPECT_EQ(def->kernel()->channel_count(), 0u);
-    EXPECT_EQ(def->kernel()->sum_count(), uint64_t{3} * 8 * w * h);
+    EXPECT_EQ(def->kernel()->sum_count(), uint64_t{3} * 4 * w * h);
   }
 }
 
@@ -61,17 +61,17 @@ TEST(StateLimit, IndependentSamplesKeepATallyPerChannel) {
 
 TEST(StateLimit, FrameOverTheLimitNamesResolutionAndBytes) {
   JobLimits limits;
-  limits.max_state_bytes = 2388917760ULL - 1;  // one byte short of the 4K frame's state
+  limits.max_state_bytes = 1194524160ULL - 1;  // one byte short of the 4K frame's state
   try {
     compile_lighting_job(frame_spec(3840, 2160), limits);
     FAIL() << "a 4K frame over the state limit was accepted";
   } catch (const SpecError& e) {
     EXPECT_EQ(e.pointer(), "/scene/camera/resolution");
     EXPECT_EQ(e.detail(),
-              "3840x2160 pixels x 3 colours x 8 replicates need 2388917760 bytes of job state; the limit is "
-              "2388917759 bytes");
+              "3840x2160 pixels x 3 colours x 4 replicates need 1194524160 bytes of job state; the limit is "
+              "1194524159 bytes");
   }
-  limits.max_state_bytes = 2388917760ULL;  // exactly at the limit is fine
+  limits.max_state_bytes = 1194524160ULL;  // exactly at the limit is fine
   EXPECT_NO_THROW(compile_lighting_job(frame_spec(3840, 2160), limits));
 }
 

@@ -6,10 +6,13 @@
 
 #include <fmt/format.h>
 
+#include <SQLiteCpp/SQLiteCpp.h>
+
 #include <cstring>
 #include <filesystem>
 #include <set>
 
+#include "common/engine/checkpoint.hpp"
 #include "common/protocol/job_kinds.hpp"
 #include "server/api/metrics.hpp"
 #include "server/host/host_facts.hpp"
@@ -122,10 +125,10 @@ TEST(Memory, QueuedJobsHoldNoState) {
 // makes it big; one that fits waits until it fits beside the running ones.
 TEST(Memory, JobOverTheBudgetIs422NamingTheResolution) {
   ManagerConfig mc = config();
-  mc.memory_budget = 64ULL << 20;
+  mc.memory_budget = 32ULL << 20;
   AnyHarness h(mc);
-  // 512 × 512 × 3 × 8 replicates = 6.3 M channels: within --max-state-bytes, but its
-  // 2 × 144 MiB are over the budget.
+  // 512 × 512 × 3 × 4 replicates = 3.1 M sums: within --max-state-bytes, but their
+  // 37.8 MB of job state are over the budget.
   const HttpResponse r = h.call("POST", "/v1/jobs", image_spec(512, 512).dump());
   EXPECT_EQ(r.status, 422) << r.body;
   EXPECT_EQ(r.header("content-type"), "application/problem+json");
@@ -137,7 +140,7 @@ TEST(Memory, JobOverTheBudgetIs422NamingTheResolution) {
   const HttpResponse v = h.call("POST", "/v1/jobs/validate", image_spec(512, 512).dump());
   EXPECT_EQ(v.status, 422) << v.body;
   EXPECT_EQ(json::parse(v.body).at("pointer"), "/scene/camera/resolution") << v.body;
-  // 128 × 128 (2 × 9 MiB) fits.
+  // 128 × 128 (2.4 MB) fits.
   const HttpResponse ok = h.call("POST", "/v1/jobs", image_spec(128, 128).dump());
   EXPECT_EQ(ok.status, 202) << ok.body;
   h.call("DELETE", "/v1/jobs/" + json::parse(ok.body).at("id").get<std::string>());
@@ -151,14 +154,14 @@ TEST(Memory, OverBudgetRefusalCompilesTheSpecOnce) {
     ++compiles;
     return compile_job(spec, limits);
   };
-  Admission admission({.max_running = 1, .max_queued = 1, .memory_budget = 64ULL << 20});
+  Admission admission({.max_running = 1, .max_queued = 1, .memory_budget = 32ULL << 20});
   try {
     compile_within_budget(counting, image_spec(512, 512), JobLimits{}, admission);
-    ADD_FAILURE() << "a 512x512 image fits a 64 MiB budget";
+    ADD_FAILURE() << "a 512x512 image fits a 32 MiB budget";
   } catch (const SpecError& e) {
     EXPECT_EQ(e.pointer(), "/scene/camera/resolution");
     EXPECT_EQ(e.detail(),
-              "512x512 pixels x 3 colours x 8 replicates need 75501568 bytes of job state; the limit is 67108864 "
+              "512x512 pixels x 3 colours x 4 replicates need 37752832 bytes of job state; the limit is 33554432 "
               "bytes, the server's memory budget (--memory-budget)");
   }
   EXPECT_EQ(compiles, 1);
@@ -293,6 +296,94 @@ TEST(Memory, FinishedImageJobStaysOnDiskAcrossRestart) {
   EXPECT_EQ(ext.status, 202) << ext.body;
   ASSERT_TRUE(h.wait_state(id, "succeeded", 60));
   EXPECT_EQ(h.call_json("GET", "/v1/jobs").at("jobs").at(0).at("samples"), 128);
+}
+
+// An image job stored by a build of results version 4, when a sobol spec without
+// "replicates" meant 8 (version 5 made it 4): after the upgrade the finished job still
+// serves its pixels, a running one resumes from its 8-replicate state and finishes with
+// the bits an uninterrupted run gives, and both show the spec they computed (replicates
+// 8). Without the recovery's spec_as_of, the stored states do not fit the 4-replicate
+// kernel: the finished image is unreadable and the running job fails.
+TEST(Upgrade, ImageJobsOfResultsVersionFourStayReadableAndResume) {
+  TempDir dir;
+  json old_spec = image_spec(48, 32, 64);
+  old_spec["replicates"] = 8;
+  json half = old_spec;
+  half["stop"]["max_samples"] = 24;
+  std::string done, running, tile, extended_tile;
+  {
+    AnyHarness h(config(2), open_sqlite_store(dir.path.string()));
+    done = h.submit(old_spec);
+    running = h.submit(half);
+    // What the interrupted job should end as: the same 24 spp, extended to 64 (its
+    // passes are the resumed job's; a run straight to 64 groups its passes otherwise,
+    // and single-precision sums round per group).
+    const std::string extended = h.submit(half);
+    ASSERT_TRUE(h.wait_state(done, "succeeded", 60));
+    ASSERT_TRUE(h.wait_state(running, "succeeded", 60));
+    ASSERT_TRUE(h.wait_state(extended, "succeeded", 60));
+    EXPECT_EQ(h.call("POST", "/v1/jobs/" + extended + "/extend", R"({"max_samples": 64})").status, 202);
+    ASSERT_TRUE(h.wait_state(extended, "succeeded", 60));
+    const HttpResponse t = h.call("GET", "/v1/jobs/" + done + "/tiles/0");
+    ASSERT_EQ(t.status, 200) << t.body;
+    tile = t.body;
+    extended_tile = h.call("GET", "/v1/jobs/" + extended + "/tiles/0").body;
+  }
+  {
+    // Rewritten as the version-4 build left them: specs without "replicates", the
+    // finished job's facts and the half-done job's state of version 4, that job running
+    // (killed after 24 of its 64 samples a pixel, a pass boundary of the full job).
+    auto store = open_sqlite_store(dir.path.string());
+    std::string rule64;  // the finished job's stored stop rule: max_samples 64
+    for (const StoredJob& row : store->load_all()) {
+      if (row.id == done) rule64 = row.stop_rule;
+    }
+    ASSERT_NE(rule64.find("64"), std::string::npos) << rule64;
+    for (StoredJob row : store->load_all()) {
+      if (row.id != done && row.id != running) continue;
+      if (row.id == done) {
+        json facts = json::parse(row.facts);
+        facts["results_version"] = 4;
+        row.facts = facts.dump();
+      } else {
+        JobState state = decode_checkpoint(store->load_checkpoint(running).value());
+        ASSERT_EQ(state.samples, 24u);
+        state.results_version = 4;
+        row.checkpoint = encode_checkpoint(state);
+        row.state = "running";
+        row.result.clear();
+        row.facts.clear();
+        row.stop_rule = rule64;
+        row.finished_at = 0;
+      }
+      store->save(row);
+    }
+  }
+  {
+    // A job's spec is written once, at submit (JobStore::save keeps it): rewritten here.
+    SQLite::Database db((dir.path / "tally.db").string(), SQLite::OPEN_READWRITE);
+    SQLite::Statement q(db, "UPDATE jobs SET spec = ? WHERE id IN (?, ?)");
+    json spec4 = old_spec;
+    spec4.erase("replicates");
+    q.bind(1, spec4.dump());
+    q.bind(2, done);
+    q.bind(3, running);
+    ASSERT_EQ(q.exec(), 2);
+  }
+  AnyHarness h(config(2), open_sqlite_store(dir.path.string()));
+  EXPECT_EQ(h.call("GET", "/v1/jobs/" + done + "/tiles/0").body, tile);
+  ASSERT_TRUE(h.wait_state(running, "succeeded", 60));
+  EXPECT_EQ(h.call("GET", "/v1/jobs/" + running + "/tiles/0").body, extended_tile) << "resumed bit-identically";
+  for (const std::string& id : {done, running}) {
+    const json st = h.call_json("GET", "/v1/jobs/" + id);
+    EXPECT_EQ(st.at("spec").at("replicates"), 8) << id;
+    EXPECT_EQ(st.at("plan").at("sampler").at("replicates"), 8) << id;
+  }
+  // The same spec submitted now computes with this build's default.
+  json spec4 = old_spec;
+  spec4.erase("replicates");
+  const json fresh = h.call_json("GET", "/v1/jobs/" + h.submit(spec4));
+  EXPECT_EQ(fresh.at("plan").at("sampler").at("replicates"), 4) << fresh.dump();
 }
 
 // The state a finished job shows after a restart: the same facts, the same bytes,

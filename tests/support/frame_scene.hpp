@@ -3,7 +3,7 @@
 // state_limit_test, tests/e2e/frames_e2e_test, bench/frame_memory_bench): a 6 x 6 diffuse
 // floor at z = 0 lit by a 1 x 1 emitter at z = 2 facing down, seen from (0, -4.5, 3.2);
 // an image query of w x h pixels, `mis`, direct light only (max_depth 1), the default
-// sobol sampler (K = 8 replicates), stopping at `spp` samples a pixel.
+// sobol sampler (an image's default K = 4 replicates), stopping at `spp` samples a pixel.
 #include <cstdint>
 #include <nlohmann/json.hpp>
 

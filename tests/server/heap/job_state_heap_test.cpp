@@ -5,6 +5,9 @@
 // the state to the store piece by piece under a lease, with no copy of the state and
 // no buffer of its whole encoding.
 //
+// The frames here have K = 8 replicates (`frame8`), twice an image's default: the layout
+// is the same for any K, and the larger state keeps the views' slack small beside it.
+//
 // Measured with the heap, not RSS: this binary replaces the global operator new and
 // delete with ones that count the bytes live (malloc_usable_size) and their peak, so
 // the figures are exact and the same on every run (no timing, no page cache). Its own
@@ -92,6 +95,13 @@ struct Peak {
   std::optional<std::string> checkpoint;  // the final one, as stored
 };
 
+// scenes::frame_spec with 8 replicates a pixel.
+nlohmann::json frame8(int w, int h, uint64_t spp) {
+  nlohmann::json spec = scenes::frame_spec(w, h, spp);
+  spec["replicates"] = 8;
+  return spec;
+}
+
 // A w x h image job run to `spp` samples a pixel on one worker, with the SQLite store
 // (a memory store would keep the checkpoint in memory by design) and a checkpoint at
 // every pass boundary.
@@ -108,7 +118,7 @@ Peak run_image(int w, int h, uint64_t spp, uint64_t max_pass_spp = 64) {
     mc.checkpoint_copy_bytes = 1 << 20;
     JobManager manager(mc, *store, compile);
     manager.recover();
-    nlohmann::json spec = scenes::frame_spec(w, h, spp);
+    nlohmann::json spec = frame8(w, h, spp);
     spec["query"]["max_pass_spp"] = max_pass_spp;
     {
       const auto def = compile(spec, JobLimits{});
@@ -182,7 +192,7 @@ TEST(JobStateHeap, PassesOfSeveralBlocksPerTileHoldOneResultPerGroup) {
       << "peak " << p.peak << " bytes, charged " << p.charged;
   ASSERT_TRUE(p.checkpoint);
   const JobState served = decode_checkpoint(*p.checkpoint);
-  nlohmann::json spec = scenes::frame_spec(256, 256, 120);
+  nlohmann::json spec = frame8(256, 256, 120);
   spec["query"]["max_pass_spp"] = 64;
   const auto def = compile(spec, JobLimits{});
   JobRunner local(def->kernel(), def->stop_rule(), JobCaps{});
@@ -214,7 +224,7 @@ TEST(JobStateHeap, PassesOfSeveralBlocksPerTileHoldOneResultPerGroup) {
 // most 4 x threads groups wait beyond the first unmerged one, with one computing per
 // thread. Before, the pass's results were all live at its end (1 + 2 x the state).
 TEST(JobStateHeap, LocalRunHoldsAFewTilesBesideTheState) {
-  nlohmann::json spec = scenes::frame_spec(256, 256, 120);
+  nlohmann::json spec = frame8(256, 256, 120);
   spec["query"]["max_pass_spp"] = 64;
   const auto def = compile(spec, JobLimits{});
   const int64_t before = g_live.load();
@@ -253,7 +263,7 @@ namespace {
 // piece (16 MiB), which the bound allows for.
 TEST(JobStateHeap, ResumedJobReadByStatusPollsPeaksWithinItsCharge) {
   TempDir dir;
-  nlohmann::json spec = scenes::frame_spec(512, 512, 24);
+  nlohmann::json spec = frame8(512, 512, 24);
   spec["query"]["max_pass_spp"] = 8;
   ManagerConfig mc;
   mc.workers = 2;
