@@ -175,11 +175,10 @@ class Runner:
 # An image's default replicates (common/lighting/pixel_sampler.hpp, kDefaultImageReplicates).
 DEFAULT_REPLICATES = 4
 T_975 = {2: 12.706205, 3: 4.302653, 4: 3.182446, 8: 2.364624, 16: 2.131450}
-T7_975 = T_975[8]
 
 
 def coverage(img: Dict[str, np.ndarray], ref_rgb: np.ndarray, ref_se: np.ndarray,
-             where: Optional[np.ndarray] = None, t975: float = T7_975) -> float:
+             t975: float, where: Optional[np.ndarray] = None) -> float:
     """The fraction of pixel values whose 95% interval (t with K - 1 dof x the standard error
     from the image's StdErr channels, combined with the reference's) holds the reference:
     0.95 for honest error bars (a little less, as the reference's own error bar has K - 1
@@ -276,11 +275,11 @@ def run_scene_depth(run: Runner, scene: scenes.Scene, depth: int, args) -> Dict:
         ti = rgb(tally_imgs[key])
         lv["tally_rmse"] = rmse(ti, ref_rgb)
         t975 = T_975[args.replicates or DEFAULT_REPLICATES]
-        lv["tally_coverage"] = coverage(tally_imgs[key], ref_rgb, ref_se, t975=t975)
+        lv["tally_coverage"] = coverage(tally_imgs[key], ref_rgb, ref_se, t975)
         lv["tally_noise"] = math.sqrt(max(lv["tally_rmse"] ** 2 - ref_noise2, 1e-30))
         curves[lv["mode"]]["tally"].append((lv["tally_s"], lv["tally_rmse"]))
         if off is not None:
-            lv["tally_coverage_off"] = coverage(tally_imgs[key], ref_rgb, ref_se, off, t975=t975)
+            lv["tally_coverage_off"] = coverage(tally_imgs[key], ref_rgb, ref_se, t975, off)
             lv["tally_rmse_off"] = rmse(ti[off], ref_rgb[off])
             lv["tally_noise_off"] = math.sqrt(max(lv["tally_rmse_off"] ** 2 - ref_noise2_off, 1e-30))
             # The share of tally's squared error in the pixels that see an emitter.

@@ -27,13 +27,18 @@ struct JobKind {
   std::optional<json> (*plan)(const JobDefinition& job);
   std::optional<json> (*result)(const JobDefinition& job, const JobRunner& runner);
   std::optional<json> (*progress)(const JobDefinition& job, const JobRunner& runner);
+  // A stored spec of this kind as the engine of a results version read it (spec_as_of).
+  json (*as_of)(json spec, uint32_t results_version);
 };
 
 // What a kind without progress fields adds to progress events.
 json no_progress(const JobDefinition&, const JobRunner&) { return json::object(); }
+// A kind whose defaults never changed reads its stored specs as they are.
+json same_spec(json spec, uint32_t) { return spec; }
 
 // One entry from the kind's job class, its spec reader and its views.
-template <class Job, auto Compile, auto PlanView, auto ResultView, auto ProgressView = no_progress>
+template <class Job, auto Compile, auto PlanView, auto ResultView, auto ProgressView = no_progress,
+          auto AsOf = same_spec>
 constexpr JobKind kind(std::string_view name) {
   return {name,
           [](const json& spec, const JobLimits& limits) -> std::unique_ptr<JobDefinition> {
@@ -50,14 +55,16 @@ constexpr JobKind kind(std::string_view name) {
           [](const JobDefinition& job, const JobRunner& runner) -> std::optional<json> {
             if (const auto* j = dynamic_cast<const Job*>(&job)) return ProgressView(*j, runner);
             return std::nullopt;
-          }};
+          },
+          [](json spec, uint32_t results_version) { return AsOf(std::move(spec), results_version); }};
 }
 
 // The job kinds. A new kind: one line here.
 constexpr JobKind kKinds[] = {
     kind<IntegrationJob, compile_integration_job, integration_plan_json, integration_result_json,
          integration_progress_json>("integrate"),
-    kind<LightingJob, compile_lighting_job, lighting_plan_json, lighting_result_json>("lighting"),
+    kind<LightingJob, compile_lighting_job, lighting_plan_json, lighting_result_json, no_progress,
+         lighting_spec_as_of>("lighting"),
 };
 
 // "a, b, c" (sep ", ") or "\"a\", \"b\" or \"c\"" (quoted, last " or ").
@@ -88,18 +95,13 @@ std::unique_ptr<JobDefinition> compile_job(const json& spec, const JobLimits& li
 }
 
 json spec_as_of(const json& spec, uint32_t results_version) {
-  json out = spec;
-  // Results version 5 changed the sobol sampler's default replicates for images from 8
-  // to 4 (point queries kept 8).
-  const auto image_query = [&] {
-    const auto q = out.find("query");
-    return q != out.end() && q->is_object() && q->value("type", json()) == "image";
-  };
-  if (results_version < 5 && out.is_object() && out.value("kind", json()) == "lighting" && !out.contains("replicates") &&
-      out.value("sampler", json("sobol")) == "sobol" && image_query()) {
-    out["replicates"] = 8;
+  if (!spec.is_object()) return spec;
+  const auto it = spec.find("kind");
+  if (it == spec.end() || !it->is_string()) return spec;
+  for (const JobKind& k : kKinds) {
+    if (k.name == it->get_ref<const std::string&>()) return k.as_of(spec, results_version);
   }
-  return out;
+  return spec;
 }
 
 json kind_progress_json(const JobDefinition& job, const JobRunner& runner) {

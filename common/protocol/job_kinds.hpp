@@ -17,9 +17,8 @@ namespace tally {
 std::unique_ptr<JobDefinition> compile_job(const nlohmann::json& spec, const JobLimits& limits);
 
 // A stored spec as the engine of `results_version` read it: each default that changed
-// since then is written in, so the spec compiles to the layout of the state that version
-// computed (results versions 0-4 read a sobol image job without "replicates" as 8
-// replicates; 5 as 4). Server recovery compiles this for a job with stored state: a job
+// since then is written in (by the kind's entry, e.g. lighting_spec_as_of), so the spec
+// compiles to the layout of the state that version computed. Server recovery compiles this for a job with stored state: a job
 // computed before an upgrade stays readable and resumes bit-identically. Anything else is
 // returned unchanged (not an object, no "kind", the current version).
 nlohmann::json spec_as_of(const nlohmann::json& spec, uint32_t results_version);

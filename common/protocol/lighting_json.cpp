@@ -89,4 +89,13 @@ json lighting_result_json(const LightingResult& r) {
   return j;
 }
 
+json lighting_spec_as_of(json spec, uint32_t results_version) {
+  const auto q = spec.find("query");
+  const bool image = q != spec.end() && q->is_object() && q->value("type", json()) == "image";
+  if (results_version < 5 && image && !spec.contains("replicates") && spec.value("sampler", json("sobol")) == "sobol") {
+    spec["replicates"] = 8;
+  }
+  return spec;
+}
+
 }  // namespace tally

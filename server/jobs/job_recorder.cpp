@@ -22,18 +22,14 @@ struct CheckpointAbandoned : std::exception {
 };
 
 // The results version of a stored job's state: its running state's, or a finished job's
-// (its facts'; 0, unknown, for a job finished before facts were stored); nullopt for a
-// job with no state (queued: it will compute with this build).
-std::optional<uint32_t> stored_results_version(const StoredJob& row, const std::optional<JobState>& resumed) {
+// (its stored facts', `facts`; 0, unknown, for a job finished before facts were stored or
+// whose facts are unreadable); nullopt for a job with no state (queued: it will compute
+// with this build).
+std::optional<uint32_t> stored_results_version(JobStatus status, const std::optional<json>& facts,
+                                               const std::optional<JobState>& resumed) {
   if (resumed) return resumed->results_version;
-  if (!is_terminal(parse_job_status(row.state).value_or(JobStatus::failed))) return std::nullopt;
-  if (row.facts.empty()) return 0u;
-  try {
-    return json::parse(row.facts).value("results_version", 0u);
-  } catch (const std::exception& e) {
-    log::job(log::Level::warn, row.id, "stored facts are unreadable ({}); the results version is unknown", e.what());
-    return 0u;
-  }
+  if (!is_terminal(status)) return std::nullopt;
+  return facts && facts->is_object() ? facts->value("results_version", 0u) : 0u;
 }
 
 }  // namespace
@@ -333,9 +329,19 @@ JobRecorder::Recovered JobRecorder::recover() {
         corrupt = e.what();
       }
     }
+    // A finished job's facts, parsed once: its results version (below) and its views.
+    std::optional<json> facts;
+    std::string facts_problem;
+    if (is_terminal(status) && !row.facts.empty()) {
+      try {
+        facts = json::parse(row.facts);
+      } catch (const std::exception& e) {
+        facts_problem = e.what();
+      }
+    }
     // The spec as the engine that computed the job's state read it (a default changed
     // since is written in): the job shows and runs that spec.
-    if (const std::optional<uint32_t> v = stored_results_version(row, resumed)) spec = spec_as_of(spec, *v);
+    if (const std::optional<uint32_t> v = stored_results_version(status, facts, resumed)) spec = spec_as_of(spec, *v);
     auto job = std::make_shared<Job>(row.id, row.seq, spec, row.priority, row.created_at, out.epoch, event_buffer_,
                                      row.owner);
     job->caps_ = limits_.caps();
@@ -370,14 +376,17 @@ JobRecorder::Recovered JobRecorder::recover() {
       if (is_terminal(status)) {
         // A finished job's state stays on disk; the views read its stored facts.
         bool have_facts = false;
-        if (!row.facts.empty()) {
+        if (facts) {
           try {
-            job->facts_ = std::make_shared<const RunFacts>(parse_run_facts(json::parse(row.facts), rule));
+            job->facts_ = std::make_shared<const RunFacts>(parse_run_facts(*facts, rule));
             have_facts = true;
           } catch (const std::exception& e) {
-            log::job(log::Level::warn, row.id, "stored facts are unreadable ({}); rebuilt from the checkpoint",
-                     e.what());
+            facts_problem = e.what();
           }
+        }
+        if (!facts_problem.empty()) {
+          log::job(log::Level::warn, row.id, "stored facts are unreadable ({}); rebuilt from the checkpoint",
+                   facts_problem);
         }
         if (!have_facts) {
           // Written before facts were stored: read the checkpoint once, keep the facts.

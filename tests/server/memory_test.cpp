@@ -94,12 +94,14 @@ struct TempDir {
 // ---------------------------------------------------------------- state at start
 
 // Before: a 779-byte POST of a 4096×1365 image job added 395 MB at submission. Eight
-// queued 256×256 image jobs would hold 8 × 36 MiB of channels; they hold none.
+// queued 256×256 image jobs hold no state at all.
 TEST(Memory, QueuedJobsHoldNoState) {
   AnyHarness h(config());
   const std::string blocker = h.submit(fake_spec(kForever, 200));
   ASSERT_TRUE(h.wait_state(blocker, "running"));
-  // 256 × 256 pixels, 3 channels for each of 8 randomized-QMC replicates: 36 MiB.
+  // A yardstick: 36 MiB, 256 × 256 pixels of 3 general tallies for each of 8 replicates
+  // (the layout of the time this test was written; the compact state of 4 replicates'
+  // float sums is 3 MiB, and a queued job holds none of it).
   const uint64_t one_state = 256ULL * 256 * 3 * 8 * sizeof(Tally);
   const uint64_t rss0 = resident_bytes().value();
   std::vector<std::string> ids;
