@@ -39,6 +39,9 @@ std::string Metrics::render(const ManagerStats& jobs) const {
   prom_metric(o, "tally_queue_depth", "gauge", "Jobs waiting for a running slot.", jobs.queue_depth);
   prom_metric(o, "tally_samples_per_second", "gauge", "Sum of the running jobs' throughput.", jobs.samples_per_second);
   prom_metric(o, "tally_samples_total", "counter", "Samples computed by the workers since start.", jobs.samples_total);
+  prom_metric(o, "tally_result_groups_streamed_total", "counter",
+              "Result groups merged one by one as the workers finished them (streamed passes) since start.",
+              jobs.groups_streamed);
   prom_metric(o, "tally_workers", "gauge", "Worker threads.", jobs.workers);
   prom_metric(o, "tally_workers_busy", "gauge", "Workers running a chunk right now.", jobs.busy_workers);
   prom_metric(o, "tally_store_failures_total", "counter", "Failed saves to the job store (each is retried).",

@@ -1,9 +1,11 @@
 #pragma once
 // The seam between job management and computation. The manager hands an executor the
 // blocks of one pass of a job; the executor computes them wherever it likes (threads in
-// this process, workers behind Redis) and hands the whole pass back, one result per
-// result group in block order (the blocks of a group combined, combine_results),
-// through ExecutorCallbacks::pass_done. Merge order, checkpoints, events and the
+// this process, workers behind Redis) and hands the pass back, one result per result
+// group in block order (the blocks of a group combined, combine_results): all at once
+// through ExecutorCallbacks::pass_done, or, for a job that asks (ExecutorJob::
+// stream_groups) and an executor that can, group by group through group_done as they
+// finish, so no whole pass of results is ever held (an image's is twice its state). Merge order, checkpoints, events and the
 // stop rule live above this seam and never know which executor ran.
 //
 // Implementations: InProcessExecutor (server/executor/in_process_executor.hpp, the
@@ -31,6 +33,10 @@ struct ExecutorJob {
                           // results tagged with an older epoch are never merged
   int priority = 0;       // CPU share within an owner, see priority_weight()
   std::string owner;      // the principal that submitted the job ("" without access control)
+  // Hand the pass back group by group (ExecutorCallbacks::group_done) if the executor
+  // can; it then computes only a few groups past the last one handed back. Executors
+  // that cannot (the cluster's) hand back whole passes as before.
+  bool stream_groups = false;
 };
 
 // One pass of a job: blocks planned by JobRunner::plan_pass, plus the kernel's input for
@@ -67,6 +73,13 @@ struct ExecutorCallbacks {
   std::function<PassWork(const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
                          double wall_seconds)>
       pass_done;
+  // A streamed job's (ExecutorJob::stream_groups) result group `group` of `pass`: called
+  // for group 0, 1, ... in order, one at a time per job (from any executor thread), as
+  // soon as the groups before it are in; then pass_done with empty `results` once the
+  // last one is. A cancel or stop may end the calls before the last group; the groups
+  // handed back stay handed back. The call may block (the job holds its merges while
+  // a checkpoint is written): the executor computes at most a few groups ahead meanwhile.
+  std::function<void(const std::string& id, const PassWork& pass, size_t group, BlockResult&& result)> group_done;
   // A cancelled job has no block in flight any more; its partial pass is dropped.
   std::function<void(const std::string& id)> cancelled;
   // The executor gave up on the job (e.g. a block failed on every delivery); the job
@@ -78,6 +91,7 @@ struct ExecutorStats {
   unsigned workers = 0;        // threads (in process) or live worker threads (cluster)
   unsigned busy_workers = 0;
   uint64_t samples_done = 0;   // computed since start
+  uint64_t groups_streamed = 0;  // result groups handed back one by one (group_done) since start
   size_t scheduled_jobs = 0;
   // Cluster executors: blocks per job not yet handed out / handed out and not back /
   // handed out more than once.

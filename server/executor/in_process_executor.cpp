@@ -49,6 +49,7 @@ ExecutorStats InProcessExecutor::stats() const {
   s.workers = workers();
   s.busy_workers = busy_workers();
   s.samples_done = samples_done();
+  s.groups_streamed = groups_streamed_.load(std::memory_order_relaxed);
   s.scheduled_jobs = scheduled_jobs();
   std::lock_guard lock(mu_);
   s.cpu_seconds_by_owner = cpu_seconds_by_owner_;
@@ -79,6 +80,9 @@ void InProcessExecutor::start_pass_locked(Active& a, PassWork pass) {
   a.results.clear();
   a.results.resize(a.pass.blocks.size());
   a.folded.assign(a.pass.blocks.size(), 0);
+  a.computed.assign(a.stream ? a.pass.groups.size() : 0, 0);
+  a.delivered = a.next_group = 0;
+  a.broken = false;
   a.next = a.done = 0;
   a.pass_started = false;
 }
@@ -98,6 +102,7 @@ void InProcessExecutor::add(ExecutorJob job, PassWork first_pass) {
     a->owner = job.owner;
     a->kernel = std::move(job.kernel);
     a->weight = priority_weight(job.priority);
+    a->stream = job.stream_groups && static_cast<bool>(cb_.group_done);
     // Join at the current virtual times (the owner's among owners, the job's among the
     // owner's jobs): a newcomer neither starves nor is starved.
     if (!owners_.count(a->owner)) owners_[a->owner].vtime = min_owner_vtime_locked();
@@ -119,7 +124,7 @@ bool InProcessExecutor::cancel(const std::string& id) {
     if (a.cancel_requested) return true;
     a.cancel_requested = true;
     a.abandon = true;  // blocks in flight stop early
-    if (a.inflight == 0 && !a.committing) {
+    if (a.inflight == 0 && !a.committing && !a.delivering) {
       erase_locked(it);
       call_now = true;
     }
@@ -144,6 +149,7 @@ InProcessExecutor::Active* InProcessExecutor::pick_locked() {
   double best_owner = 0.0;
   for (auto& [id, a] : active_) {
     if (a->cancel_requested || a->committing || a->next >= a->pass.blocks.size()) continue;
+    if (a->stream && a->next_group >= a->delivered + stream_window()) continue;  // far enough ahead
     const double ov = owners_[a->owner].vtime;
     if (!best || ov < best_owner || (ov == best_owner && a->vtime < best->vtime)) {
       best = a.get();
@@ -161,6 +167,8 @@ size_t InProcessExecutor::chunk_size_locked(const Active& a) const {
   if (a.block_seconds > 0) {
     n = static_cast<size_t>(std::clamp(chunk_target_ / a.block_seconds, 1.0, 4096.0));
   }
+  // Streamed: a chunk's results are held until it ends; keep it within the window.
+  if (a.stream) n = std::min(n, stream_window());
   return std::max<size_t>(1, std::min({n, spread, left}));
 }
 
@@ -181,6 +189,11 @@ void InProcessExecutor::worker_loop() {
       end = std::min(end, a->pass.blocks.size());
     }
     a->next = end;
+    if (const auto& gs = a->pass.groups; a->stream) {
+      a->next_group = static_cast<size_t>(
+          std::lower_bound(gs.begin(), gs.end(), end, [](const ResultGroup& r, size_t b) { return r.first < b; }) -
+          gs.begin());
+    }
     a->inflight += 1;
     if (!a->pass_started) {
       a->pass_started = true;
@@ -240,8 +253,19 @@ void InProcessExecutor::worker_loop() {
     const double per_block = dt / static_cast<double>(end - begin);
     a->block_seconds = a->block_seconds > 0 ? 0.7 * a->block_seconds + 0.3 * per_block : per_block;
 
+    if (a->stream && !a->cancel_requested && !a->abandon.load()) {
+      // The chunk's groups are whole (it began and ended where groups do): computed.
+      const auto& gs = a->pass.groups;
+      for (size_t g = static_cast<size_t>(std::lower_bound(gs.begin(), gs.end(), begin,
+                                                           [](const ResultGroup& r, size_t b) { return r.first < b; }) -
+                                          gs.begin());
+           g < gs.size() && gs[g].first < end; ++g) {
+        a->computed[g] = 1;
+      }
+      deliver_locked(lock, *a);
+    }
     if (a->cancel_requested) {
-      if (a->inflight == 0) {
+      if (a->inflight == 0 && !a->delivering) {
         const std::string id = a->id;
         erase_locked(active_.find(id));
         lock.unlock();
@@ -252,6 +276,9 @@ void InProcessExecutor::worker_loop() {
     }
     // Stopping: the results may be cut short; never commit them.
     if (a->abandon.load() || a->done < a->pass.blocks.size()) continue;
+    // Streamed: the last group handed back commits the pass (this worker, or the one
+    // handing groups back now, once it is done).
+    if (a->stream && (a->delivering || (a->delivered < a->pass.groups.size() && !a->broken))) continue;
 
     // Last chunk of the pass: commit it (without the lock: other jobs keep running).
     a->committing = true;
@@ -261,13 +288,14 @@ void InProcessExecutor::worker_loop() {
     const std::vector<uint8_t> folded_done = std::move(a->folded);
     const std::string id = a->id;
     const uint64_t run = a->run;
+    const bool streamed = a->stream;
     lock.unlock();
     const auto t_merge = std::chrono::steady_clock::now();
     const uint64_t pass_no = pass_done.pass;
     const size_t pass_blocks = pass_done.blocks.size();
-    std::vector<BlockResult> grouped;
+    std::vector<BlockResult> grouped;  // streamed: empty, its groups were handed back
     try {
-      grouped = combine_groups(std::move(results_done), pass_done.groups, folded_done);
+      if (!streamed) grouped = combine_groups(std::move(results_done), pass_done.groups, folded_done);
     } catch (const std::exception& e) {
       // A kernel bug (results that do not combine): pass_done's commit then refuses the
       // empty pass and fails the job with an internal error, the server stays up.
@@ -298,6 +326,42 @@ void InProcessExecutor::worker_loop() {
     start_pass_locked(job, std::move(next));
     cv_.notify_all();
   }
+}
+
+void InProcessExecutor::deliver_locked(std::unique_lock<std::mutex>& lock, Active& a) {
+  if (a.delivering) return;  // another worker hands them back; it sees these too
+  a.delivering = true;
+  const auto& gs = a.pass.groups;
+  while (!stopping_ && !a.cancel_requested && !a.abandon.load() && !a.broken && a.delivered < gs.size() &&
+         a.computed[a.delivered]) {
+    const size_t g = a.delivered;
+    // Blocks a worker could not fold as it computed them are combined here, in block
+    // order (combine_groups' order, so the same bits).
+    BlockResult r = std::move(a.results[gs[g].first]);
+    bool ok = true;
+    try {
+      for (size_t i = gs[g].first + 1; i < gs[g].first + gs[g].count; ++i) {
+        if (!a.folded[i]) combine_results(r, a.results[i]);
+        a.results[i] = BlockResult{};
+      }
+    } catch (const std::exception& e) {
+      log::job(log::Level::error, a.id, "combining result group {} of pass {} failed: {}", g, a.pass.pass, e.what());
+      ok = false;
+    }
+    if (!ok) {
+      a.broken = true;
+      break;
+    }
+    const std::string id = a.id;
+    const PassWork* pass = &a.pass;  // stays put: the pass is not replaced before it is committed
+    lock.unlock();
+    cb_.group_done(id, *pass, g, std::move(r));
+    groups_streamed_.fetch_add(1, std::memory_order_relaxed);
+    lock.lock();
+    a.delivered += 1;
+    cv_.notify_all();  // the window moved on
+  }
+  a.delivering = false;
 }
 
 }  // namespace tally

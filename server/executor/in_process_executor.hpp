@@ -7,7 +7,11 @@
 // share the CPUs fairly first (8 jobs do not get 8x the CPU of 1), then an owner's jobs
 // share its part, and a short job submitted behind a long one finishes promptly. Results land in per-block slots
 // and are committed in block order by whoever finishes a pass's last chunk, so the
-// bits do not depend on worker count, chunking or other jobs.
+// bits do not depend on worker count, chunking or other jobs. A streamed job
+// (ExecutorJob::stream_groups) has its result groups handed back in order as they
+// complete (group_done, one worker at a time), and no worker starts a chunk more than
+// 4 x workers groups past the last one handed back: its pass holds a few groups'
+// results beside the state, never a pass's worth.
 #include <atomic>
 #include <condition_variable>
 #include <functional>
@@ -62,6 +66,16 @@ class InProcessExecutor final : public Executor {
     // (combine_groups' `folded`): a pass of several blocks per tile then holds about
     // one result per group, not one per block.
     std::vector<uint8_t> folded;
+    // Streamed (stream_groups): groups computed (1) and handed back (delivered, in
+    // order), the group that starts at `next`, whether a worker is handing groups back
+    // now (at most one per job), and whether combining a group failed (the rest of the
+    // pass is not handed back; pass_done then has fewer groups than the pass).
+    bool stream = false;
+    std::vector<uint8_t> computed;
+    size_t delivered = 0;
+    size_t next_group = 0;
+    bool delivering = false;
+    bool broken = false;
     size_t next = 0;       // next block to hand out
     size_t done = 0;       // blocks finished
     unsigned inflight = 0; // chunks running
@@ -79,6 +93,11 @@ class InProcessExecutor final : public Executor {
   Active* pick_locked();
   size_t chunk_size_locked(const Active& a) const;
   void start_pass_locked(Active& a, PassWork pass);
+  // Hands `a`'s computed groups back in order (group_done) until the next one is not
+  // computed; unlocks `lock` around each call. Returns at once if another worker is at it.
+  void deliver_locked(std::unique_lock<std::mutex>& lock, Active& a);
+  // Groups a streamed job may be computed ahead of the last one handed back.
+  size_t stream_window() const { return 4 * threads_.size(); }
   double min_vtime_locked(const std::string& owner) const;
   double min_owner_vtime_locked() const;
 
@@ -99,6 +118,7 @@ class InProcessExecutor final : public Executor {
   std::string last_picked_;
   bool stopping_ = false;
   std::atomic<uint64_t> samples_done_{0};
+  std::atomic<uint64_t> groups_streamed_{0};
   std::atomic<unsigned> busy_{0};
   std::vector<std::thread> threads_;
 };

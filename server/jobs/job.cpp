@@ -419,9 +419,16 @@ void Job::merge_pass(std::vector<BlockResult>&& results, double wall, uint64_t p
     merging_ = true;
     r = runner_;
   }
-  std::string error;
+  std::string error = std::move(stream_error_);
+  stream_error_.clear();
   try {
-    r->commit_groups(std::move(results), wall);
+    if (!error.empty()) {
+      // A group failed to merge: the pass is not committed.
+    } else if (results.empty()) {
+      r->finish_pass(wall);  // streamed: every group merged already (else it throws)
+    } else {
+      r->commit_groups(std::move(results), wall);
+    }
   } catch (const std::exception& e) {
     log::job(log::Level::error, id_, "committing pass {} failed: {}", pass, e.what());
     error = e.what();
@@ -429,6 +436,48 @@ void Job::merge_pass(std::vector<BlockResult>&& results, double wall, uint64_t p
   std::lock_guard lock(mu_);
   merging_ = false;
   if (!error.empty()) r->fail(fmt::format("internal error committing a pass: {}", error));
+}
+
+void Job::merge_group(BlockResult&& result, uint64_t pass, size_t group) {
+  {
+    std::unique_lock gate(merge_gate_mu_);
+    merge_gate_cv_.wait(gate, [&] { return !merges_held_; });
+  }
+  std::lock_guard state_lock(state_mu_);
+  if (!stream_error_.empty()) return;  // the pass is failed already: its later groups are dropped
+  std::shared_ptr<JobRunner> r;
+  {
+    std::lock_guard lock(mu_);
+    merging_ = true;
+    r = runner_;
+  }
+  try {
+    r->merge_group(std::move(result));
+  } catch (const std::exception& e) {
+    log::job(log::Level::error, id_, "merging result group {} of pass {} failed: {}", group, pass, e.what());
+    stream_error_ = e.what();
+  }
+  std::lock_guard lock(mu_);
+  merging_ = false;
+}
+
+void Job::hold_merges() {
+  std::lock_guard gate(merge_gate_mu_);
+  merges_held_ = true;
+}
+
+void Job::release_merges() {
+  {
+    std::lock_guard gate(merge_gate_mu_);
+    merges_held_ = false;
+  }
+  merge_gate_cv_.notify_all();
+}
+
+bool Job::mid_pass() const {
+  std::lock_guard state_lock(state_mu_);
+  std::lock_guard lock(mu_);
+  return runner_ && runner_->groups_merged() > 0;
 }
 
 Job::PassCommit Job::commit_pass_locked(double checkpoint_interval_s) {

@@ -5,6 +5,7 @@
 // reads a JobSnapshot (JobManager::snapshot) and never locks a job.
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -69,6 +70,10 @@ class Job : public std::enable_shared_from_this<Job> {
   // The job as it is now (JobManager::snapshot), with what `executor` says of it (asked
   // before the job's lock is taken: executor locks are never nested in it). Takes mu_.
   JobSnapshot snapshot(const Executor& executor, bool with_runner) const;
+
+  // Part of a pass is merged (streamed), not all of it: the state is not at a pass
+  // boundary and is no checkpoint. Takes state_mu_.
+  bool mid_pass() const;
 
  private:
   friend class JobManager;
@@ -138,7 +143,17 @@ class Job : public std::enable_shared_from_this<Job> {
   // the runner (seconds for a 4K frame), with merging_ set meanwhile, so that status
   // reads, watchers and metrics (under mu_ alone, some on the I/O threads) never wait
   // for it. A merge that throws fails the runner (under mu_), as a kernel bug must.
+  // `results` empty: the pass was streamed (merge_group), it is finished here.
   void merge_pass(std::vector<BlockResult>&& results, double wall, uint64_t pass);
+  // A streamed pass (ExecutorJob::stream_groups): result group `group` of `pass` merged
+  // into the runner as the executor hands it back, under state_mu_ (merging_ set
+  // meanwhile), after any checkpoint being written from the live state (hold_merges).
+  // A merge that throws fails the runner at merge_pass; later groups are dropped.
+  void merge_group(BlockResult&& result, uint64_t pass, size_t group);
+  // A checkpoint streams from the live state at a pass boundary: the next pass's
+  // groups wait in merge_group until it is stored (JobRecorder::checkpoint_later).
+  void hold_merges();
+  void release_merges();
   // Then, taking mu_ itself: the pass's heavy views (progress, tiles, status; for the
   // last pass the final ones, into `views`) built without the lock, then published.
   // Returns the job's ending when it finished (stored before it is published).
@@ -173,6 +188,11 @@ class Job : public std::enable_shared_from_this<Job> {
   // The job's last checkpoint streamed from the live state was abandoned: the next one
   // holds state_mu_ for its whole write (JobRecorder::store).
   std::atomic<bool> checkpoint_abandoned_{false};
+  // Streamed merges held while a checkpoint is written (hold_merges).
+  std::mutex merge_gate_mu_;
+  std::condition_variable merge_gate_cv_;
+  bool merges_held_ = false;  // guarded by merge_gate_mu_
+  std::string stream_error_;  // guarded by state_mu_: a streamed group's merge failed this pass
 
   mutable std::mutex mu_;
   // --- guarded by mu_ ---
@@ -209,7 +229,10 @@ class Job : public std::enable_shared_from_this<Job> {
   // without the lock): a snapshot then shows the last published progress, or none, and
   // the new one follows live — never the same pass twice.
   bool publishing_ = false;
-  // A pass is being merged into runner_ (merge_pass: under state_mu_, not mu_). Readers
+  // A pass, or one result group of a streamed pass, is being merged into runner_
+  // (merge_pass, merge_group: under state_mu_, not mu_). Between a streamed pass's group
+  // merges the runner holds part of that pass (every tile whole; samples, passes and the
+  // trace move at merge_pass), which a reader of the state itself may see. Readers
   // under mu_ alone then leave runner_ alone and show the last boundary's views (engine_,
   // live_facts_, watch_progress_, idle views); whoever needs the runner itself takes
   // state_mu_ first (a snapshot with the runner, a checkpoint's take).

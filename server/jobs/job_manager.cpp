@@ -38,6 +38,9 @@ JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compil
   ExecutorCallbacks cb;
   cb.pass_done = [this](const std::string& id, const PassWork& done, std::vector<BlockResult>&& results,
                         double wall) { return on_pass_done(id, done, std::move(results), wall); };
+  cb.group_done = [this](const std::string& id, const PassWork& pass, size_t group, BlockResult&& result) {
+    if (const std::shared_ptr<Job> job = find(id)) job->merge_group(std::move(result), pass.pass, group);
+  };
   cb.cancelled = [this](const std::string& id) { on_stopped(id, std::nullopt); };
   cb.failed = [this](const std::string& id, const std::string& error) { on_stopped(id, error); };
   executor_ = config_.make_executor
@@ -219,6 +222,10 @@ void JobManager::start_locked(const std::shared_ptr<Job>& job) {
         return;
     }
     pass = job->start_running_locked(epoch_, unix_now(), ej);
+    // A state whose checkpoint streams from the live one (an image's) has its passes
+    // streamed too: merged group by group, never a pass's results held beside it.
+    ej.stream_groups = config_.stream_passes && pass && job->runner_ &&
+                       checkpoint_size_hint(job->runner_->state()) > config_.checkpoint_copy_bytes;
   }
   if (!pass) return;
   admission_.charge(*job);
@@ -515,7 +522,12 @@ void JobManager::shutdown() {
       std::lock_guard jl(job->mu_);
       unfinished = !is_terminal(job->status_);
     }
-    if (unfinished) {
+    if (unfinished && job->mid_pass()) {
+      // Part of a streamed pass is merged: no checkpoint (it would count that part
+      // twice on resume); the last one stands.
+      recorder_.persist(*job, false);
+      log::job(log::Level::info, job->id(), "stopped inside a pass; resumes on restart from its last checkpoint");
+    } else if (unfinished) {
       recorder_.persist(*job, true);  // the state at its last pass boundary
       log::job(log::Level::info, job->id(), "checkpointed for shutdown; resumes on restart");
     }
@@ -541,6 +553,7 @@ ManagerStats JobManager::stats() const {
   const ExecutorStats es = executor_->stats();
   add_job_figures(s, jobs, es.workers);
   s.samples_total = es.samples_done;
+  s.groups_streamed = es.groups_streamed;
   s.workers = es.workers;
   s.busy_workers = es.busy_workers;
   s.store_failures = recorder_.store_failures();

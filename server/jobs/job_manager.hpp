@@ -40,6 +40,11 @@ struct ManagerConfig {
   // States whose checkpoint is at most this many bytes are copied at the pass boundary
   // (JobRecorder::set_copy_bytes); bigger ones stream from the live state.
   uint64_t checkpoint_copy_bytes = kCheckpointPieceBytes;
+  // Those bigger ones also have their passes streamed (ExecutorJob::stream_groups): the
+  // executor hands results back group by group and each merges at once, so no pass's
+  // results (twice an image's state) are held beside the state. Tests turn it off to
+  // merge whole passes, as behind a cluster executor, which does not stream.
+  bool stream_passes = true;
   size_t event_buffer = 1024;
   double chunk_target_s = 0.004;
   // Memory for jobs' state (JobManager::state_bytes): a job that needs more is refused

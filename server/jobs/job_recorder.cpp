@@ -167,6 +167,9 @@ void JobRecorder::checkpoint_later(const std::shared_ptr<Job>& job) {
     checkpoint_busy_.insert(job->id_);
   }
   Pending p = take(*job, true);
+  // Streamed from the live state: a streamed pass's merges wait until it is stored
+  // (for a job whose passes merge whole, only a commit abandons it, as store says).
+  if (p.runner) job->hold_merges();
   std::lock_guard lock(checkpoint_mu_);
   checkpoints_.emplace_back(job, std::move(p));
   checkpoint_cv_.notify_all();
@@ -185,7 +188,9 @@ void JobRecorder::write_checkpoints(std::stop_token st) {
     auto [job, pending] = std::move(checkpoints_.front());
     checkpoints_.erase(checkpoints_.begin());
     lock.unlock();
+    const bool held = pending.runner != nullptr;
     store(*job, std::move(pending), true);
+    if (held) job->release_merges();
     lock.lock();
     checkpoint_busy_.erase(job->id_);
   }

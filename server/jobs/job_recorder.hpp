@@ -47,6 +47,8 @@ class JobRecorder {
   // hundreds of ms to encode and write; the workers would wait). One per job at a
   // time: while the job's previous checkpoint is still being written, this one is
   // skipped (the next interval takes it). Failures are handled as persist's, with retry.
+  // One streamed from the live state holds the job's streamed merges (Job::hold_merges)
+  // until it is stored: call it before the job's next pass is handed out.
   void checkpoint_later(const std::shared_ptr<Job>& job);
   // States whose checkpoint is estimated at most this many bytes are copied at the pass
   // boundary and encoded from the copy (never abandoned); larger ones stream from the

@@ -16,6 +16,7 @@ struct ManagerStats {
   size_t queue_depth = 0;
   double samples_per_second = 0;  // sum over running jobs
   uint64_t samples_total = 0;     // computed by the workers since start
+  uint64_t groups_streamed = 0;   // result groups merged one by one as they came (streamed passes)
   unsigned workers = 0;
   unsigned busy_workers = 0;
   uint64_t store_failures = 0;  // failed saves since start

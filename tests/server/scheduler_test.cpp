@@ -7,6 +7,8 @@
 
 #include <algorithm>
 #include <bit>
+#include <numeric>
+#include <thread>
 
 #include "server/executor/in_process_executor.hpp"
 #include "server_test_support.hpp"
@@ -229,6 +231,113 @@ TEST(Scheduler, JobReaddedWhileItsLastPassCommitsRunsToTheEnd) {
   ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(20), [&] { return passes == 2; })) << "the re-added run never ran";
   lock.unlock();
   EXPECT_TRUE(wait_until([&] { return s.scheduled_jobs() == 0; }, 5));
+}
+
+// Counts the blocks it has run; each block's tally holds its index (results combine).
+class CountingKernel final : public Kernel {
+ public:
+  size_t channel_count() const override { return 1; }
+  void run_block(const Block& b, BlockResult& out) const override {
+    runs.fetch_add(1);
+    out.first_channel = 0;
+    out.tallies.assign(1, Tally{});
+    for (uint64_t i = 0; i < b.sample_count; ++i) out.tallies[0].add(static_cast<double>(b.first_sample + i) * 0.37);
+  }
+  mutable std::atomic<uint64_t> runs{0};
+};
+
+// A streamed job (stream_groups) has its groups handed back in order, one at a time,
+// with the bits of the whole pass's; while one is held (group_done blocks, as a merge
+// waiting for a checkpoint does) the workers compute at most a few groups ahead, not
+// the pass: its results are never all in memory.
+TEST(Scheduler, StreamedPassHandsGroupsBackInOrderAndComputesFewAhead) {
+  PassWork pass;
+  for (uint64_t i = 0; i < 400; ++i) pass.blocks.push_back(Block{i, i * 10, 10, static_cast<uint32_t>(i / 2)});
+  pass.groups = result_groups(pass.blocks, 2);  // 200 groups of 2 blocks
+  ASSERT_EQ(pass.groups.size(), 200u);
+
+  // Reference: the whole pass at once.
+  std::vector<BlockResult> whole;
+  {
+    std::mutex mu;
+    std::condition_variable cv;
+    bool done = false;
+    ExecutorCallbacks cb;
+    cb.pass_done = [&](const std::string&, const PassWork&, std::vector<BlockResult>&& results, double) {
+      std::lock_guard lock(mu);
+      whole = std::move(results);
+      done = true;
+      cv.notify_all();
+      return PassWork{};
+    };
+    InProcessExecutor s(2, cb);
+    s.add(ExecutorJob{"w", std::make_shared<CountingKernel>(), "", 1, 0, ""}, pass);
+    std::unique_lock lock(mu);
+    ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(20), [&] { return done; }));
+  }
+  ASSERT_EQ(whole.size(), 200u);
+
+  auto kernel = std::make_shared<CountingKernel>();
+  std::mutex mu;
+  std::condition_variable cv;
+  std::vector<size_t> order;
+  std::vector<BlockResult> streamed(200);
+  bool hold = true, held = false, done = false;
+  size_t at_pass_done = 0, results_at_pass_done = 99;
+  ExecutorCallbacks cb;
+  cb.group_done = [&](const std::string&, const PassWork&, size_t g, BlockResult&& r) {
+    std::unique_lock lock(mu);
+    order.push_back(g);
+    streamed.at(g) = std::move(r);
+    if (g == 0) {  // hold the first group's merge until the test has looked
+      held = true;
+      cv.notify_all();
+      cv.wait_for(lock, std::chrono::seconds(30), [&] { return !hold; });
+    }
+  };
+  cb.pass_done = [&](const std::string&, const PassWork&, std::vector<BlockResult>&& results, double) {
+    std::lock_guard lock(mu);
+    at_pass_done = order.size();
+    results_at_pass_done = results.size();
+    done = true;
+    cv.notify_all();
+    return PassWork{};
+  };
+  InProcessExecutor s(2, cb);
+  ExecutorJob job{"s", kernel, "", 1, 0, ""};
+  job.stream_groups = true;
+  s.add(job, pass);
+  {
+    std::unique_lock lock(mu);
+    ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(20), [&] { return held; }));
+  }
+  // Let the other worker run until it stops for the window.
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  const uint64_t ran_while_held = kernel->runs.load();
+  {
+    std::lock_guard lock(mu);
+    hold = false;
+    cv.notify_all();
+  }
+  std::unique_lock lock(mu);
+  ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(20), [&] { return done; }));
+  // The window is 4 x 2 workers = 8 groups past the last handed back, a chunk at most 8
+  // blocks (rounded up to whole groups): 16 groups, 32 blocks of 400 at most.
+  EXPECT_LE(ran_while_held, 32u) << "the workers computed far ahead of a held group";
+  EXPECT_GE(ran_while_held, 2u);
+  std::vector<size_t> expected(200);
+  std::iota(expected.begin(), expected.end(), size_t{0});
+  EXPECT_EQ(order, expected);
+  EXPECT_EQ(at_pass_done, 200u) << "pass_done before the last group";
+  EXPECT_EQ(results_at_pass_done, 0u);
+  for (size_t g = 0; g < 200; ++g) {
+    ASSERT_EQ(streamed[g].tallies.size(), 1u);
+    EXPECT_EQ(streamed[g].block_index, whole[g].block_index);
+    EXPECT_EQ(std::bit_cast<uint64_t>(streamed[g].tallies[0].mean), std::bit_cast<uint64_t>(whole[g].tallies[0].mean));
+    EXPECT_EQ(std::bit_cast<uint64_t>(streamed[g].tallies[0].m2), std::bit_cast<uint64_t>(whole[g].tallies[0].m2));
+    EXPECT_EQ(streamed[g].tallies[0].n, 20u);
+  }
+  EXPECT_EQ(s.stats().groups_streamed, 200u);
 }
 
 TEST(Scheduler, PriorityWeights) {

@@ -300,6 +300,7 @@ TEST(Checkpoint, AfterAnAbandonedCheckpointTheNextOneLands) {
   SlowCheckpointStore* store = owned.get();
   ManagerConfig mc = test_manager_config();
   mc.checkpoint_copy_bytes = 0;  // every state streams from the live one, as an image's does
+  mc.stream_passes = false;      // whole passes merge (as behind a cluster): a commit can abandon one
   Harness h(mc, std::move(owned));
   const std::string id = h.submit(fake_spec(4'000'000'000, 20));
   EXPECT_TRUE(wait_until([&] { return store->landed >= 3; }, 30))
@@ -308,6 +309,26 @@ TEST(Checkpoint, AfterAnAbandonedCheckpointTheNextOneLands) {
   ASSERT_TRUE(h.wait_state(id, "cancelled"));
   EXPECT_EQ(store->abandoned_before_first, 1) << "the first is abandoned (the passes are faster), the next lands";
   EXPECT_LE(store->abandoned, store->landed + 1) << "never two abandoned in a row";
+}
+
+// A streamed job (its state streams to the store, and so do its passes: the default for
+// an image) merges each result group as it comes, so a checkpoint written from the live
+// state would find it changed at once. Its merges wait for the checkpoint instead:
+// none is abandoned, every one lands, and the work goes on.
+TEST(Checkpoint, StreamedPassesWaitForTheCheckpointNoneAbandoned) {
+  auto owned = std::make_unique<SlowCheckpointStore>(make_memory_store(), std::chrono::milliseconds(50));
+  SlowCheckpointStore* store = owned.get();
+  ManagerConfig mc = test_manager_config();
+  mc.checkpoint_copy_bytes = 0;  // every state streams from the live one: its passes stream too
+  Harness h(mc, std::move(owned));
+  const std::string id = h.submit(fake_spec(4'000'000'000, 20, 1, true));
+  EXPECT_TRUE(wait_until([&] { return store->landed >= 4; }, 30))
+      << store->landed << " landed, " << store->abandoned << " abandoned";
+  const uint64_t streamed = h.manager->stats().groups_streamed;
+  h.call("DELETE", "/v1/jobs/" + id);
+  ASSERT_TRUE(h.wait_state(id, "cancelled"));
+  EXPECT_GT(streamed, 0u) << "the passes were not streamed";
+  EXPECT_EQ(store->abandoned, 0);
 }
 
 }  // namespace

@@ -105,7 +105,10 @@ nlohmann::json frame8(int w, int h, uint64_t spp) {
 // A w x h image job run to `spp` samples a pixel on one worker, with the SQLite store
 // (a memory store would keep the checkpoint in memory by design) and a checkpoint at
 // every pass boundary.
-Peak run_image(int w, int h, uint64_t spp, uint64_t max_pass_spp = 64) {
+// `stream`: passes stream (the server's default for a state this size: each result
+// group merges as it comes); false: whole passes merge at their end, as behind a
+// cluster executor.
+Peak run_image(int w, int h, uint64_t spp, uint64_t max_pass_spp, bool stream) {
   TempDir dir;
   Peak out;
   {
@@ -116,6 +119,7 @@ Peak run_image(int w, int h, uint64_t spp, uint64_t max_pass_spp = 64) {
     // A state over this is streamed, not copied, when checkpointed: a 256 x 256 frame's
     // 12.6 MB is under the default (16 MiB), a production frame's far over it.
     mc.checkpoint_copy_bytes = 1 << 20;
+    mc.stream_passes = stream;
     JobManager manager(mc, *store, compile);
     manager.recover();
     nlohmann::json spec = frame8(w, h, spp);
@@ -142,8 +146,8 @@ Peak run_image(int w, int h, uint64_t spp, uint64_t max_pass_spp = 64) {
     EXPECT_TRUE(out.checkpoint.has_value()) << "the final state is stored";
     manager.shutdown();
   }
-  std::printf("%dx%d, %llu spp: state %lld bytes, charged %lld, heap peak %lld (%.2f x the state)\n", w, h,
-              static_cast<unsigned long long>(spp), static_cast<long long>(out.state), static_cast<long long>(out.charged),
+  std::printf("%dx%d, %llu spp, %s: state %lld bytes, charged %lld, heap peak %lld (%.2f x the state)\n", w, h,
+              static_cast<unsigned long long>(spp), stream ? "streamed" : "whole passes", static_cast<long long>(out.state), static_cast<long long>(out.charged),
               static_cast<long long>(out.peak), static_cast<double>(out.peak) / static_cast<double>(out.state));
   return out;
 }
@@ -155,14 +159,30 @@ constexpr int64_t kSlack = 2 << 20;
 // One pass of 8 samples (K = 8 replicates) at 256 x 256: 12.6 MB of state (a sum per replicate channel). Before the
 // fix the pass boundary held the state, the pass's results (until the executor's
 // vector went), a copy of the state taken for the final save and its whole encoding:
-// four copies, about twice the charge. Now the peak is the state with the results at
-// the commit: the charge, plus views.
+// four copies, about twice the charge. Merged whole (as behind a cluster executor),
+// the peak is the state with the results at the commit: the charge, plus views.
 TEST(JobStateHeap, OnePassImagePeaksWithinItsCharge) {
-  const Peak p = run_image(256, 256, 8);
+  const Peak p = run_image(256, 256, 8, 64, false);
   EXPECT_EQ(p.state, 256 * 256 * 3 * 8 * 4 + 8 * 8 * 8);  // a float sum per replicate channel
   // The results' sums are doubles: twice the state's floats.
   EXPECT_GE(p.peak, 3 * p.state * 95 / 100) << "the state and the pass's results are live at the commit";
   EXPECT_LE(p.peak, p.charged + kSlack) << "peak " << p.peak << " bytes, charged " << p.charged;
+}
+
+// Streamed, the server's default for an image: the executor hands each result group
+// back as it completes and it merges at once (Job::merge_group), computing at most 4 x
+// workers groups ahead, so the pass's results are never all live; the peak is the
+// state and the final save's checkpoint piece (one piece, 16 MiB, of the 25 MB state's
+// encoding), where whole passes peak at 3 x the state. 512 x 512, so the state is
+// larger than a piece. A result group is a tile's sums in double (32 x 32 x 24 x 8 =
+// 196,608 bytes).
+TEST(JobStateHeap, StreamedPassHoldsAFewTilesBesideTheState) {
+  const Peak p = run_image(512, 512, 8, 64, true);
+  constexpr int64_t kGroup = 32 * 32 * 24 * 8;
+  EXPECT_GE(p.peak, p.state);
+  EXPECT_LE(p.peak, p.state + static_cast<int64_t>(kCheckpointPieceBytes) + 16 * kGroup + kSlack)
+      << "peak " << p.peak << " bytes, state " << p.state;
+  EXPECT_LT(p.peak, 2 * p.state) << "a pass's results (twice the state) were held";
 }
 
 // Three passes (8, 16, 16 samples: max_pass_spp 16 keeps one block, 16 spp, per tile
@@ -171,7 +191,7 @@ TEST(JobStateHeap, OnePassImagePeaksWithinItsCharge) {
 // and the next commit waits for it. A copy of the state per checkpoint would put three
 // copies live at once.
 TEST(JobStateHeap, PeriodicCheckpointsTakeNoCopyOfTheState) {
-  const Peak p = run_image(256, 256, 40, 16);
+  const Peak p = run_image(256, 256, 40, 16, false);
   EXPECT_GE(p.peak, 2 * p.state * 95 / 100);
   // While a checkpoint streams: the state, the next pass's results, one piece.
   EXPECT_LE(p.peak, p.charged + static_cast<int64_t>(kCheckpointPieceBytes) + kSlack)
@@ -186,7 +206,7 @@ TEST(JobStateHeap, PeriodicCheckpointsTakeNoCopyOfTheState) {
 // The folded groups merge to the same bits as run_local's (`tally run`: every block's
 // result kept, combine_groups at the end of the pass).
 TEST(JobStateHeap, PassesOfSeveralBlocksPerTileHoldOneResultPerGroup) {
-  const Peak p = run_image(256, 256, 120, 64);
+  const Peak p = run_image(256, 256, 120, 64, false);
   EXPECT_GE(p.peak, 2 * p.state * 95 / 100);
   EXPECT_LE(p.peak, p.charged + static_cast<int64_t>(kCheckpointPieceBytes) + kSlack)
       << "peak " << p.peak << " bytes, charged " << p.charged;
