@@ -93,6 +93,10 @@ int main(int argc, char** argv) {
   add_job_limit_flags(app, mc.limits);
   app.add_option("--checkpoint-interval", mc.checkpoint_interval_s, "least seconds between a job's checkpoints")
       ->capture_default_str();
+  app.add_option("--checkpoint-copy-bytes", mc.checkpoint_copy_bytes,
+                 "a job state whose checkpoint is at most this many bytes is copied at a pass boundary; a larger "
+                 "one (an image's) streams from the live state, and its passes merge group by group as they come")
+      ->capture_default_str();
   std::string memory_budget = "auto", finished_cache = "256MiB", retain_max_age = "0", retain_max_bytes = "0";
   app.add_option("--memory-budget", memory_budget,
                  "memory for jobs' state, e.g. 4GiB; a job needing more is refused (422), others wait to start; "

@@ -39,6 +39,8 @@ std::string ClusterJob::read_results(RedisConn& conn, ClusterPassRun& pr, bool p
     pr.got_count = 0;
   }
   const PassKeys keys(ej.id, run, pass.pass);
+  // Read already: decoded and waiting, or handed to the manager (streamed).
+  const auto read = [&](size_t group) { return group < pr.delivered || pr.got[group].has_value(); };
   std::vector<size_t> want;  // indices into plan.entries
   if (prefetch) {
     for (const std::string& k : stored_entry_slots(conn, keys)) {
@@ -50,11 +52,11 @@ std::string ClusterJob::read_results(RedisConn& conn, ClusterPassRun& pr, bool p
       }
       const size_t e = plan.entry_at(first);
       if (e == EntryPlan::npos) return fmt::format("result field {} is not the first slot of an entry of the pass", first);
-      if (!pr.got[plan.entry_groups[e]]) want.push_back(e);
+      if (!read(plan.entry_groups[e])) want.push_back(e);
     }
   } else {
     for (size_t e = 0; e < plan.entries.size(); ++e) {
-      if (!pr.got[plan.entry_groups[e]]) want.push_back(e);
+      if (!read(plan.entry_groups[e])) want.push_back(e);
     }
   }
   if (want.empty()) return {};

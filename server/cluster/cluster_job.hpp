@@ -30,6 +30,10 @@ struct ClusterPassRun {
   // while the pass runs, so the pass boundary reads only the last entries.
   std::vector<std::optional<BlockResult>> got;
   size_t got_count = 0;
+  // A streamed job (ExecutorJob::stream_groups): groups [0, delivered) were read and
+  // handed to the manager (group_done) in order; their `got` slots are empty again and
+  // their entries are never read twice.
+  size_t delivered = 0;
   bool published = false;      // in Redis now
   bool was_published = false;  // published before (a republish)
   std::chrono::steady_clock::time_point start{};

@@ -114,6 +114,7 @@ ExecutorStats RedisExecutor::stats() const {
   monitor_.count_live(s.workers, s.busy_workers);
   std::lock_guard lock(mu_);
   s.samples_done = samples_done_;
+  s.groups_streamed = groups_streamed_;
   s.scheduled_jobs = jobs_.size();
   for (const auto& [id, j] : jobs_) s.blocks_by_job[id] = j->blocks;
   return s;
@@ -387,6 +388,7 @@ void RedisExecutor::prefetch() {
     if (!job) continue;
     size_t bytes = 0;
     std::string error = job->read_results(*conn_, job->cur, true, bytes, cfg_.result_key);
+    if (error.empty()) deliver(*job);
     if (error.empty() && job->ahead && job->ahead->published) {
       error = job->read_results(*conn_, *job->ahead, true, bytes, cfg_.result_key);
     }
@@ -394,6 +396,24 @@ void RedisExecutor::prefetch() {
       log::job(log::Level::error, id, "{}", error);
       leave(id, true, error);
     }
+  }
+}
+
+void RedisExecutor::deliver(Job& job) {
+  if (!job.ej.stream_groups || !cb_.group_done) return;
+  {
+    std::lock_guard lock(mu_);
+    if (job.cancel_requested) return;
+  }
+  ClusterPassRun& run = job.cur;
+  while (run.delivered < run.got.size() && run.got[run.delivered]) {
+    BlockResult r = std::move(*run.got[run.delivered]);
+    run.got[run.delivered].reset();
+    const size_t g = run.delivered++;
+    // May wait while the job's checkpoint is written from its live state (Job::hold_merges).
+    cb_.group_done(job.ej.id, run.work, g, std::move(r));
+    std::lock_guard lock(mu_);
+    ++groups_streamed_;
   }
 }
 
@@ -419,11 +439,13 @@ void RedisExecutor::merge(const std::string& id) {
     leave(id, true, error);
     return;
   }
+  deliver(*job);
   if (run.got_count < ng) return;  // not complete yet
   const double read_ms = ms_since(t_read);
   const auto t_decode = Clock::now();
-  std::vector<BlockResult> results(ng);
-  for (size_t i = 0; i < ng; ++i) results[i] = std::move(*run.got[i]);
+  // Streamed: every group went to the manager already (deliver); pass_done gets none.
+  std::vector<BlockResult> results(run.delivered == ng ? 0 : ng);
+  for (size_t i = 0; i < results.size(); ++i) results[i] = std::move(*run.got[i]);
   run.got.clear();
   run.got_count = 0;
   const double decode_ms = ms_since(t_decode);

@@ -80,6 +80,9 @@ class RedisExecutor final : public Executor {
   // Checks the jobs' result hashes; merges complete passes. `ids` empty: all jobs.
   void poll(const std::vector<std::string>& ids);
   void merge(const std::string& id);
+  // A streamed job's current pass: its groups read so far, from the first not handed
+  // back, go to the manager in order (group_done) and leave `got`.
+  void deliver(Job& job);
   void prefetch();
   // The job with this id, or null (takes mu_ for the lookup only; a Job is erased only by
   // the coordinator thread, which is the caller).
@@ -109,6 +112,7 @@ class RedisExecutor final : public Executor {
   std::optional<std::string> not_ready_;
   ClusterMonitor monitor_;
   uint64_t samples_done_ = 0;
+  uint64_t groups_streamed_ = 0;  // guarded by mu_: result groups handed back one by one (deliver)
   bool stopping_ = false;
   CoordinatorWaker waker_;  // add/cancel wake the coordinator's BLPOP
   std::thread thread_;

@@ -33,9 +33,10 @@ struct ExecutorJob {
                           // results tagged with an older epoch are never merged
   int priority = 0;       // CPU share within an owner, see priority_weight()
   std::string owner;      // the principal that submitted the job ("" without access control)
-  // Hand the pass back group by group (ExecutorCallbacks::group_done) if the executor
-  // can; it then computes only a few groups past the last one handed back. Executors
-  // that cannot (the cluster's) hand back whole passes as before.
+  // Hand the pass back group by group (ExecutorCallbacks::group_done) as the groups are
+  // in, in order: the in-process executor computes only a few groups past the last one
+  // handed back; the cluster's hands each on as soon as it has read it and those before
+  // it. An executor that cannot hands back whole passes (pass_done with every group).
   bool stream_groups = false;
 };
 

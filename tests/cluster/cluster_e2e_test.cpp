@@ -800,10 +800,12 @@ TEST(Cluster, UploadedAssetsReachWorkersByHash) {
 
 }  // namespace
 // Large results (an image: a tally per pixel channel per block) are read by the
-// coordinator while their pass runs, so the pass boundary reads only the last ones.
-// Those early reads must change nothing: bits and every EXR pixel equal an in-process
-// run, also when Redis restarts empty mid-job (results read before the restart are kept,
-// the pass is recomputed, nothing is merged twice).
+// coordinator while their pass runs, so the pass boundary reads only the last ones, and
+// an image's pass is streamed (as a production frame's is: --checkpoint-copy-bytes 0
+// here): each group merges into the state as soon as it and those before it are read.
+// Those early reads and merges must change nothing: bits and every EXR pixel equal an
+// in-process run, also when Redis restarts empty mid-job (results read or merged before
+// the restart are kept, the pass is recomputed, nothing is merged twice).
 TEST(Cluster, ImageResultsReadDuringThePassStayBitIdenticalThroughARedisRestart) {
   TempDir tmp;
   const json image = lighting_image_spec(256);  // 64 x 48: passes of up to 16 blocks
@@ -811,7 +813,7 @@ TEST(Cluster, ImageResultsReadDuringThePassStayBitIdenticalThroughARedisRestart)
   // Blocks of >= 40 ms (a sleep, no CPU): every pass lasts several of the coordinator's
   // 50 ms rounds, so results are there to be read before the pass ends.
   TestCluster cl(tmp.path, {{"w1", 1, {}, faulty("sleep_ms=40")}, {"w2", 1, {}, faulty("sleep_ms=40")}},
-                 {.server_flags = {"--log-level", "debug"}});
+                 {.server_flags = {"--log-level", "debug", "--checkpoint-copy-bytes", "0"}});
   HttpClient& c = cl.c;
   const std::string id = submit(c, image);
   wait_until([&] { return get_json(c, "/v1/jobs/" + id).value("passes", 0) >= 2; }, 120, "two passes merged");
@@ -836,6 +838,8 @@ TEST(Cluster, ImageResultsReadDuringThePassStayBitIdenticalThroughARedisRestart)
     if (comma != std::string::npos && std::stoul(log.substr(comma + 2, at - comma - 2)) > 0) ++early;
   }
   EXPECT_GE(early, 1u) << log;
+  EXPECT_GT(metric(c, "tally_result_groups_streamed_total"), 0.0)
+      << "the passes were not streamed";
 }
 
 }  // namespace tally::e2e

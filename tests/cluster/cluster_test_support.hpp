@@ -45,6 +45,14 @@ inline std::vector<std::string> cluster_flags(const RedisServer& redis, double l
   return {"--redis", redis.url(), "--lease", fmt::format("{}", lease_s), "--checkpoint-interval", "0"};
 }
 
+// One unlabelled sample of the server's /metrics (throws if it has none).
+inline double metric(HttpClient& c, const std::string& name) {
+  const std::string body = c.request("GET", "/metrics").body;
+  const size_t at = body.find("\n" + name + " ");
+  if (at == std::string::npos) throw std::runtime_error("no metric " + name);
+  return std::stod(body.substr(at + name.size() + 2));
+}
+
 inline json metrics_counts(HttpClient& c) {
   const json w = get_json(c, "/v1/workers");
   return w.at("results");

@@ -15,13 +15,6 @@
 namespace tally::e2e {
 namespace {
 
-double metric(HttpClient& c, const std::string& name) {
-  const std::string body = c.request("GET", "/metrics").body;
-  const size_t at = body.find("\n" + name + " ");
-  if (at == std::string::npos) throw std::runtime_error("no metric " + name);
-  return std::stod(body.substr(at + name.size() + 2));
-}
-
 TEST(ClusterPreemption, UrgentJobPausesTheRunningOneWhichResumesBitIdentical) {
   TempDir tmp;
   // Many passes (the schedule doubles from a small first pass), each short on one worker.
