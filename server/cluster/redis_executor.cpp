@@ -405,12 +405,14 @@ void RedisExecutor::deliver(Job& job) {
     std::lock_guard lock(mu_);
     if (job.cancel_requested) return;
   }
+  // Its merges wait for a checkpoint: not on this thread, which serves every job; the
+  // next prefetch or poll hands them back (a complete pass is polled every 250 ms).
+  if (cb_.merges_held && cb_.merges_held(job.ej.id)) return;
   ClusterPassRun& run = job.cur;
   while (run.delivered < run.got.size() && run.got[run.delivered]) {
     BlockResult r = std::move(*run.got[run.delivered]);
     run.got[run.delivered].reset();
     const size_t g = run.delivered++;
-    // May wait while the job's checkpoint is written from its live state (Job::hold_merges).
     cb_.group_done(job.ej.id, run.work, g, std::move(r));
     std::lock_guard lock(mu_);
     ++groups_streamed_;
@@ -441,6 +443,8 @@ void RedisExecutor::merge(const std::string& id) {
   }
   deliver(*job);
   if (run.got_count < ng) return;  // not complete yet
+  // Streamed, with its merges held (a checkpoint): a later poll hands the rest back.
+  if (job->ej.stream_groups && cb_.group_done && run.delivered < ng) return;
   const double read_ms = ms_since(t_read);
   const auto t_decode = Clock::now();
   // Streamed: every group went to the manager already (deliver); pass_done gets none.

@@ -81,6 +81,12 @@ struct ExecutorCallbacks {
   // handed back stay handed back. The call may block (the job holds its merges while
   // a checkpoint is written): the executor computes at most a few groups ahead meanwhile.
   std::function<void(const std::string& id, const PassWork& pass, size_t group, BlockResult&& result)> group_done;
+  // Whether a streamed job's merges wait now (a checkpoint is being written from its
+  // live state): group_done would block until they go on. An executor whose thread
+  // serves other jobs too (the cluster's coordinator) hands the groups back later
+  // instead. It becomes true only inside pass_done, so a thread that asked and got
+  // false before calling group_done (with no pass_done in between) does not block.
+  std::function<bool(const std::string& id)> merges_held;
   // A cancelled job has no block in flight any more; its partial pass is dropped.
   std::function<void(const std::string& id)> cancelled;
   // The executor gave up on the job (e.g. a block failed on every delivery); the job

@@ -474,6 +474,11 @@ void Job::release_merges() {
   merge_gate_cv_.notify_all();
 }
 
+bool Job::merges_held() {
+  std::lock_guard gate(merge_gate_mu_);
+  return merges_held_;
+}
+
 bool Job::mid_pass() const {
   std::lock_guard state_lock(state_mu_);
   std::lock_guard lock(mu_);

@@ -154,6 +154,7 @@ class Job : public std::enable_shared_from_this<Job> {
   // groups wait in merge_group until it is stored (JobRecorder::checkpoint_later).
   void hold_merges();
   void release_merges();
+  bool merges_held();
   // Then, taking mu_ itself: the pass's heavy views (progress, tiles, status; for the
   // last pass the final ones, into `views`) built without the lock, then published.
   // Returns the job's ending when it finished (stored before it is published).

@@ -41,6 +41,10 @@ JobManager::JobManager(ManagerConfig config, JobStore& store, JobCompiler compil
   cb.group_done = [this](const std::string& id, const PassWork& pass, size_t group, BlockResult&& result) {
     if (const std::shared_ptr<Job> job = find(id)) job->merge_group(std::move(result), pass.pass, group);
   };
+  cb.merges_held = [this](const std::string& id) {
+    const std::shared_ptr<Job> job = find(id);
+    return job && job->merges_held();
+  };
   cb.cancelled = [this](const std::string& id) { on_stopped(id, std::nullopt); };
   cb.failed = [this](const std::string& id, const std::string& error) { on_stopped(id, error); };
   executor_ = config_.make_executor
