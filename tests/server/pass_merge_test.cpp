@@ -134,7 +134,7 @@ std::string state_bits(JobManager& m, const std::string& id) {
 // last checkpoint stands instead, and the resumed job ends with the bits of one that
 // never stopped.
 TEST(PassMerge, StopInsideAStreamedPassResumesFromTheLastCheckpoint) {
-  const json spec = fake_spec(1'500'000, 300, 5, true);
+  const json spec = fake_spec(800'000, 300, 5, true);
   ManagerConfig mc = test_manager_config(1);
   mc.checkpoint_copy_bytes = 0;
   std::string reference;
