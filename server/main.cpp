@@ -93,9 +93,10 @@ int main(int argc, char** argv) {
   add_job_limit_flags(app, mc.limits);
   app.add_option("--checkpoint-interval", mc.checkpoint_interval_s, "least seconds between a job's checkpoints")
       ->capture_default_str();
-  app.add_option("--checkpoint-copy-bytes", mc.checkpoint_copy_bytes,
-                 "a job state whose checkpoint is at most this many bytes is copied at a pass boundary; a larger "
-                 "one (an image's) streams from the live state, and its passes merge group by group as they come")
+  std::string checkpoint_copy = "16MiB";
+  app.add_option("--checkpoint-copy-bytes", checkpoint_copy,
+                 "a job state whose checkpoint is at most this size is copied at a pass boundary; a larger one "
+                 "(an image's) streams from the live state, and its passes merge group by group as they come")
       ->capture_default_str();
   std::string memory_budget = "auto", finished_cache = "256MiB", retain_max_age = "0", retain_max_bytes = "0";
   app.add_option("--memory-budget", memory_budget,
@@ -253,6 +254,13 @@ int main(int argc, char** argv) {
                  !age && budget && cache ? "duration (90s, 15m, 12h, 7d)" : "size (4GiB, 512MiB, bytes)");
       return 2;
     }
+    const auto copy = parse_byte_size(checkpoint_copy);
+    if (!copy) {
+      fmt::print(stderr, "tally-server: --checkpoint-copy-bytes {} is not a size (16MiB, 512KiB, bytes)\n",
+                 checkpoint_copy);
+      return 2;
+    }
+    mc.checkpoint_copy_bytes = *copy;
     mc.memory_budget = *budget;
     mc.finished_cache_bytes = *cache;
     mc.retain_max_age_s = *age;

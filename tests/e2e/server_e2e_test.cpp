@@ -489,6 +489,25 @@ CliResult run_cli(const std::string& args, const std::string& server_url) {
   return r;
 }
 
+// Sizes on the command line are read as sizes (16MiB, bytes): a value that is not one
+// stops the server at start (exit 2) naming the flag, before it listens. "-5" once read
+// as 2^64 - 5 (every checkpoint copied, no pass streamed).
+TEST(ServerE2E, CheckpointCopyBytesFlagRefusesWhatIsNotASize) {
+  for (const std::string bad : {"-5", "x", "1e99", "16 MiB!"}) {
+    const std::string cmd = std::string(TALLY_SERVER_BIN) + " --listen 127.0.0.1:0 --data-dir /nonexistent/never " +
+                            "--checkpoint-copy-bytes '" + bad + "' 2>&1";
+    FILE* p = ::popen(cmd.c_str(), "r");
+    ASSERT_NE(p, nullptr);
+    std::string out;
+    char buf[4096];
+    size_t n;
+    while ((n = std::fread(buf, 1, sizeof buf, p)) > 0) out.append(buf, n);
+    const int st = ::pclose(p);
+    EXPECT_TRUE(WIFEXITED(st) && WEXITSTATUS(st) == 2) << bad << ": " << out;
+    EXPECT_NE(out.find("--checkpoint-copy-bytes " + bad + " is not a size"), std::string::npos) << out;
+  }
+}
+
 // The job id `tally submit` prints on stdout; run_cli merges stderr, where submit first
 // prints the server's prediction ("tally: predicted: ...").
 std::string submitted_id(const std::string& out) {
