@@ -76,6 +76,19 @@ std::optional<std::string_view> glb_json_chunk(std::string_view glb) {
   return glb.substr(20, len);
 }
 
+bool glb_chunks_fit(std::string_view glb) {
+  const std::optional<std::string_view> json = glb_json_chunk(glb);
+  if (!json) return false;
+  size_t at = 20 + json->size();
+  while (at < glb.size()) {
+    if (glb.size() - at < 8) return false;  // a chunk header cut off
+    const uint32_t len = le32(glb, at);
+    if (len > glb.size() - at - 8) return false;  // its data runs past the end
+    at += 8 + static_cast<size_t>(len);
+  }
+  return true;
+}
+
 GltfCensus gltf_census(std::string_view json) {
   GltfCensus out;
   Counter c(out);

@@ -22,6 +22,11 @@ struct GltfCensus {
 // The JSON chunk of a binary glTF (.glb): nullopt when the header or the chunk's length
 // is malformed.
 std::optional<std::string_view> glb_json_chunk(std::string_view glb);
+// Whether every chunk of a .glb after its JSON chunk (the BIN chunk) has a whole header
+// and ends within the file. tinygltf (2.5, Debian's) reads a BIN chunk by its declared
+// length without that check: a chunk claiming more bytes than the file holds was read
+// past the end of the buffer (fuzz_scene_files).
+bool glb_chunks_fit(std::string_view glb);
 
 // Counts what `json` declares. The text must already be within the depth limit; a parse
 // error ends the count (tinygltf reports the error afterwards).

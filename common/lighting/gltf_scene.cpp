@@ -713,6 +713,7 @@ void check_gltf_json(std::string_view bytes, bool binary, const GltfRequest& req
   };
   const std::optional<std::string_view> json = binary ? glb_json_chunk(bytes) : std::optional<std::string_view>(bytes);
   if (!json) throw refuse("the .glb header or its JSON chunk is malformed");
+  if (binary && !glb_chunks_fit(bytes)) throw refuse("a chunk of the .glb runs past the end of the file");
   if (json_nesting_depth(*json, limits.max_file_json_depth) > limits.max_file_json_depth) {
     throw refuse(fmt::format("the JSON nests deeper than {} levels (max_file_json_depth)", limits.max_file_json_depth));
   }

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <cstring>
 #include <filesystem>
 #include <map>
 #include <fstream>
@@ -65,6 +66,35 @@ TEST(SceneFileLimits, DeeplyNestedGltfJsonIsRefusedByItsDepth) {
   EXPECT_EQ(error_of(gltf_shape("three.gltf"), l), "");
   l.max_file_json_depth = 2;
   EXPECT_TRUE(contains(error_of(gltf_shape("three.gltf"), l), "deeper than 2 levels")) << error_of(gltf_shape("three.gltf"), l);
+}
+
+// fuzz_scene_files: a .glb whose BIN chunk declares 108 bytes with 100 left in the file
+// was read past the end by tinygltf (ASan: heap-buffer-overflow). It is refused first.
+TEST(SceneFileLimits, GlbChunkRunningPastTheFileIsRefused) {
+  Dir d("tally_limits_glb_chunk");
+  const std::string js =
+      R"({"asset":{"version":"2.0"},"buffers":[{"byteLength":108}],"bufferViews":[{"buffer":0,"byteLength":96}],)"
+      R"("accessors":[{"bufferView":0,"componentType":5126,"count":8,"type":"VEC3"}],)"
+      R"("meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],"nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}],"scene":0})";
+  const auto with_bin = [&](uint32_t declared, size_t held) {
+    std::string glb = glb_of(js);
+    auto u32 = [&](uint32_t x) { glb.append(reinterpret_cast<const char*>(&x), 4); };
+    u32(declared);
+    u32(0x004E4942u);  // "BIN\0"
+    glb.append(held, '\0');
+    const uint32_t total = static_cast<uint32_t>(glb.size());
+    std::memcpy(glb.data() + 8, &total, 4);
+    return glb;
+  };
+  d.write("assets/short.glb", with_bin(108, 100));
+  const std::string err = error_of(gltf_shape("short.glb"), d.limits());
+  EXPECT_TRUE(contains(err, "a chunk of the .glb runs past the end of the file")) << err;
+  d.write("assets/cut.glb", glb_of(js) + std::string(5, '\0'));  // a chunk header cut off
+  EXPECT_TRUE(contains(error_of(gltf_shape("cut.glb"), d.limits()), "runs past the end")) << error_of(gltf_shape("cut.glb"), d.limits());
+  // The same file with its 108 bytes whole is read (all eight vertices at the origin).
+  d.write("assets/whole.glb", with_bin(108, 108));
+  EXPECT_FALSE(contains(error_of(gltf_shape("whole.glb"), d.limits()), "runs past the end"))
+      << error_of(gltf_shape("whole.glb"), d.limits());
 }
 
 // N2: 4.5 MB of empty nodes took 1.1 GB once tinygltf built them; they are counted first.
