@@ -400,7 +400,7 @@ void RedisExecutor::prefetch() {
 }
 
 void RedisExecutor::deliver(Job& job) {
-  if (!job.ej.stream_groups || !cb_.group_done) return;
+  if (!streams(job)) return;
   {
     std::lock_guard lock(mu_);
     if (job.cancel_requested) return;
@@ -444,7 +444,7 @@ void RedisExecutor::merge(const std::string& id) {
   deliver(*job);
   if (run.got_count < ng) return;  // not complete yet
   // Streamed, with its merges held (a checkpoint): a later poll hands the rest back.
-  if (job->ej.stream_groups && cb_.group_done && run.delivered < ng) return;
+  if (streams(*job) && run.delivered < ng) return;
   const double read_ms = ms_since(t_read);
   const auto t_decode = Clock::now();
   // Streamed: every group went to the manager already (deliver); pass_done gets none.

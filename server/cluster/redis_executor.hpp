@@ -83,6 +83,8 @@ class RedisExecutor final : public Executor {
   // A streamed job's current pass: its groups read so far, from the first not handed
   // back, go to the manager in order (group_done) and leave `got`.
   void deliver(Job& job);
+  // The job's passes are streamed (its groups go through group_done).
+  bool streams(const Job& job) const { return job.ej.stream_groups && static_cast<bool>(cb_.group_done); }
   void prefetch();
   // The job with this id, or null (takes mu_ for the lookup only; a Job is erased only by
   // the coordinator thread, which is the caller).
